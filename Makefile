@@ -1,0 +1,31 @@
+# Two entry points on a fresh machine: `make bench` (the main job) and `make test`.
+# Both bootstrap .venv and a libLLVM >= 16 first.
+PYTHON ?= python3
+VENV   ?= .venv
+PY     := $(VENV)/bin/python
+STAMP  := $(VENV)/.mitsnerf-installed
+
+.PHONY: setup bench test test-slow check clean
+
+setup: $(STAMP)
+
+$(STAMP): pyproject.toml scripts/ensure_llvm.sh
+	PYTHON=$(PYTHON) bash scripts/ensure_llvm.sh
+	test -x $(PY) || $(PYTHON) -m venv $(VENV)
+	$(PY) -m pip install -q --disable-pip-version-check -e '.[test]'
+	touch $(STAMP)
+
+bench: setup
+	$(VENV)/bin/mitsnerf bench $(ARGS)
+
+test: setup
+	$(PY) -m pytest -q -m "not slow" $(ARGS)
+
+test-slow: setup
+	$(PY) -m pytest -q -m slow $(ARGS)
+
+check: setup
+	$(VENV)/bin/mitsnerf check $(ARGS)
+
+clean:
+	rm -rf $(VENV) .pytest_cache build *.egg-info

@@ -1,0 +1,145 @@
+"""The runtime environment: libLLVM for drjit, the Mitsuba variant, provenance.
+
+Import order matters: :func:`mitsnerf._llvm.configure` must run before drjit is
+imported, so ``mitsnerf/__init__.py`` calls :func:`prepare` first thing. Nothing
+here keeps mutable module state: Mitsuba's variant is process-wide by Mitsuba's
+design, and :func:`set_variant` is the one place that sets it.
+
+Variant choice: ``--variant`` on the CLI, else ``$MITSNERF_VARIANT``, else
+``cuda_ad_rgb`` when a CUDA device is usable, else ``llvm_ad_rgb``.
+"""
+
+from __future__ import annotations
+
+import ctypes
+import os
+import platform
+import subprocess
+import warnings
+from functools import lru_cache
+from pathlib import Path
+
+from mitsnerf import _llvm
+
+VARIANT_ENV = "MITSNERF_VARIANT"
+SUPPORTED_VARIANTS = ("llvm_ad_rgb", "cuda_ad_rgb")
+
+
+class EnvironmentError_(RuntimeError):
+    """The machine cannot run mitsnerf as configured (no LLVM, bad variant)."""
+
+
+def cuda_device_count() -> int:
+    """Number of CUDA devices the driver reports (0 without a driver), without drjit."""
+    for name in ("libcuda.so.1", "libcuda.so", "nvcuda.dll"):
+        try:
+            lib = ctypes.CDLL(name)
+        except OSError:
+            continue
+        try:
+            if lib.cuInit(0) != 0:
+                return 0
+            count = ctypes.c_int(0)
+            if lib.cuDeviceGetCount(ctypes.byref(count)) != 0:
+                return 0
+            return int(count.value)
+        except AttributeError:
+            return 0
+    return 0
+
+
+def prepare(environ: dict[str, str] | None = None) -> tuple[str, int] | None:
+    """Make drjit safe to import: point it at a libLLVM >= 16.
+
+    Returns ``(path, version)`` of the library chosen, or None when none is usable
+    but a CUDA device is (then drjit is kept from loading an old LLVM at all).
+    Raises :class:`mitsnerf._llvm.LLVMError` when neither is available.
+    """
+    environ = os.environ if environ is None else environ
+    try:
+        return _llvm.configure(environ)
+    except _llvm.LLVMError:
+        wants_llvm = environ.get(VARIANT_ENV, "").startswith("llvm")
+        if wants_llvm or cuda_device_count() == 0:
+            raise
+        warnings.warn(
+            "no libLLVM >= 16: the LLVM backend is disabled, CUDA only "
+            f"({_llvm.INSTALL_HINT} enables it)",
+            stacklevel=2,
+        )
+        # A path that does not exist keeps drjit from loading an LLVM that would abort it.
+        environ["DRJIT_LIBLLVM_PATH"] = "/nonexistent/libLLVM-disabled.so"
+        return None
+
+
+def default_variant(environ: dict[str, str] | None = None) -> str:
+    """The variant to use when the caller names none (see module docstring)."""
+    environ = os.environ if environ is None else environ
+    requested = environ.get(VARIANT_ENV)
+    if requested:
+        return requested
+    return "cuda_ad_rgb" if cuda_device_count() > 0 else "llvm_ad_rgb"
+
+
+def set_variant(variant: str | None = None) -> str:
+    """Select the Mitsuba variant (``None``: :func:`default_variant`) and return its name."""
+    import mitsuba as mi
+
+    variant = variant or default_variant()
+    if variant not in SUPPORTED_VARIANTS:
+        raise EnvironmentError_(
+            f"variant {variant!r} is not supported; choose one of {', '.join(SUPPORTED_VARIANTS)}"
+        )
+    if variant not in mi.variants():
+        raise EnvironmentError_(f"variant {variant!r} is not built into this Mitsuba")
+    if mi.variant() != variant:
+        try:
+            mi.set_variant(variant)
+        except Exception as exc:  # Mitsuba raises ImportError/RuntimeError by backend
+            raise EnvironmentError_(f"cannot use variant {variant!r}: {exc}") from exc
+    return variant
+
+
+@lru_cache(maxsize=1)
+def git_commit() -> str:
+    """The commit of the checkout mitsnerf runs from ('+dirty' if modified), or 'unknown'."""
+    root = Path(__file__).resolve().parent.parent
+    try:
+        sha = subprocess.run(
+            ["git", "-C", str(root), "rev-parse", "HEAD"],
+            capture_output=True, text=True, timeout=10, check=True,
+        ).stdout.strip()
+        dirty = subprocess.run(
+            ["git", "-C", str(root), "status", "--porcelain", "--untracked-files=no"],
+            capture_output=True, text=True, timeout=10, check=True,
+        ).stdout.strip()
+    except (OSError, subprocess.SubprocessError):
+        return "unknown"
+    return sha + ("+dirty" if dirty else "")
+
+
+def provenance() -> dict[str, object]:
+    """What every output records: variant, library versions, LLVM, commit, machine."""
+    import drjit as dr
+    import mitsuba as mi
+    import numpy as np
+
+    from mitsnerf import __version__
+
+    try:
+        llvm = ".".join(str(v) for v in dr.detail.llvm_version())
+    except Exception:  # no LLVM backend (CUDA-only machine)
+        llvm = None
+    return {
+        "mitsnerf": __version__,
+        "commit": git_commit(),
+        "variant": mi.variant(),
+        "mitsuba": mi.__version__,
+        "drjit": dr.__version__,
+        "llvm": llvm,
+        "libllvm_path": os.environ.get("DRJIT_LIBLLVM_PATH"),
+        "numpy": np.__version__,
+        "python": platform.python_version(),
+        "machine": f"{platform.system()} {platform.machine()}, {os.cpu_count()} cores, "
+        f"{platform.processor() or 'cpu'}",
+    }

@@ -1,0 +1,1 @@
+"""Pure functions: sampling along rays, compositing, metrics. No scene objects, no fields."""
