@@ -31,7 +31,7 @@ class Camera:
     (2.0, 2.0, 1.0)
     >>> o, d = cam.pixel_rays()
     >>> d[0].round(4).tolist()  # top-left pixel: left, up, forward (-z)
-    [-0.6804, 0.2722, -0.6804]
+    [-0.5883, 0.1961, -0.7845]
     """
 
     c2w: np.ndarray = field(repr=False)
