@@ -1,0 +1,34 @@
+"""Errors a user can act on. The CLI prints ``str(error)`` as one line and exits non-zero.
+
+Each names where the problem is (a file and, where it applies, a field in it)::
+
+    >>> str(SpecError("scenes/cloud.toml", "volume.resolution", "must be >= 1, got 0"))
+    'scenes/cloud.toml: volume.resolution: must be >= 1, got 0'
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+
+class MitsnerfError(Exception):
+    """Base class: a problem with the user's input or environment, not a bug."""
+
+    def __init__(self, where: str | Path | None, field: str | None, message: str) -> None:
+        self.where = str(where) if where is not None else None
+        self.field = field
+        self.message = message
+        parts = [p for p in (self.where, field, message) if p]
+        super().__init__(": ".join(parts))
+
+
+class SpecError(MitsnerfError):
+    """A scene or benchmark specification is malformed (file, field, what is wrong)."""
+
+
+class DatasetError(MitsnerfError):
+    """A dataset on disk is missing, incomplete or inconsistent (file, field, what is wrong)."""
+
+
+class TrainingError(MitsnerfError):
+    """Training cannot go on (NaN or diverging loss; the last good checkpoint is kept)."""
