@@ -22,7 +22,9 @@ def stratified_t(t_n, t_f, n: int, u=None):
         delta_i = t_{i+1} - t_i,   delta_{N-1} = t_f - t_{N-1}
 
     so each ``t_i`` lies in its own stratum ``[t_n + i/N (t_f - t_n), t_n + (i+1)/N (t_f - t_n))``
-    and the deltas of a ray sum to ``t_f - t_0``.
+    and the deltas of a ray sum to ``t_f - t_0``: the quadrature covers ``[t_0, t_f]``,
+    leaving out ``[t_n, t_0)`` (expected length ``(t_f - t_n) / 2N``), so its error in
+    optical depth is first order in ``1/N``. ``u_0 = 0`` makes it start at ``t_n``.
 
     Args:
         t_n, t_f: per-ray entry and exit distances, Float of shape (R,).

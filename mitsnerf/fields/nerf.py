@@ -1,0 +1,166 @@
+"""The NeRF field ``F(x, d) -> (c, sigma)`` as a ``drjit.nn`` network in tensor mode.
+
+Architecture (Mildenhall et al. 2020, sizes configurable)::
+
+    p      = (x - box_min) / (box_max - box_min)                  in [0, 1]^3
+    gamma(p) = [p, sin(2 pi 2^k p), cos(2 pi 2^k p)]_{k < L_x}     (drjit.nn.SinEncode, period 1)
+    h      = MLP_trunk(gamma(p))        depth D, width W, ReLU, the input re-injected at `skip`
+    sigma  = softplus(h_0 + sigma_bias) * sigma_scale              (position only)
+    c      = c_max * sigmoid(MLP_head([h_1.., gamma(d)]))           (position features + direction)
+
+Tensor mode (a (C, M) tensor through ``nn.Linear``) is used: on the LLVM backend it
+measured about 3x faster than cooperative vectors (../shared/DRJIT_NOTES.md).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any
+
+import drjit as dr
+import drjit.nn as nn
+
+from mitsnerf.render.rays import BOX_MAX, BOX_MIN
+
+
+@dataclass(frozen=True)
+class NeRFConfig:
+    """Sizes and output scalings of the NeRF network."""
+
+    pos_octaves: int = 8
+    """Frequencies L_x of the positional encoding of x (NeRF: 10)."""
+    dir_octaves: int = 4
+    """Frequencies L_d of the encoding of the view direction (NeRF: 4)."""
+    width: int = 64
+    """Width W of the trunk (NeRF: 256)."""
+    depth: int = 3
+    """Number of hidden layers D of the trunk (NeRF: 8)."""
+    skip: int | None = None
+    """Trunk layer index at which the encoded input is concatenated again (NeRF: 4); None: no skip."""
+    features: int = 15
+    """Position features passed from the trunk to the colour head."""
+    head_width: int = 32
+    """Width of the colour head's hidden layer (NeRF: 128)."""
+    sigma_scale: float = 10.0
+    """Output scale of sigma (world units^-1): softplus(h_0 + sigma_bias) * sigma_scale."""
+    sigma_bias: float = -2.0
+    """Initial bias of the density pre-activation (starts nearly transparent)."""
+    c_max: float = 1.0
+    """Largest colour (radiance) the head can output."""
+
+    def __post_init__(self) -> None:
+        for name in ("pos_octaves", "dir_octaves"):
+            if getattr(self, name) < 0:
+                raise ValueError(f"{name}: must be >= 0, got {getattr(self, name)}")
+        for name in ("width", "depth", "features", "head_width"):
+            if getattr(self, name) < 1:
+                raise ValueError(f"{name}: must be >= 1, got {getattr(self, name)}")
+        if self.skip is not None and not 0 < self.skip < self.depth:
+            raise ValueError(f"skip: must be None or in [1, depth), got {self.skip}")
+        if not (self.sigma_scale > 0 and self.c_max > 0):
+            raise ValueError("sigma_scale, c_max: must be > 0")
+
+
+def softplus(x):
+    """``log(1 + exp(x))``, computed stably (drjit has no log1p)."""
+    return dr.select(x > 15.0, x, dr.log(1.0 + dr.exp(dr.minimum(x, 15.0))))
+
+
+def sigmoid(x):
+    return 1.0 / (1.0 + dr.exp(-x))
+
+
+def _encode(values, octaves: int):
+    """``[v, sin(2 pi 2^k v), cos(2 pi 2^k v)]_{k < L}`` of a (C, M) tensor -> (C (1 + 2L), M)."""
+    if octaves == 0:
+        return values
+    return dr.concat([values, nn.SinEncode(octaves)(values)], axis=0)
+
+
+class NeRFNetwork(nn.Module):
+    """Trunk layers, density/feature output layer, colour head: a ``drjit.nn`` Module.
+
+    Its mapping interface lists every weight and bias by dotted key
+    (``trunk.0.weights``, ...), which is what ``drjit.opt`` optimisers take.
+    """
+
+    DRJIT_STRUCT = {"trunk": list, "out": nn.Linear, "head": list}
+
+    def __init__(self, trunk, out, head):
+        self.trunk = trunk
+        self.out = out
+        self.head = head
+
+
+def build_network(config: NeRFConfig, TensorXf, seed: int = 0) -> NeRFNetwork:
+    """Allocate a network for ``config`` with weights from a seeded generator."""
+    rng = dr.rng(seed=seed)
+    in_pos = 3 * (1 + 2 * config.pos_octaves)
+    in_dir = 3 * (1 + 2 * config.dir_octaves)
+    trunk = []
+    size = in_pos
+    for i in range(config.depth):
+        if config.skip is not None and i == config.skip:
+            size += in_pos
+        layer, size = nn.Linear(size, config.width)._alloc(TensorXf, size, rng)
+        trunk.append(layer)
+    out, _ = nn.Linear(size, 1 + config.features)._alloc(TensorXf, size, rng)
+    out.bias = TensorXf([config.sigma_bias] + [0.0] * config.features)
+    h1, _ = nn.Linear(config.features + in_dir, config.head_width)._alloc(TensorXf, 0, rng)
+    h2, _ = nn.Linear(config.head_width, 3)._alloc(TensorXf, 0, rng)
+    return NeRFNetwork(trunk, out, [h1, h2])
+
+
+@dataclass(frozen=True)
+class NeRFField:
+    """The field callable: ``(x, d) -> (rgb, sigma)`` through a :class:`NeRFNetwork`.
+
+    >>> import mitsuba as mi
+    >>> from mitsnerf.env import set_variant; _ = set_variant("llvm_ad_rgb")
+    >>> f = NeRFField.create(NeRFConfig(width=16, depth=2), mi.TensorXf)
+    >>> rgb, sigma = f(mi.Array3f([0.0, 0.1], 0.0, 0.0), mi.Array3f(0, 0, 1))
+    >>> dr.width(sigma), bool(dr.all(sigma >= 0))
+    (2, True)
+    """
+
+    config: NeRFConfig
+    net: NeRFNetwork
+    box_min: tuple[float, float, float] = BOX_MIN
+    box_max: tuple[float, float, float] = BOX_MAX
+
+    @classmethod
+    def create(cls, config: NeRFConfig, TensorXf, seed: int = 0, box_min=BOX_MIN, box_max=BOX_MAX) -> "NeRFField":
+        return cls(config, build_network(config, TensorXf, seed), tuple(box_min), tuple(box_max))
+
+    def _tensor(self, v, width: int):
+        """A (3, width) tensor of an Array3f (broadcast to ``width``)."""
+        TensorXf = type(self.net.out.weights)
+        if dr.width(v) != width:
+            v = v + dr.zeros(type(v), width)
+        return TensorXf(dr.ravel(v, order="C"), shape=(3, width))
+
+    def _trunk(self, x):
+        lo = dr.scalar.Array3f(self.box_min)
+        p = (x - lo) / (dr.scalar.Array3f(self.box_max) - lo)
+        enc = _encode(self._tensor(p, dr.width(x)), self.config.pos_octaves)
+        h = enc
+        for i, layer in enumerate(self.net.trunk):
+            if self.config.skip is not None and i == self.config.skip:
+                h = dr.concat([h, enc], axis=0)
+            h = dr.maximum(layer(h), 0.0)
+        return self.net.out(h)
+
+    def density(self, x):
+        """``sigma(x)``, Float (M,)."""
+        raw = self._trunk(x)[0].array
+        return softplus(raw) * self.config.sigma_scale
+
+    def __call__(self, x, d):
+        out = self._trunk(x)
+        sigma = softplus(out[0].array) * self.config.sigma_scale
+        feat = out[1:]
+        enc_d = _encode(self._tensor(d, dr.width(x)), self.config.dir_octaves)
+        h = dr.maximum(self.net.head[0](dr.concat([feat, enc_d], axis=0)), 0.0)
+        c = sigmoid(self.net.head[1](h)) * self.config.c_max
+        Array3f = type(x)
+        return Array3f(c[0].array, c[1].array, c[2].array), sigma

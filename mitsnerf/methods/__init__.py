@@ -1,0 +1,35 @@
+"""The registry of methods: name -> (config type, model type).
+
+Adding a method is one module with a frozen config dataclass and a
+:class:`mitsnerf.methods.base.Model`, plus one line below.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from types import MappingProxyType
+from typing import Any
+
+from mitsnerf.methods.nerf import NeRFMethodConfig, NeRFModel
+
+
+@dataclass(frozen=True)
+class MethodEntry:
+    name: str
+    config_type: type
+    model_type: type
+    description: str
+
+
+METHODS = MappingProxyType(
+    {
+        "nerf": MethodEntry("nerf", NeRFMethodConfig, NeRFModel, "positional-encoding MLP, stratified samples"),
+    }
+)
+
+
+def get_method(name: str) -> MethodEntry:
+    try:
+        return METHODS[name]
+    except KeyError:
+        raise KeyError(f"unknown method {name!r}; known: {', '.join(sorted(METHODS))}") from None
