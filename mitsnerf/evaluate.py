@@ -4,13 +4,14 @@ from __future__ import annotations
 
 import time
 from dataclasses import dataclass, field
-from typing import Sequence
+from typing import Any, Callable, Sequence
 
 import drjit as dr
 import mitsuba as mi
 import numpy as np
 
 from mitsnerf.math.camera import Camera
+from mitsnerf.math.composite import Composite
 from mitsnerf.math.metrics import psnr, ssim
 from mitsnerf.methods.base import Model
 from mitsnerf.render.rays import camera_rays_numpy, to_array3f
@@ -25,15 +26,26 @@ class Rendered:
     depth: np.ndarray
 
 
-def render_camera(model: Model, camera: Camera, chunk_rays: int = 1 << 14, pixel_center: float = 0.5) -> Rendered:
-    """Render every pixel of ``camera`` through ``model`` (deterministic midpoint samples)."""
+RenderFn = Callable[[Any, Any], Composite]
+"""``(o, d) -> Composite``: anything that renders a batch of rays."""
+
+
+def model_renderer(model: Model) -> RenderFn:
+    """The deterministic (midpoint-sample) renderer of a trained model."""
+    return lambda o, d: model.render_rays(o, d, u=None, training=False).composite
+
+
+def render_camera(render: RenderFn | Model, camera: Camera, chunk_rays: int = 1 << 14, pixel_center: float = 0.5) -> Rendered:
+    """Render every pixel of ``camera`` with ``render`` (a :data:`RenderFn` or a model)."""
+    if isinstance(render, Model):
+        render = model_renderer(render)
     o_np, d_np = camera_rays_numpy([camera], pixel_center)
     rgb, opacity, depth = [], [], []
     with dr.suspend_grad():
         for start in range(0, len(o_np), chunk_rays):
             o = to_array3f(mi.Array3f, o_np[start:start + chunk_rays])
             d = to_array3f(mi.Array3f, d_np[start:start + chunk_rays])
-            comp = model.render_rays(o, d, u=None, training=False).composite
+            comp = render(o, d)
             rgb.append(np.stack([np.asarray(c, dtype=np.float32) for c in comp.rgb], axis=-1))
             opacity.append(np.asarray(comp.opacity, dtype=np.float32))
             depth.append(np.asarray(comp.depth, dtype=np.float32))

@@ -1,0 +1,1 @@
+"""Benchmark sweeps: configurations, the runner, tables."""

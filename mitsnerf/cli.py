@@ -1,0 +1,181 @@
+"""``mitsnerf``: the command line. Argument parsing only; each command calls into the package.
+
+Errors the user can act on (bad spec, missing data, no LLVM, NaN loss) print one line
+``mitsnerf: error: FILE: FIELD: what`` and exit with status 2.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from pathlib import Path
+
+
+def _parse_value(text: str):
+    """A CLI override value: JSON where it parses (numbers, lists, true/false), else a string."""
+    try:
+        return json.loads(text)
+    except json.JSONDecodeError:
+        return text
+
+
+def _overrides(pairs: list[str] | None) -> dict:
+    out = {}
+    for pair in pairs or []:
+        key, sep, value = pair.partition("=")
+        if not sep or not key:
+            raise ValueError(f"--set {pair!r}: expected KEY=VALUE")
+        out[key.strip()] = _parse_value(value)
+    return out
+
+
+def _nest(flat: dict) -> dict:
+    """``{"a.b": 1}`` -> ``{"a": {"b": 1}}`` (for dataclass configs built from tables)."""
+    out: dict = {}
+    for key, value in flat.items():
+        node = out
+        parts = key.split(".")
+        for part in parts[:-1]:
+            node = node.setdefault(part, {})
+        node[parts[-1]] = value
+    return out
+
+
+def cmd_env(args) -> int:
+    from mitsnerf import env
+
+    print(json.dumps(env.provenance(), indent=2))
+    return 0
+
+
+def cmd_scenes(args) -> int:
+    from mitsnerf.scene.spec import list_scenes, load_scene
+
+    for name in list_scenes():
+        spec = load_scene(name)
+        print(f"{name:16s} {spec.description}")
+    return 0
+
+
+def cmd_generate(args) -> int:
+    from mitsnerf.scene.generate import generate_all, generate_dataset
+    from mitsnerf.scene.spec import load_scene
+
+    if args.all:
+        for path in generate_all(Path(args.out), force=args.force):
+            print(path)
+        return 0
+    if not args.scene:
+        raise ValueError("generate: name a SCENE or pass --all")
+    spec = load_scene(args.scene)
+    if args.set:
+        spec = spec.with_overrides(_overrides(args.set))
+    print(generate_dataset(spec, Path(args.out), force=args.force))
+    return 0
+
+
+def cmd_train(args) -> int:
+    from mitsnerf.config import from_dict
+    from mitsnerf.data.dataset import load_dataset
+    from mitsnerf.run import fit
+    from mitsnerf.train import TrainConfig
+
+    dataset = load_dataset(Path(args.dataset), pixel_center=args.pixel_center,
+                           background=args.background)
+    train_values = {k: v for k, v in {"steps": args.steps, "seconds": args.seconds,
+                                      "batch_rays": args.batch_rays, "lr": args.lr,
+                                      "seed": args.seed}.items() if v is not None}
+    train_config = from_dict(TrainConfig, train_values)
+    run = fit(dataset, args.method, _nest(_overrides(args.set)), train_config, Path(args.out))
+    metrics = run.metrics()
+    print(f"{args.method}: test PSNR {metrics['psnr_test']:.2f} dB (per view: "
+          + ", ".join(f"{p:.2f}" for p in metrics["psnr_test_per_view"])
+          + f"), train PSNR {metrics['psnr_train']:.2f} dB, {metrics['train_seconds']:.1f} s, "
+          f"{metrics['rays_per_s']:.0f} rays/s -> {args.out}")
+    return 0
+
+
+def cmd_bench(args) -> int:
+    from mitsnerf.bench.config import load_bench_config
+    from mitsnerf.bench.runner import BenchOptions, default_data_root, run_benchmark
+
+    config = load_bench_config(args.config)
+    options = BenchOptions(
+        quick=args.quick,
+        data_root=Path(args.data) if args.data else default_data_root(),
+        results_root=Path(args.results),
+        progress=not args.no_progress,
+    )
+    _, table = run_benchmark(config, options)
+    print(table)
+    return 0
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(prog="mitsnerf", description=__doc__.splitlines()[0])
+    parser.add_argument("--variant", help="Mitsuba variant (default: $MITSNERF_VARIANT, else cuda_ad_rgb if a GPU is usable, else llvm_ad_rgb)")
+    sub = parser.add_subparsers(dest="command", required=True)
+
+    p = sub.add_parser("env", help="print the environment: variant, versions, LLVM, commit")
+    p.set_defaults(func=cmd_env)
+
+    p = sub.add_parser("scenes", help="list the scene library")
+    p.set_defaults(func=cmd_scenes)
+
+    p = sub.add_parser("generate", help="render a scene's ground-truth dataset with Mitsuba's volpath")
+    p.add_argument("scene", nargs="?", help="scene name (scenes/NAME.toml) or path to a spec")
+    p.add_argument("--out", default="data", help="dataset root; the dataset goes to OUT/NAME-HASH (default: data)")
+    p.add_argument("--all", action="store_true", help="render every scene of the library")
+    p.add_argument("--force", action="store_true", help="render again even if cached")
+    p.add_argument("--set", action="append", metavar="KEY=VALUE", help="override a spec field, e.g. cameras.width=32")
+    p.set_defaults(func=cmd_generate)
+
+    p = sub.add_parser("train", help="fit a method to a dataset and evaluate it on the test views")
+    p.add_argument("dataset", help="dataset directory (mitsnerf generate output or NeRF-synthetic)")
+    p.add_argument("--out", required=True, help="run directory to write")
+    p.add_argument("--method", default="nerf")
+    p.add_argument("--steps", type=int)
+    p.add_argument("--seconds", type=float)
+    p.add_argument("--batch-rays", type=int)
+    p.add_argument("--lr", type=float)
+    p.add_argument("--seed", type=int)
+    p.add_argument("--set", action="append", metavar="KEY=VALUE", help="method config override, e.g. network.width=128")
+    p.add_argument("--pixel-center", type=float, help="0.5 (Mitsuba, mitsnerf) or 0 (original NeRF loader); default from the data")
+    p.add_argument("--background", type=float, nargs=3, metavar=("R", "G", "B"), help="background for foreign PNG data (default white)")
+    p.set_defaults(func=cmd_train)
+
+    p = sub.add_parser("bench", help="run a benchmark and print its table")
+    p.add_argument("config", nargs="?", default="default", help="benchmarks/NAME.toml or a path (default: default)")
+    p.add_argument("--quick", action="store_true", help="the config's quick profile (tiny scenes, few steps)")
+    p.add_argument("--data", help="dataset cache root (default: $MITSNERF_DATA or ./data)")
+    p.add_argument("--results", default="results", help="results root (default: results)")
+    p.add_argument("--no-progress", action="store_true")
+    p.set_defaults(func=cmd_bench)
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    try:
+        import mitsnerf  # noqa: F401  (finds libLLVM before drjit loads)
+        from mitsnerf import env
+
+        env.set_variant(args.variant)
+        return int(args.func(args) or 0)
+    except KeyboardInterrupt:
+        print("mitsnerf: interrupted", file=sys.stderr)
+        return 130
+    except Exception as exc:  # one line for errors a user can act on; tracebacks for bugs
+        from mitsnerf._llvm import LLVMError
+        from mitsnerf.errors import MitsnerfError
+
+        if isinstance(exc, (MitsnerfError, LLVMError, ValueError, FileNotFoundError)) or type(exc).__name__ == "EnvironmentError_":
+            print(f"mitsnerf: error: {exc}", file=sys.stderr)
+            return 2
+        raise
+
+
+if __name__ == "__main__":  # pragma: no cover
+    sys.exit(main())
