@@ -20,6 +20,17 @@ from typing import Any
 import drjit as dr
 
 
+def one_minus_exp_neg(tau):
+    """``1 - exp(-tau)`` without float32 cancellation for small ``tau`` (Taylor below 1e-2).
+
+    >>> from drjit.llvm import Float
+    >>> one_minus_exp_neg(Float(1e-6, 1.0))  # doctest: +ELLIPSIS
+    [1e-06, 0.6321...]
+    """
+    taylor = tau * (1.0 - tau * (0.5 - tau * (1.0 / 6.0)))
+    return dr.select(tau < 1e-2, taylor, 1.0 - dr.exp(-tau))
+
+
 def alpha(sigma, delta):
     """Opacity of each interval: ``1 - exp(-sigma * delta)``.
 
@@ -27,7 +38,7 @@ def alpha(sigma, delta):
     >>> alpha(Float(0.0, 1.0), Float(1.0, 2.0))  # doctest: +ELLIPSIS
     [0, 0.8646...]
     """
-    return 1.0 - dr.exp(-sigma * delta)
+    return one_minus_exp_neg(sigma * delta)
 
 
 def transmittance(sigma, delta, n: int):
@@ -54,7 +65,7 @@ def weights(sigma, delta, n: int):
     """
     tau = sigma * delta
     T = dr.exp(-dr.block_prefix_sum(tau, n, exclusive=True))
-    w = T * (1.0 - dr.exp(-tau))
+    w = T * one_minus_exp_neg(tau)
     T_final = dr.exp(-dr.block_sum(tau, n))
     return w, T_final
 
@@ -102,6 +113,6 @@ def composite(sigma, delta, rgb, n: int, background=0.0, t=None) -> Composite:
     """
     w, T_final = weights(sigma, delta, n)
     color = dr.block_sum(w * rgb, n) + T_final * background
-    opacity = 1.0 - T_final
+    opacity = one_minus_exp_neg(dr.block_sum(sigma * delta, n))
     depth = dr.block_sum(w * t, n) if t is not None else dr.zeros(type(T_final), dr.width(T_final))
     return Composite(rgb=color, opacity=opacity, depth=depth, T_final=T_final)
