@@ -8,14 +8,10 @@ written inside a temporary directory and renamed when complete.
 
 from __future__ import annotations
 
-import json
-import time
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Mapping
 
-import drjit as dr
-import mitsuba as mi
 import numpy as np
 
 from mitsnerf import env
@@ -113,7 +109,7 @@ def fit(
     """Train ``method`` on ``dataset`` and evaluate it on every test view."""
     train_views = dataset.views("train")
     test_views = dataset.views("test")
-    pixel_center = dataset.pixel_center
+    pixel_center = train_views.pixel_center
     info = scene_info(dataset, train_views.images)
     model, config = build_model(method, method_overrides, info, train_config.seed)
     base_lr = train_config.lr or getattr(config, "lr", 1e-2)
