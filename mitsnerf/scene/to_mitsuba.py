@@ -1,0 +1,127 @@
+"""A :class:`~mitsnerf.scene.spec.SceneSpec` as a Mitsuba scene, its sensors, and its background.
+
+The scene (``docs/conventions.md``, "World and volume"): a ``cube`` scaled to the box
+``[-0.5, 0.5]^3`` with a ``null`` BSDF and a ``heterogeneous`` interior medium whose ``sigma_t``
+and ``albedo`` are ``gridvolume`` s (``to_world = translate(-0.5)``, ``accel = False``: no reduced
+precision hardware interpolation on CUDA), medium ``scale = 1`` (the grid holds true sigma_t),
+an isotropic phase function, a ``volpath`` integrator and the spec's emitters. Sensors are not
+part of the scene: render each view with ``mi.render(scene, sensor=load_sensor(camera, spp), ...)``.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+
+from mitsnerf.math.camera import Camera
+from mitsnerf.scene.lights import SKY_TO_WORLD, emitter_dict
+from mitsnerf.scene.spec import ConstantLight, SceneSpec, SkyLight
+
+#: Where a dataset keeps the sky's bitmap (relative to the dataset directory).
+ENVMAP_FILE = "volume/envmap.exr"
+
+
+def volume_grids(spec: SceneSpec) -> tuple[np.ndarray, np.ndarray]:
+    """``(sigma_t float32 (R, R, R), albedo float32 (R, R, R, 3))`` of the spec, ``[z, y, x]``.
+
+    ``sigma_t = volume.sigma_t_scale * density``; deterministic in the spec.
+    """
+    from mitsnerf.volumes import generate_volume
+
+    v = spec.volume
+    grids = generate_volume(v.family, v.resolution, v.seed, dict(v.params))
+    sigma_t = (np.float32(v.sigma_t_scale) * np.asarray(grids.density, dtype=np.float32)).astype(np.float32)
+    return np.ascontiguousarray(sigma_t), np.ascontiguousarray(grids.albedo, dtype=np.float32)
+
+
+def _grid(data: np.ndarray) -> dict[str, Any]:
+    import mitsuba as mi
+
+    return {
+        "type": "gridvolume",
+        "grid": mi.VolumeGrid(np.ascontiguousarray(data, dtype=np.float32)),
+        "to_world": mi.ScalarTransform4f().translate(-0.5),
+        "accel": False,
+    }
+
+
+def scene_dict(spec: SceneSpec, sigma_t: np.ndarray, albedo: np.ndarray) -> dict[str, Any]:
+    """The ``mi.load_dict`` dictionary of the scene (no sensor), for the current Mitsuba variant."""
+    import mitsuba as mi
+
+    r = sigma_t.shape[0]
+    if sigma_t.shape != (r, r, r) or albedo.shape != (r, r, r, 3):
+        raise ValueError(f"grids must be (R, R, R) and (R, R, R, 3), got {sigma_t.shape} and {albedo.shape}")
+    d: dict[str, Any] = {
+        "type": "scene",
+        "integrator": {"type": "volpath", "max_depth": int(spec.render.max_depth)},
+        "medium_box": {
+            "type": "cube",
+            "to_world": mi.ScalarTransform4f().scale(0.5),
+            "bsdf": {"type": "null"},
+            "interior": {
+                "type": "heterogeneous",
+                "scale": 1.0,
+                "phase": {"type": "isotropic"},
+                "sigma_t": _grid(sigma_t),
+                "albedo": _grid(albedo),
+            },
+        },
+    }
+    for i, light in enumerate(spec.lights):
+        d[f"light_{i}_{light.type}"] = emitter_dict(light)
+    return d
+
+
+def sensor_dict(camera: Camera, spp: int) -> dict[str, Any]:
+    """A ``perspective`` sensor for ``camera``: horizontal fov, box filter, RGBA ``hdrfilm``."""
+    import mitsuba as mi
+
+    if not camera.is_centred():
+        raise ValueError("only centred cameras (cx = W/2, cy = H/2) map onto a Mitsuba perspective sensor")
+    if abs(camera.fl_x - camera.fl_y) > 1e-9 * camera.fl_x:
+        raise ValueError("only square pixels (fl_x == fl_y) map onto a Mitsuba perspective sensor")
+    return {
+        "type": "perspective",
+        "fov_axis": "x",
+        "fov": float(camera.fov_x_deg),
+        "to_world": mi.ScalarTransform4f(np.asarray(camera.mitsuba_to_world(), dtype=np.float64)),
+        "sampler": {"type": "independent", "sample_count": int(spp)},
+        "film": {
+            "type": "hdrfilm",
+            "width": int(camera.width),
+            "height": int(camera.height),
+            "rfilter": {"type": "box"},
+            "pixel_format": "rgba",
+        },
+    }
+
+
+def load_sensor(camera: Camera, spp: int):
+    """``mi.load_dict(sensor_dict(camera, spp))``."""
+    import mitsuba as mi
+
+    return mi.load_dict(sensor_dict(camera, spp))
+
+
+def background_description(spec: SceneSpec) -> dict[str, Any]:
+    """What camera rays that miss the medium see (for a NeRF to composite ``T_N * background``).
+
+    - constant environment: ``{"type": "constant", "radiance": [r, g, b]}``;
+    - sky: ``{"type": "envmap", "file": "volume/envmap.exr", "to_world": 4x4, "scale": s}``, looked up
+      as :func:`mitsnerf.scene.lights.envmap_eval` describes (the dataset holds the bitmap);
+    - no environment (directional and point lights only; camera rays never see those):
+      ``{"type": "constant", "radiance": [0, 0, 0]}``.
+    """
+    env = spec.environment
+    if isinstance(env, ConstantLight):
+        return {"type": "constant", "radiance": [float(c) for c in env.radiance]}
+    if isinstance(env, SkyLight):
+        return {
+            "type": "envmap",
+            "file": ENVMAP_FILE,
+            "to_world": SKY_TO_WORLD.tolist(),
+            "scale": float(env.scale),
+        }
+    return {"type": "constant", "radiance": [0.0, 0.0, 0.0]}
