@@ -58,6 +58,7 @@ def render_rays(
     background: Callable[[Any], Any] | float | None = None,
     box_min=BOX_MIN,
     box_max=BOX_MAX,
+    composite_fn: Callable[..., Composite] = composite,
 ) -> Composite:
     """Render rays through ``field`` with the emission-absorption quadrature.
 
@@ -67,6 +68,9 @@ def render_rays(
         n_samples: N, samples per ray.
         u: Float (R*N,) jitter in [0, 1) (training), or None for stratum midpoints.
         background: callable ``d -> Array3f`` (R,), a constant, or None (black).
+        composite_fn: the compositing step, called as ``composite_fn(sigma, delta, rgb, n,
+            background=..., t=...)``; default :func:`mitsnerf.math.composite.composite`.
+            Verification injects deliberately broken variants here (mitsnerf.verify).
 
     Returns a :class:`mitsnerf.math.composite.Composite` of per-ray (R,) values.
 
@@ -93,4 +97,4 @@ def render_rays(
         bg = background(d)
     else:
         bg = background
-    return composite(sigma, s.delta, rgb, n_samples, background=bg, t=s.t)
+    return composite_fn(sigma, s.delta, rgb, n_samples, background=bg, t=s.t)
