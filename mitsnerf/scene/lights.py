@@ -43,8 +43,8 @@ def sky_radiance(sky: SkyLight, directions: np.ndarray) -> np.ndarray:
     d = d / np.linalg.norm(d, axis=-1, keepdims=True)
     h = d[:, 2:3]
     zenith, horizon, ground = (np.asarray(c, dtype=np.float64) for c in (sky.zenith, sky.horizon, sky.ground))
-    up = horizon + (zenith - horizon) * np.sqrt(np.clip(h, 0.0, 1.0))
-    down = horizon + (ground - horizon) * np.sqrt(np.clip(-h, 0.0, 1.0))
+    up = horizon + (zenith - horizon) * (1.0 - np.square(1.0 - np.clip(h, 0.0, 1.0)))
+    down = horizon + (ground - horizon) * (1.0 - np.square(1.0 - np.clip(-h, 0.0, 1.0)))
     rad = np.where(h >= 0.0, up, down)
     if sky.sun_direction is not None and any(sky.sun_glow):
         to_sun = -np.asarray(sky.sun_direction, dtype=np.float64)

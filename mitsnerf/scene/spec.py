@@ -288,8 +288,8 @@ class SkyLight(LightSpec):
 
     Radiance seen in world direction ``d`` (unit), ``h = d.z``::
 
-        h >= 0:  horizon + (zenith - horizon) * sqrt(h)
-        h <  0:  horizon + (ground - horizon) * sqrt(-h)
+        h >= 0:  horizon + (zenith - horizon) * (1 - (1 - h)^2)
+        h <  0:  horizon + (ground - horizon) * (1 - (1 + h)^2)
         + sun_glow * exp(sun_sharpness * (dot(d, -sun_direction) - 1))   (when sun_direction is set)
 
     all times ``scale``. ``sun_direction`` is the direction sunlight *travels* (as a
@@ -398,9 +398,19 @@ class CameraRigSpec:
             width=t.int("width", lo=1, hi=8192),
             height=t.int("height", lo=1, hi=8192),
             fov=t.float("fov", lo=0.0, hi=180.0, lo_open=True, hi_open=True),
-            radius=t.float("radius", lo=MIN_CAMERA_RADIUS, hi=1e4, lo_open=True),
+            radius=cls._radius(t),
             seed=t.int("seed", 0, lo=0, hi=2**32 - 1),
         )
+
+    @staticmethod
+    def _radius(t: _Table) -> float:
+        radius = t.float("radius", lo=0.0, hi=1e4, lo_open=True)
+        if radius <= MIN_CAMERA_RADIUS:
+            raise t.error(
+                "radius",
+                f"must be > {MIN_CAMERA_RADIUS:.4f} (outside the scene box's bounding sphere), got {radius:g}",
+            )
+        return radius
 
     def to_dict(self) -> dict[str, Any]:
         return dataclasses.asdict(self)

@@ -1,0 +1,197 @@
+"""Scene specs: parsing, round trips, overrides, hashes, the library, and every malformed-spec path."""
+
+from __future__ import annotations
+
+import copy
+
+import pytest
+
+from mitsnerf.errors import SpecError
+from mitsnerf.scene.spec import (
+    ConstantLight,
+    DirectionalLight,
+    SkyLight,
+    list_scenes,
+    load_scene,
+    parse_scene,
+    scenes_dir,
+)
+
+from .conftest import TINY
+
+DELETE = object()
+
+
+def _set(d: dict, path: str, value) -> dict:
+    node = d
+    parts = path.split(".")
+    for p in parts[:-1]:
+        node = node[int(p)] if isinstance(node, list) else node[p]
+    last = parts[-1]
+    if isinstance(node, list):
+        node[int(last)] = value
+    elif value is DELETE:
+        del node[last]
+    else:
+        node[last] = value
+    return d
+
+
+def test_parse_fields(tiny_spec):
+    assert tiny_spec.name == "tiny"
+    assert tiny_spec.volume.family == "cloud" and tiny_spec.volume.resolution == 16
+    assert tiny_spec.volume.params["albedo"] == (0.8, 0.8, 0.8)
+    assert "octaves" in tiny_spec.volume.params  # family defaults are filled in
+    assert isinstance(tiny_spec.lights[0], ConstantLight) and isinstance(tiny_spec.lights[1], DirectionalLight)
+    assert tiny_spec.environment == tiny_spec.lights[0]
+    assert tiny_spec.cameras.width == 8 and tiny_spec.render.spp_test == 8
+    with pytest.raises(AttributeError):
+        tiny_spec.name = "x"  # frozen
+    with pytest.raises(TypeError):
+        tiny_spec.volume.params["albedo"] = (1, 1, 1)  # read-only mapping
+
+
+def test_defaults_and_int_as_float(tiny_dict):
+    del tiny_dict["description"], tiny_dict["volume"]["seed"], tiny_dict["render"]["max_depth"]
+    del tiny_dict["render"]["noise_floor"], tiny_dict["cameras"]["seed"]
+    tiny_dict["volume"]["sigma_t_scale"] = 30
+    spec = parse_scene(tiny_dict, "t")
+    assert spec.description == "" and spec.volume.seed == 0 and spec.render.max_depth == -1
+    assert spec.render.noise_floor is True and spec.volume.sigma_t_scale == 30.0
+    assert isinstance(spec.volume.sigma_t_scale, float)
+
+
+def test_round_trip(tiny_spec):
+    d = tiny_spec.to_dict()
+    again = parse_scene(d, "copy")
+    assert again == tiny_spec
+    assert again.to_dict() == d
+    sky = parse_scene(_set(copy.deepcopy(TINY), "lights.0", {"type": "sky", "zenith": [0.1, 0.2, 0.9],
+                                                           "horizon": [1, 1, 1], "ground": [0.2, 0.2, 0.2]}), "s")
+    assert isinstance(sky.lights[0], SkyLight) and sky.lights[0].sun_direction is None
+    assert parse_scene(sky.to_dict(), "s2") == sky
+
+
+def test_overrides(tiny_spec):
+    small = tiny_spec.with_overrides({"cameras.width": 16, "render.spp_test": 2, "lights.0.radiance": [1, 1, 1],
+                                      "volume.params.octaves": 2})
+    assert small.cameras.width == 16 and small.render.spp_test == 2
+    assert small.lights[0].radiance == (1.0, 1.0, 1.0) and small.volume.params["octaves"] == 2
+    assert tiny_spec.cameras.width == 8  # the original is untouched
+    with pytest.raises(SpecError) as e:
+        tiny_spec.with_overrides({"cameras.width": 0})
+    assert e.value.field == "cameras.width" and "with overrides" in e.value.where
+    with pytest.raises(SpecError) as e:
+        tiny_spec.with_overrides({"cameras.nope": 1})
+    assert e.value.field == "cameras.nope"
+    with pytest.raises(SpecError) as e:
+        tiny_spec.with_overrides({"lights.7.radiance": [1, 1, 1]})
+    assert e.value.field == "lights.7.radiance"
+
+
+def test_hash_stable_and_sensitive(tiny_spec, tiny_dict):
+    h = tiny_spec.content_hash()
+    assert len(h) == 64 and h == tiny_spec.content_hash()
+    assert parse_scene(tiny_spec.to_dict(), "other source").content_hash() == h
+    reordered = {k: tiny_dict[k] for k in reversed(list(tiny_dict))}
+    reordered["volume"]["sigma_t_scale"] = 30  # int for float: same spec
+    assert parse_scene(reordered, "r").content_hash() == h
+    assert tiny_spec.with_overrides({"description": "reworded"}).content_hash() == h
+    for key, value in [("render.seed", 1), ("cameras.width", 9), ("volume.sigma_t_scale", 31.0),
+                       ("volume.params.octaves", 2), ("lights.1.irradiance", [4, 3.8, 3.6]), ("name", "tiny2")]:
+        assert tiny_spec.with_overrides({key: value}).content_hash() != h, key
+    assert tiny_spec.content_hash({"mitsuba": "3.9.1"}) != h
+    assert tiny_spec.content_hash({"mitsuba": "3.9.1"}) != tiny_spec.content_hash({"mitsuba": "3.9.2"})
+
+
+def test_library_loads_and_names_resolve():
+    names = list_scenes()
+    assert {"cloud", "cloud_thick", "plume", "blobs", "shell", "lattice", "nebula"} <= set(names)
+    families = set()
+    for name in names:
+        spec = load_scene(name)
+        assert spec.name == name
+        families.add(spec.volume.family)
+        assert load_scene(scenes_dir() / f"{name}.toml") == spec
+    assert families >= {"cloud", "plume", "blobs", "shell", "lattice", "nebula"}
+    cloud = load_scene("cloud")
+    assert (cloud.cameras.width, cloud.cameras.n_train, cloud.cameras.n_test) == (64, 40, 8)
+    assert (cloud.render.spp_train, cloud.render.spp_test, cloud.volume.resolution) == (64, 512, 64)
+
+
+def test_unknown_name_lists_known():
+    with pytest.raises(SpecError, match=r"unknown scene 'no_such_scene' \(known: .*cloud"):
+        load_scene("no_such_scene")
+
+
+def test_scenes_dir_env_override(tmp_path, monkeypatch):
+    (tmp_path / "mine.toml").write_text((scenes_dir() / "cloud.toml").read_text().replace('"cloud"\ndesc', '"mine"\ndesc'))
+    monkeypatch.setenv("MITSNERF_SCENES", str(tmp_path))
+    assert list_scenes() == ["mine"]
+    assert load_scene("mine").volume.family == "cloud"
+
+
+def test_missing_file_and_toml_syntax(tmp_path):
+    with pytest.raises(SpecError, match="no such spec file") as e:
+        load_scene(tmp_path / "absent.toml")
+    assert e.value.where == str(tmp_path / "absent.toml")
+    bad = tmp_path / "bad.toml"
+    bad.write_text('name = "x"\n[volume]\nfamily = \n')
+    with pytest.raises(SpecError, match=r"TOML syntax error: .*line 3") as e:
+        load_scene(bad)
+    assert e.value.where == str(bad)
+
+
+MALFORMED = [
+    ("unknown family", "volume.family", "smoke", "volume.family", "unknown volume family"),
+    ("unknown field", "volume.resolutoin", 64, "volume.resolutoin", "did you mean 'resolution'"),
+    ("unknown top-level field", "colour", 1, "colour", "unknown field"),
+    ("missing field", "cameras.fov", DELETE, "cameras.fov", "missing field"),
+    ("missing table", "render", DELETE, "render", "missing field"),
+    ("wrong type", "cameras.width", "64", "cameras.width", "must be an integer"),
+    ("bool for int", "render.spp_test", True, "render.spp_test", "must be an integer"),
+    ("table expected", "volume", 3, "volume", "must be a table"),
+    ("negative sigma_t_scale", "volume.sigma_t_scale", -1.0, "volume.sigma_t_scale", "> 0"),
+    ("zero sigma_t_scale", "volume.sigma_t_scale", 0, "volume.sigma_t_scale", "> 0"),
+    ("resolution 0", "volume.resolution", 0, "volume.resolution", "in [8, 512]"),
+    ("resolution too big", "volume.resolution", 1024, "volume.resolution", "in [8, 512]"),
+    ("bad rig", "cameras.rig", "spiral", "cameras.rig", "one of 'sphere'"),
+    ("n_train 0", "cameras.n_train", 0, "cameras.n_train", "in [1, 10000]"),
+    ("n_test 0", "cameras.n_test", 0, "cameras.n_test", "in [1, 10000]"),
+    ("fov 0", "cameras.fov", 0.0, "cameras.fov", "in (0, 180)"),
+    ("fov 180", "cameras.fov", 180, "cameras.fov", "in (0, 180)"),
+    ("camera inside the box", "cameras.radius", 0.5, "cameras.radius", "> 0.8660 (outside the scene box"),
+    ("max_depth 0", "render.max_depth", 0, "render.max_depth", "-1 (unlimited) or >= 1"),
+    ("noise_floor not bool", "render.noise_floor", "yes", "render.noise_floor", "true or false"),
+    ("bad name", "name", "a/b", "name", "must be letters"),
+    ("unknown light type", "lights.0.type", "spot", "lights.0.type", "unknown light type 'spot'"),
+    ("light without type", "lights.0.type", DELETE, "lights.0.type", "missing field"),
+    ("unknown light field", "lights.0.colour", [1, 1, 1], "lights.0.colour", "unknown field"),
+    ("bad vector length", "lights.1.direction", [1.0, 2.0], "lights.1.direction", "got 2 values"),
+    ("vector of strings", "lights.0.radiance", ["a", "b", "c"], "lights.0.radiance", "3 numbers"),
+    ("negative radiance", "lights.0.radiance", [1, -1, 1], "lights.0.radiance", ">= 0"),
+    ("zero direction", "lights.1.direction", [0, 0, 0], "lights.1.direction", "not all zero"),
+    ("no lights", "lights", [], "lights", "one or more"),
+    ("two environments", "lights.1", {"type": "constant", "radiance": [1, 1, 1]}, "lights.1.type", "at most one environment"),
+    ("bad family parameter", "volume.params.octaves", 0, "volume.params.octaves", ">= 1"),
+    ("unknown family parameter", "volume.params.fluffiness", 1.0, "volume.params.fluffiness", "unknown parameter"),
+]
+
+
+@pytest.mark.parametrize("case,path,value,field,message", MALFORMED, ids=[m[0] for m in MALFORMED])
+def test_malformed_spec_names_the_field(tiny_dict, case, path, value, field, message):
+    _set(tiny_dict, path, value)
+    with pytest.raises(SpecError) as e:
+        parse_scene(tiny_dict, "scenes/bad.toml")
+    assert e.value.where == "scenes/bad.toml"
+    assert e.value.field == field
+    assert message in e.value.message
+    assert str(e.value).startswith(f"scenes/bad.toml: {field}: ")
+
+
+def test_malformed_file_reports_the_file(tmp_path):
+    path = tmp_path / "bad.toml"
+    path.write_text((scenes_dir() / "cloud.toml").read_text().replace("resolution = 64", "resolution = 0"))
+    with pytest.raises(SpecError) as e:
+        load_scene(path)
+    assert (e.value.where, e.value.field) == (str(path), "volume.resolution")
