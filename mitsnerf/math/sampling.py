@@ -132,3 +132,104 @@ def sample_pdf(bins, weights, n_bins: int, n: int, u=None, eps: float = 1e-5):
     e1 = dr.gather(Float, dr.detach(bins), e_base + 1)
     frac = dr.clip((target - c_k) / dr.maximum(w_k, 1e-20), 0.0, 1.0)
     return e0 + frac * (e1 - e0)
+
+
+def _count_before(values, n_values: int, queries, n_queries: int, inclusive: bool):
+    """Per ray, how many of the ray's (sorted) ``values`` lie before each of its ``queries``.
+
+    Counts ``v < q`` (``inclusive=False``) or ``v <= q`` (``inclusive=True``) by a
+    binary search in the ray's block of ``n_values`` entries; UInt32 of shape (R*n_queries,).
+    """
+    Float = type(queries)
+    UInt32 = dr.uint32_array_t(Float)
+    n_rays = dr.width(queries) // n_queries
+    ray = dr.arange(UInt32, n_rays * n_queries) // n_queries
+    base = ray * n_values
+    count = dr.zeros(UInt32, n_rays * n_queries)
+    step = 1
+    while step * 2 <= n_values:
+        step *= 2
+    while step >= 1:
+        cand = count + step
+        ok = cand <= n_values
+        v = dr.gather(Float, values, base + dr.minimum(cand, n_values) - 1, ok)
+        before = (v <= queries) if inclusive else (v < queries)
+        count = dr.select(ok & before, cand, count)
+        step //= 2
+    return count
+
+
+def merge_sorted_t(t_a, n_a: int, t_b, n_b: int):
+    """Merge two per-ray sorted sets of distances into one sorted set of ``n_a + n_b`` per ray.
+
+    Each ray's block of ``t_a`` (``n_a`` entries) and of ``t_b`` (``n_b`` entries)
+    must be increasing, as :func:`stratified_t` and :func:`sample_pdf` (with
+    increasing ``u``) give them. Entry ``i`` of ray ``r``'s ``t_a`` lands at position
+    ``i + #{j : t_b[j] < t_a[i]}`` of the ray's merged block, entry ``j`` of ``t_b`` at
+    ``j + #{i : t_a[i] <= t_b[j]}`` (ties put ``t_a`` first), so the result is the
+    per-ray ``sort(concat(t_a, t_b))`` without a sort: two binary searches and a scatter.
+    The output is detached (sample positions carry no gradient, as in NeRF).
+
+    Args:
+        t_a: Float (R*n_a,), e.g. the coarse samples.
+        t_b: Float (R*n_b,), e.g. the importance samples.
+
+    Returns:
+        Float (R*(n_a+n_b),), increasing within each ray.
+
+    Example (one ray)::
+
+        >>> from drjit.llvm import Float
+        >>> merge_sorted_t(Float(0.1, 0.5, 0.9), 3, Float(0.4, 0.5), 2)
+        [0.1, 0.4, 0.5, 0.5, 0.9]
+    """
+    Float = type(t_a)
+    UInt32 = dr.uint32_array_t(Float)
+    t_a, t_b = dr.detach(t_a), dr.detach(t_b)
+    n = n_a + n_b
+    n_rays = dr.width(t_a) // n_a
+    if dr.width(t_b) != n_rays * n_b:
+        raise ValueError(f"merge_sorted_t: t_b has {dr.width(t_b)} entries, expected R*n_b = {n_rays * n_b}")
+    out = dr.zeros(Float, n_rays * n)
+    idx_a = dr.arange(UInt32, n_rays * n_a)
+    ray_a = idx_a // n_a
+    pos_a = ray_a * n + (idx_a - ray_a * n_a) + _count_before(t_b, n_b, t_a, n_a, inclusive=False)
+    idx_b = dr.arange(UInt32, n_rays * n_b)
+    ray_b = idx_b // n_b
+    pos_b = ray_b * n + (idx_b - ray_b * n_b) + _count_before(t_a, n_a, t_b, n_b, inclusive=True)
+    dr.scatter(out, t_a, pos_a)
+    dr.scatter(out, t_b, pos_b)
+    return out
+
+
+def deltas_from_sorted_t(t, t_f, n: int):
+    """Interval lengths of per-ray sorted sample distances, the last interval ending at ``t_f``.
+
+    The same quadrature convention as :func:`stratified_t`::
+
+        delta_i = t_{i+1} - t_i  (i < N-1),     delta_{N-1} = t_f - t_{N-1}
+
+    so a ray's deltas sum to ``t_f - t_0``.
+
+    Args:
+        t: Float (R*N,), increasing within each ray.
+        t_f: Float (R,), exit distance of each ray.
+        n: samples per ray N.
+
+    Returns:
+        Float (R*N,).
+
+    Example (one ray leaving at 1)::
+
+        >>> from drjit.llvm import Float
+        >>> deltas_from_sorted_t(Float(0.1, 0.4, 0.5, 0.9), Float(1.0), 4)
+        [0.3, 0.1, 0.4, 0.1]
+    """
+    Float = type(t)
+    UInt32 = dr.uint32_array_t(Float)
+    idx = dr.arange(UInt32, dr.width(t))
+    ray = idx // n
+    last = idx - ray * n + 1 == n
+    t_next = dr.gather(Float, t, idx + 1, ~last)
+    tf = dr.gather(Float, t_f, ray) if dr.width(t_f) > 1 else Float(t_f)
+    return dr.select(last, tf, t_next) - t
