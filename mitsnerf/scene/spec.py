@@ -239,6 +239,9 @@ class VolumeSpec:
             params=_freeze(params),
         )
 
+    def __hash__(self) -> int:  # params is a read-only mapping, which Python does not hash
+        return hash(json.dumps(self.to_dict(), sort_keys=True))
+
     def to_dict(self) -> dict[str, Any]:
         return {
             "family": self.family,

@@ -100,6 +100,7 @@ def test_hash_stable_and_sensitive(tiny_spec, tiny_dict):
     for key, value in [("render.seed", 1), ("cameras.width", 9), ("volume.sigma_t_scale", 31.0),
                        ("volume.params.octaves", 2), ("lights.1.irradiance", [4, 3.8, 3.6]), ("name", "tiny2")]:
         assert tiny_spec.with_overrides({key: value}).content_hash() != h, key
+    assert hash(parse_scene(tiny_spec.to_dict(), "x")) == hash(tiny_spec)  # usable as a dict key
     assert tiny_spec.content_hash({"mitsuba": "3.9.1"}) != h
     assert tiny_spec.content_hash({"mitsuba": "3.9.1"}) != tiny_spec.content_hash({"mitsuba": "3.9.2"})
 
