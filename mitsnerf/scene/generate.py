@@ -32,10 +32,11 @@ from mitsnerf.scene.spec import SceneSpec, SkyLight, list_scenes, load_scene
 from mitsnerf.scene.to_mitsuba import ENVMAP_FILE, background_description, load_sensor, scene_dict, volume_grids
 
 #: Version of the dataset layout and generation rules; part of the dataset hash.
-FORMAT_VERSION = 1
+#: 2: the noise floor's medium mask is the centre-ray opacity > 1e-3 rule of ``mitsnerf.run``.
+FORMAT_VERSION = 2
 SPLITS = ("train", "test", "test_ref")
-#: Optical depth above which a pixel "sees the medium" for ``noise_floor.psnr_medium``.
-MEDIUM_TAU = 0.01
+#: Opacity along a pixel's centre ray above which it "sees the medium" (``noise_floor.psnr_medium``).
+MEDIUM_OPACITY = 1e-3
 #: Temporaries of *other* datasets are removed once this old (seconds); a dataset's own at once.
 STALE_TEMP_AGE_S = 24 * 3600.0
 _SPLIT_IDS = {"train": 0, "test": 1, "test_ref": 2}
@@ -138,20 +139,19 @@ def optical_depth(origins: np.ndarray, directions: np.ndarray, sigma_t: np.ndarr
     return tau
 
 
-def medium_mask(camera: Camera, sigma_t: np.ndarray, threshold: float = MEDIUM_TAU) -> np.ndarray:
+def medium_mask(
+    camera: Camera, sigma_t: np.ndarray, opacity: float = MEDIUM_OPACITY, pixel_center: float = 0.5
+) -> np.ndarray:
     """Boolean (H, W): pixels that see the medium.
 
-    A pixel counts when any of five rays through it (its centre and four points inset 0.1 px
-    from its corners) has optical depth > ``threshold`` through the true ``sigma_t`` grid.
+    A pixel counts when the true medium's opacity ``1 - exp(-tau)`` along the ray through its
+    centre exceeds ``opacity`` (the definition ``mitsnerf.run.medium_masks`` uses to score methods,
+    so the noise floor and the methods' medium PSNR are measured on the same pixels).
     """
-    rows, cols = np.meshgrid(np.arange(camera.height), np.arange(camera.width), indexing="ij")
-    rows, cols = rows.ravel().astype(np.float64), cols.ravel().astype(np.float64)
-    mask = np.zeros(rows.shape, dtype=bool)
-    for dx, dy in ((0.5, 0.5), (0.1, 0.1), (0.9, 0.1), (0.1, 0.9), (0.9, 0.9)):
-        d = camera.pixel_directions(cols + dx, rows + dy, pixel_center=0.0)
-        o = np.broadcast_to(camera.origin, d.shape)
-        mask |= optical_depth(o, d, sigma_t) > threshold
-    return mask.reshape(camera.height, camera.width)
+    _, d = camera.pixel_rays(pixel_center)
+    o = np.broadcast_to(camera.origin, d.shape)
+    tau = optical_depth(o, d, sigma_t)
+    return (-np.expm1(-tau) > opacity).reshape(camera.height, camera.width)
 
 
 # --------------------------------------------------------------------------- manifest, cache
@@ -292,8 +292,8 @@ def _noise_floor(test: np.ndarray, ref: np.ndarray, cameras: list[Camera], sigma
         "psnr_medium_per_view": [_finite_or_none(x) for x in medium],
         "medium_pixel_fraction": float(masks.mean()),
         "medium_mask": (
-            f"pixels where a ray through the centre or a point 0.1 px inside a corner has optical "
-            f"depth > {MEDIUM_TAU} through sigma_t (trilinear); views without such pixels are skipped"
+            f"pixels whose centre ray has opacity 1 - exp(-tau) > {MEDIUM_OPACITY:g} through the true "
+            "sigma_t (trilinear); views without such pixels are skipped"
         ),
         "method": "mean over test views of PSNR(test, test_ref), RGB, max_val 1",
     }

@@ -204,3 +204,22 @@ def test_sigkill_mid_render_then_recover(tiny_spec, tmp_path):
     assert (path / "manifest.json").is_file()
     assert not list(tmp_path.glob(".*.tmp-*")), "stale temporaries were not cleaned"
     assert [p for p in tmp_path.iterdir() if not p.name.startswith(".")] == [path]
+
+
+def test_optical_depth_and_medium_mask():
+    from mitsnerf.math.camera import Camera, look_at
+
+    grid = np.full((8, 8, 8), 2.0, np.float32)  # uniform: tau = 2 * chord length
+    o = np.array([[0.0, 0.0, 3.0], [0.0, 0.0, 3.0], [3.0, 3.0, 3.0], [0.2, -3.0, 0.1]])
+    d = np.array([[0.0, 0.0, -1.0], [0.0, 0.0, 1.0], [-1.0, -1.0, -1.0], [0.0, 1.0, 0.0]])
+    d /= np.linalg.norm(d, axis=1, keepdims=True)
+    assert np.allclose(gen.optical_depth(o, d, grid), [2.0, 0.0, 2.0 * np.sqrt(3.0), 2.0], rtol=1e-9)
+    cam = Camera.from_fov(look_at((0.0, -3.0, 0.0)), 16, 12, 40.0)
+    mask = gen.medium_mask(cam, grid)
+    _, dirs = cam.pixel_rays()
+    # the box's face y = -0.5 spans |x|, |z| <= 0.5 at distance 2.5 along the axis
+    t = 2.5 / dirs[:, 1]
+    hits = (np.abs(dirs[:, 0] * t) <= 0.5) & (np.abs(dirs[:, 2] * t) <= 0.5)
+    assert np.array_equal(mask.ravel(), hits)
+    sparse = np.zeros((8, 8, 8), np.float32)
+    assert not gen.medium_mask(cam, sparse).any()
