@@ -36,8 +36,14 @@ def model_renderer(model: Model) -> RenderFn:
 
 
 def render_camera(render: RenderFn | Model, camera: Camera, chunk_rays: int = 1 << 14, pixel_center: float = 0.5) -> Rendered:
-    """Render every pixel of ``camera`` with ``render`` (a :data:`RenderFn` or a model)."""
+    """Render every pixel of ``camera`` with ``render`` (a :data:`RenderFn` or a model).
+
+    A model that renders whole cameras itself (:meth:`Model.render_view` not None) does so.
+    """
     if isinstance(render, Model):
+        own = render.render_view(camera, pixel_center=pixel_center)
+        if own is not None:
+            return own
         render = model_renderer(render)
     o_np, d_np = camera_rays_numpy([camera], pixel_center)
     rgb, opacity, depth = [], [], []

@@ -1,4 +1,5 @@
-"""The training loop: random ray batches over all training pixels, Adam, progress, NaN checks.
+"""The training loop: random ray batches over all training pixels, Adam, progress, checkpoints,
+NaN and divergence checks.
 
 Each step draws ``batch_rays`` pixels uniformly from every training view, renders
 them with the model (jittered stratified samples), and minimises the mean squared
@@ -42,6 +43,12 @@ class TrainConfig:
     seed: int = 0
     log_every: int = 25
     """Steps between progress-bar updates and history entries."""
+    checkpoint_every: int = 0
+    """Steps between checkpoints (0: only at the end and on Ctrl-C); needs a run directory."""
+    divergence_factor: float = 10.0
+    """Diverging: the mean loss of a log interval above this times its running minimum (0: no check)."""
+    divergence_patience: int = 3
+    """Log intervals in a row above ``divergence_factor`` x minimum before training stops."""
 
     def __post_init__(self) -> None:
         if self.steps < 1:
@@ -56,6 +63,12 @@ class TrainConfig:
             raise ValueError(f"lr_final_factor: must be in (0, 1], got {self.lr_final_factor}")
         if self.log_every < 1:
             raise ValueError(f"log_every: must be >= 1, got {self.log_every}")
+        if self.checkpoint_every < 0:
+            raise ValueError(f"checkpoint_every: must be >= 0, got {self.checkpoint_every}")
+        if self.divergence_factor != 0 and not self.divergence_factor > 1:
+            raise ValueError(f"divergence_factor: must be 0 (off) or > 1, got {self.divergence_factor}")
+        if self.divergence_patience < 1:
+            raise ValueError(f"divergence_patience: must be >= 1, got {self.divergence_patience}")
 
 
 @dataclass(frozen=True)
@@ -64,6 +77,10 @@ class PixelData:
 
     rays: RayBatch
     rgb: Any  # Array3f (P,)
+    images: np.ndarray | None = None
+    """The views themselves, (V, H, W, 3) linear RGB, for methods that render whole cameras."""
+    cameras: tuple[Camera, ...] = ()
+    pixel_center: float = 0.5
 
     @classmethod
     def from_views(cls, images: np.ndarray, cameras: Sequence[Camera], pixel_center: float = 0.5) -> "PixelData":
@@ -71,7 +88,7 @@ class PixelData:
         if len(images) != len(cameras):
             raise ValueError(f"{len(images)} images but {len(cameras)} cameras")
         rays = camera_rays(mi.Array3f, cameras, pixel_center)
-        return cls(rays, to_array3f(mi.Array3f, images.reshape(-1, 3)))
+        return cls(rays, to_array3f(mi.Array3f, images.reshape(-1, 3)), images, tuple(cameras), pixel_center)
 
     @property
     def size(self) -> int:
@@ -86,7 +103,8 @@ class TrainResult:
     samples_per_s: float
     final_loss: float
     history: list[dict] = field(default_factory=list)
-    """One entry per ``log_every`` steps: step, seconds, loss, psnr (of the batch)."""
+    """One entry per ``log_every`` steps: step, seconds, loss (of the last step), loss_mean (of
+    the interval), psnr (of the last batch); a resumed run's history includes the earlier entries."""
 
 
 def step_rng(seed: int, step: int):
@@ -119,23 +137,42 @@ def train(
     opt=None,
     start_step: int = 0,
     elapsed: float = 0.0,
+    history: list[dict] | None = None,
     progress: bool = True,
     on_log: Callable[[dict], None] | None = None,
     should_stop: Callable[[int], bool] | None = None,
+    checkpointer=None,
 ) -> tuple[TrainResult, Any]:
     """Optimise ``model`` on ``data``; returns (result, optimiser).
 
-    ``opt``/``start_step``/``elapsed`` continue an earlier run (checkpoint resume).
-    Raises :class:`mitsnerf.errors.TrainingError` on a non-finite loss, naming the step;
-    the model then still holds the parameters of the last good step.
+    ``opt``/``start_step``/``elapsed``/``history`` continue an earlier run (checkpoint
+    resume, :func:`mitsnerf.checkpoint.restore_optimizer`). Each step is the model's own
+    (:meth:`Model.training_loss`) when it supplies one, else a random ray batch through
+    ``render_rays``; the scheduled learning rate is multiplied per parameter by
+    :meth:`Model.lr_scales`.
+
+    ``checkpointer`` (a :class:`mitsnerf.checkpoint.Checkpointer`) writes the state after
+    every ``config.checkpoint_every`` steps (skipped while the loss looks diverging, so the
+    file left is the last good one), at the end, and on ``KeyboardInterrupt``: then the
+    state after the last *completed* step is written and the interrupt re-raised, its
+    message saying where the checkpoint is.
+
+    Raises :class:`mitsnerf.errors.TrainingError` naming the step when
+
+    - the loss is not finite (checked before the optimiser step: the model keeps the
+      parameters of the previous step, the checkpoint on disk is untouched);
+    - the loss diverges: the mean loss of a log interval exceeds ``divergence_factor``
+      times the lowest interval mean so far for ``divergence_patience`` intervals in a row.
     """
     from tqdm.auto import tqdm
+
+    from mitsnerf.checkpoint import optimizer_snapshot
 
     opt = opt if opt is not None else make_optimizer(model, base_lr)
     model.set_parameters(opt)
     Float, UInt32 = mi.Float, mi.UInt32
     n_jitter = model.jitter_size()
-    history: list[dict] = []
+    history = list(history or [])
     start = time.perf_counter() - elapsed
     bar = tqdm(total=config.steps, initial=start_step, disable=not progress, desc=f"train {model.name}",
                unit="step", dynamic_ncols=True, leave=False)
@@ -143,6 +180,13 @@ def train(
     loss_value = float("nan")
     rays_done = 0
     t_loop = time.perf_counter()
+    snap, snap_step = optimizer_snapshot(opt), step
+    factor, best, bad = config.divergence_factor, math.inf, 0
+    interval_sum, interval_n = 0.0, 0
+
+    def where() -> str:
+        return checkpointer.describe() if checkpointer is not None else "no checkpoint (no run directory)"
+
     try:
         while step < config.steps:
             now = time.perf_counter() - start
@@ -153,46 +197,82 @@ def train(
             frac = step / config.steps
             if config.seconds:
                 frac = max(frac, now / config.seconds)
-            opt.set_learning_rate(learning_rate(config, base_lr, frac))
+            lr = learning_rate(config, base_lr, frac)
+            opt.set_learning_rate(lr)
+            scales = model.lr_scales(step)
+            if scales:
+                opt.set_learning_rate({k: lr * float(f) for k, f in scales.items()})
 
             rng = step_rng(config.seed, step)
-            B = config.batch_rays
-            idx = dr.minimum(UInt32(rng.random(Float, B) * data.size), data.size - 1)
-            batch = data.rays.take(idx)
-            target = dr.gather(mi.Array3f, data.rgb, idx)
-            u = rng.random(Float, B * n_jitter) if n_jitter else None
+            own = model.training_loss(data, step, rng)
+            if own is None:
+                B = config.batch_rays
+                idx = dr.minimum(UInt32(rng.random(Float, B) * data.size), data.size - 1)
+                batch = data.rays.take(idx)
+                target = dr.gather(mi.Array3f, data.rgb, idx)
+                u = rng.random(Float, B * n_jitter) if n_jitter else None
 
-            out = model.render_rays(batch.o, batch.d, u=u, training=True)
-            mse = dr.mean(dr.square(out.rgb - target), axis=None)
-            loss = mse
-            for extra in (out.extra_losses or {}).values():
-                loss = loss + extra
+                out = model.render_rays(batch.o, batch.d, u=u, training=True)
+                mse = dr.mean(dr.square(out.rgb - target), axis=None)
+                loss = mse
+                for extra in (out.extra_losses or {}).values():
+                    loss = loss + extra
+            else:
+                B, loss, mse = own.rays, own.loss, own.mse
             dr.backward(loss)
             loss_value = float(loss[0])
             if not math.isfinite(loss_value):
-                raise TrainingError(None, f"step {step}", f"loss became {loss_value}; stopped, parameters of step {step - 1} kept")
+                raise TrainingError(None, f"step {step}", f"loss became {loss_value}; stopped, parameters of step {step - 1} kept; {where()}")
             opt.step()
             model.set_parameters(opt)
             model.on_step(step, opt)
             step += 1
+            snap, snap_step = optimizer_snapshot(opt), step
             rays_done += B
             bar.update(1)
+            interval_sum, interval_n = interval_sum + loss_value, interval_n + 1
             if step % config.log_every == 0 or step == config.steps:
                 mse_value = float(mse[0])
+                mean = interval_sum / interval_n
+                interval_sum, interval_n = 0.0, 0
                 entry = {
                     "step": step,
                     "seconds": time.perf_counter() - start,
                     "loss": loss_value,
+                    "loss_mean": mean,
                     "psnr": -10.0 * math.log10(max(mse_value, 1e-12)),
                 }
                 history.append(entry)
                 bar.set_postfix(loss=f"{loss_value:.2e}", psnr=f"{entry['psnr']:.2f}")
+                if factor:
+                    bad = bad + 1 if mean > factor * best else 0
+                    best = min(best, mean)
+                    if bad >= config.divergence_patience:
+                        raise TrainingError(
+                            None, f"step {step}",
+                            f"loss diverging: the mean loss of the last {config.divergence_patience} log intervals "
+                            f"stayed above {factor:g} x its minimum {best:.3g} (now {mean:.3g}); stopped; {where()}",
+                        )
                 if on_log is not None:
                     on_log(entry)
+            healthy = not factor or (bad == 0 and loss_value <= factor * best)
+            due = config.checkpoint_every and step % config.checkpoint_every == 0
+            if checkpointer is not None and due and healthy:
+                checkpointer.save(step, snap, time.perf_counter() - start, history)
+    except KeyboardInterrupt:
+        if checkpointer is None:
+            raise
+        checkpointer.save(snap_step, snap, time.perf_counter() - start, history)
+        raise KeyboardInterrupt(
+            f"checkpoint of step {snap_step} saved to {checkpointer.path}; continue with "
+            f"mitsnerf train --resume --out {checkpointer.path.parent}"
+        ) from None
     finally:
         bar.close()
     seconds = time.perf_counter() - start
     loop_seconds = max(time.perf_counter() - t_loop, 1e-9)
+    if checkpointer is not None:
+        checkpointer.save(step, opt, seconds, history)
     result = TrainResult(
         steps=step,
         seconds=seconds,

@@ -4,6 +4,13 @@ A method is a frozen config dataclass plus a :class:`Model`: something with name
 parameters that ``drjit.opt`` optimises and a differentiable ``render_rays``. The
 trainer (:mod:`mitsnerf.train`) owns batching, the optimiser, checkpoints and
 evaluation; a method only says how its scene representation renders a ray batch.
+
+Methods that do not fit per-ray rendering (``mitsuba-inverse`` renders whole images
+through Mitsuba's path tracer) override two optional hooks instead:
+:meth:`Model.training_loss` (their own step's loss; the trainer still owns the
+optimiser, NaN/divergence checks and checkpoints) and :meth:`Model.render_view` (a whole
+camera, used by :func:`mitsnerf.evaluate.render_camera`). :meth:`Model.lr_scales`
+scales the scheduled learning rate per parameter (e.g. halved after each upsampling).
 """
 
 from __future__ import annotations
@@ -27,6 +34,21 @@ class SceneInfo:
     """``d -> Array3f`` radiance behind the medium."""
     radiance_max: float
     """Largest training pixel value (for output scalings)."""
+    manifest: Mapping[str, Any] | None = None
+    """The dataset's ``manifest.json`` (None for foreign data): its ``spec`` gives lights and
+    medium placement to physically based methods."""
+
+
+@dataclass(frozen=True)
+class StepLoss:
+    """A model's own training objective for one step (see :meth:`Model.training_loss`)."""
+
+    loss: Any
+    """Float of width 1, differentiable with respect to the optimised parameters."""
+    mse: Any
+    """Float of width 1: the image error, for the logged PSNR."""
+    rays: int
+    """Camera rays traced this step (for the rays/s figure)."""
 
 
 @dataclass(frozen=True)
@@ -73,6 +95,28 @@ class Model(ABC):
 
     def on_step(self, step: int, opt) -> None:
         """Hook after each optimiser step (coarse-to-fine, occupancy updates, ...)."""
+
+    def training_loss(self, data, step: int, rng) -> StepLoss | None:
+        """This step's objective, for methods that do not train on random ray batches.
+
+        ``data`` is the :class:`mitsnerf.train.PixelData` (``data.images`` (V, H, W, 3),
+        ``data.cameras``), ``rng`` the step's generator (a pure function of seed and step,
+        so resumed runs draw the same). Return None (the default) for the trainer's own
+        ray-batch step through :meth:`render_rays`.
+        """
+        return None
+
+    def render_view(self, camera, pixel_center: float = 0.5):
+        """A whole camera as a :class:`mitsnerf.evaluate.Rendered`, or None (the default)
+        to render it ray by ray through :meth:`render_rays`."""
+        return None
+
+    def lr_scales(self, step: int) -> Mapping[str, float]:
+        """Per-parameter factors on the scheduled learning rate at ``step`` (missing: 1).
+
+        A pure function of the step, so a resumed run schedules exactly as an uninterrupted one.
+        """
+        return {}
 
     def field(self):
         """The field callable ``(x, d) -> (rgb, sigma)`` (for export and the plugin)."""

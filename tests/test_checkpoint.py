@@ -1,0 +1,177 @@
+"""Checkpoints: bit-for-bit resume, Ctrl-C, NaN and divergence leave the last good checkpoint."""
+
+from __future__ import annotations
+
+import drjit as dr
+import mitsuba as mi
+import numpy as np
+import pytest
+
+from mitsnerf.checkpoint import (
+    CHECKPOINT_FILE,
+    Checkpointer,
+    capture,
+    load_checkpoint,
+    restore_optimizer,
+    save_checkpoint,
+)
+from mitsnerf.errors import DatasetError, TrainingError
+from mitsnerf.fields.grid import GridField
+from mitsnerf.fields.nerf import NeRFConfig
+from mitsnerf.math.camera import Camera, look_at
+from mitsnerf.methods.base import Model, SceneInfo, StepLoss
+from mitsnerf.methods.nerf import NeRFMethodConfig, NeRFModel
+from mitsnerf.render.background import ConstantBackground
+from mitsnerf.render.rays import camera_rays
+from mitsnerf.render.volume import render_rays
+from mitsnerf.train import PixelData, TrainConfig, make_optimizer, train
+
+LR = 1e-2
+
+
+@pytest.fixture
+def nerf_setup(blob_grid):
+    """Tiny views of the blob and a factory of identical fresh NeRF models."""
+    rng = np.random.default_rng(0)
+    cams = []
+    for _ in range(3):
+        v = rng.normal(size=3)
+        cams.append(Camera.from_fov(look_at(2.0 * v / np.linalg.norm(v)), 8, 8, 40.0))
+    bg = ConstantBackground((0.05, 0.1, 0.3))
+    rays = camera_rays(mi.Array3f, cams)
+    with dr.suspend_grad():
+        comp = render_rays(GridField.from_arrays(blob_grid, color=(1.0, 0.9, 0.1)), rays.o, rays.d, 32, background=bg)
+    images = np.stack([np.asarray(c) for c in comp.rgb], -1).reshape(3, 8, 8, 3)
+    data = PixelData.from_views(images, cams)
+    info = SceneInfo((-0.5,) * 3, (0.5,) * 3, bg, float(images.max()))
+
+    def make():
+        return NeRFModel(NeRFMethodConfig(network=NeRFConfig(width=8, depth=1, head_width=8, features=4), n_samples=8), info, seed=3)
+
+    return data, make
+
+
+def _state(opt) -> dict:
+    return {k: v for k, v in capture(0, opt).__dict__.items() if k in ("params", "moments", "optimizer")}
+
+
+def _assert_same_state(a: dict, b: dict) -> None:
+    assert a["optimizer"] == b["optimizer"]  # Adam t, per-parameter lr, hyperparameters
+    for key in a["params"]:
+        np.testing.assert_array_equal(a["params"][key], b["params"][key], err_msg=key)
+        for moment in a["moments"][key]:
+            np.testing.assert_array_equal(a["moments"][key][moment], b["moments"][key][moment], err_msg=f"{key} {moment}")
+
+
+def _resume(make, data, config, path):
+    model = make()
+    opt = make_optimizer(model, LR)
+    ckpt = load_checkpoint(path)
+    restore_optimizer(opt, ckpt, path)
+    return train(model, data, config, LR, opt=opt, start_step=ckpt.step, elapsed=ckpt.elapsed,
+                 history=ckpt.history, progress=False)
+
+
+def test_resume_is_bit_identical_to_an_uninterrupted_run(nerf_setup, tmp_path):
+    data, make = nerf_setup
+    config = TrainConfig(steps=8, batch_rays=64, seed=5, log_every=2)
+    straight, opt_straight = train(make(), data, config, LR, progress=False)
+
+    path = tmp_path / CHECKPOINT_FILE
+    half, _ = train(make(), data, config, LR, progress=False, should_stop=lambda step: step >= 4,
+                    checkpointer=Checkpointer(path, config={"method": "nerf"}))
+    assert half.steps == 4 and load_checkpoint(path).step == 4
+    resumed, opt_resumed = _resume(make, data, config, path)
+
+    assert resumed.steps == 8
+    _assert_same_state(_state(opt_straight), _state(opt_resumed))
+    assert [h["step"] for h in resumed.history] == [h["step"] for h in straight.history]
+    assert resumed.history[-1]["loss"] == straight.history[-1]["loss"]
+
+
+def test_ctrl_c_leaves_a_loadable_checkpoint_of_the_last_completed_step(nerf_setup, tmp_path):
+    data, make = nerf_setup
+    config = TrainConfig(steps=6, batch_rays=64, seed=5, log_every=1)
+    path = tmp_path / CHECKPOINT_FILE
+
+    def interrupt(entry):
+        if entry["step"] == 3:
+            raise KeyboardInterrupt
+
+    with pytest.raises(KeyboardInterrupt, match="checkpoint of step 3 saved"):
+        train(make(), data, config, LR, progress=False, on_log=interrupt,
+              checkpointer=Checkpointer(path, config={"method": "nerf"}))
+    ckpt = load_checkpoint(path)
+    assert ckpt.step == 3 and [h["step"] for h in ckpt.history] == [1, 2, 3]
+    assert all(entry["t"] == 3 for entry in ckpt.optimizer["params"].values())
+
+    _, opt_straight = train(make(), data, config, LR, progress=False)
+    _, opt_resumed = _resume(make, data, config, path)
+    _assert_same_state(_state(opt_straight), _state(opt_resumed))
+
+
+class _Quadratic(Model):
+    """One parameter vector ``x`` with loss ``scale(step) * mean((x - 1)^2)`` through the own-step hook."""
+
+    name = "quadratic"
+
+    def __init__(self, scale=lambda step: 1.0):
+        self.x = dr.zeros(mi.Float, 4)
+        self.scale = scale
+
+    def parameters(self):
+        return {"x": self.x}
+
+    def set_parameters(self, values):
+        self.x = values["x"]
+
+    def render_rays(self, o, d, *, u=None, training=False):
+        raise NotImplementedError
+
+    def training_loss(self, data, step, rng):
+        mse = dr.mean(dr.square(self.x - 1.0), axis=None)
+        return StepLoss(mse * self.scale(step), mse, rays=1)
+
+
+def test_nan_loss_names_the_step_and_keeps_the_previous_checkpoint(tmp_path):
+    path = tmp_path / CHECKPOINT_FILE
+    model = _Quadratic(scale=lambda step: float("nan") if step == 5 else 1.0)
+    checkpointer = Checkpointer(path, config={"method": "quadratic"}, model=model)
+    params_after = {}
+
+    def remember(entry):
+        params_after[entry["step"]] = np.array(model.x)
+
+    with pytest.raises(TrainingError, match=r"step 5: loss became nan.*last good checkpoint: .*checkpoint.npz \(step 4\)"):
+        train(model, None, TrainConfig(steps=10, log_every=1, checkpoint_every=2), 0.1, progress=False,
+              on_log=remember, checkpointer=checkpointer)
+    ckpt = load_checkpoint(path)
+    assert ckpt.step == 4
+    np.testing.assert_array_equal(ckpt.params["x"], params_after[4])
+    np.testing.assert_array_equal(np.array(model.x), params_after[5])  # step 5's update never happened
+
+
+def test_a_diverging_loss_stops_training_and_keeps_the_last_healthy_checkpoint(tmp_path):
+    path = tmp_path / CHECKPOINT_FILE
+    model = _Quadratic(scale=lambda step: 1.0 if step < 10 else 1e4)
+    config = TrainConfig(steps=40, log_every=2, checkpoint_every=1, divergence_factor=10.0, divergence_patience=2)
+    with pytest.raises(TrainingError, match=r"step 14: loss diverging.*\(step 10\)"):
+        train(model, None, config, 0.05, progress=False, checkpointer=Checkpointer(path, config={}, model=model))
+    assert load_checkpoint(path).step == 10
+
+
+def test_restore_refuses_a_mismatched_optimizer(tmp_path):
+    path = tmp_path / CHECKPOINT_FILE
+    opt = dr.opt.Adam(lr=0.1)
+    opt["x"] = dr.zeros(mi.Float, 3)
+    save_checkpoint(path, capture(1, opt))
+    other = dr.opt.Adam(lr=0.1, beta_1=0.5)
+    other["x"] = dr.zeros(mi.Float, 3)
+    with pytest.raises(DatasetError, match="beta_1"):
+        restore_optimizer(other, load_checkpoint(path), path)
+    other = dr.opt.Adam(lr=0.1)
+    other["y"] = dr.zeros(mi.Float, 3)
+    with pytest.raises(DatasetError, match="params"):
+        restore_optimizer(other, load_checkpoint(path), path)
+    with pytest.raises(DatasetError, match="no checkpoint"):
+        load_checkpoint(tmp_path / "nothing.npz")
