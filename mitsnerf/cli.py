@@ -78,22 +78,82 @@ def cmd_generate(args) -> int:
 def cmd_train(args) -> int:
     from mitsnerf.config import from_dict
     from mitsnerf.data.dataset import load_dataset
-    from mitsnerf.run import fit
+    from mitsnerf.run import fit, resume_run
     from mitsnerf.train import TrainConfig
 
-    dataset = load_dataset(Path(args.dataset), pixel_center=args.pixel_center,
-                           background=args.background)
     train_values = {k: v for k, v in {"steps": args.steps, "seconds": args.seconds,
                                       "batch_rays": args.batch_rays, "lr": args.lr,
-                                      "seed": args.seed}.items() if v is not None}
-    train_config = from_dict(TrainConfig, train_values)
-    run = fit(dataset, args.method, _nest(_overrides(args.set)), train_config, Path(args.out))
+                                      "seed": args.seed, "checkpoint_every": args.checkpoint_every}.items()
+                    if v is not None}
+    if args.resume:
+        fixed = [flag for flag, value in (("--method", args.method), ("--set", args.set), ("--batch-rays", args.batch_rays),
+                                           ("--lr", args.lr), ("--seed", args.seed)) if value]
+        if fixed:
+            raise ValueError(f"train --resume: {', '.join(fixed)} come from the checkpoint; "
+                             "only --steps, --seconds and --checkpoint-every may change")
+        dataset = None
+        if args.dataset:
+            dataset = load_dataset(Path(args.dataset), pixel_center=args.pixel_center, background=args.background)
+        run = resume_run(Path(args.out), train_values, dataset=dataset)
+    else:
+        if not args.dataset:
+            raise ValueError("train: name a DATASET directory (or pass --resume to continue the run in --out)")
+        dataset = load_dataset(Path(args.dataset), pixel_center=args.pixel_center,
+                               background=args.background)
+        train_config = from_dict(TrainConfig, train_values)
+        run = fit(dataset, args.method or "nerf", _nest(_overrides(args.set)), train_config, Path(args.out))
     metrics = run.metrics()
-    print(f"{args.method}: test PSNR {metrics['psnr_test']:.2f} dB (per view: "
+    print(f"{run.method}: test PSNR {metrics['psnr_test']:.2f} dB (per view: "
           + ", ".join(f"{p:.2f}" for p in metrics["psnr_test_per_view"])
           + f"), train PSNR {metrics['psnr_train']:.2f} dB, {metrics['train_seconds']:.1f} s, "
           f"{metrics['rays_per_s']:.0f} rays/s -> {args.out}")
     return 0
+
+
+def cmd_render(args) -> int:
+    from mitsnerf.novel import ViewRequest, render_run
+
+    size = None
+    if args.size:
+        if len(args.size) > 2:
+            raise ValueError(f"--size: give W or W H, got {len(args.size)} numbers")
+        size = (args.size[0], args.size[-1])
+    request = ViewRequest(split=args.split, index=args.index,
+                          look_from=tuple(args.look_from) if args.look_from else None,
+                          look_at=tuple(args.look_at), fov=args.fov, size=size, orbit=args.orbit,
+                          elevation=args.elevation, radius=args.radius, fps=args.fps)
+    out = Path(args.out) if args.out else Path(args.run) / "renders"
+    files = render_run(Path(args.run), out, request)
+    print(f"{len(files)} files -> {out}")
+    return 0
+
+
+def cmd_export(args) -> int:
+    from mitsnerf.export import export_run
+
+    paths = export_run(Path(args.run), Path(args.out) if args.out else None, args.resolution,
+                       args.direction, args.directions)
+    print(f"{args.resolution}^3 medium -> {paths['sigma_t.vol'].parent} ({', '.join(paths)})")
+    return 0
+
+
+EXPORT_EPILOG = """\
+Sampled at the voxel centres of an R^3 grid over the box [-0.5, 0.5]^3; colour averaged over
+--directions view directions spread over the sphere (default), or seen along --direction.
+sigma_t transfers exactly; a NeRF's colour is radiance, not albedo, so albedo.vol is only
+an approximation (for mitsuba-inverse it is the learned albedo itself).
+
+Use it in Mitsuba (gridvolume maps [0, 1]^3, hence translate(-0.5)):
+
+  grid = lambda f: {"type": "gridvolume", "filename": "OUT/" + f,
+                    "to_world": mi.ScalarTransform4f().translate(-0.5)}
+  scene = mi.load_dict({"type": "scene", "integrator": {"type": "volpath"},
+      "medium_box": {"type": "cube", "to_world": mi.ScalarTransform4f().scale(0.5),
+          "bsdf": {"type": "null"},
+          "interior": {"type": "heterogeneous", "scale": 1.0,
+                       "sigma_t": grid("sigma_t.vol"), "albedo": grid("albedo.vol")}},
+      "sky": {"type": "constant"}})
+"""
 
 
 def cmd_bench(args) -> int:
@@ -132,9 +192,14 @@ def build_parser() -> argparse.ArgumentParser:
     p.set_defaults(func=cmd_generate)
 
     p = sub.add_parser("train", help="fit a method to a dataset and evaluate it on the test views")
-    p.add_argument("dataset", help="dataset directory (mitsnerf generate output or NeRF-synthetic)")
-    p.add_argument("--out", required=True, help="run directory to write")
-    p.add_argument("--method", default="nerf")
+    p.add_argument("dataset", nargs="?", help="dataset directory (mitsnerf generate output or NeRF-synthetic); "
+                                              "with --resume, default: the one the checkpoint names")
+    p.add_argument("--out", required=True, help="run directory to write (checkpoints go there while training)")
+    p.add_argument("--method", help="default: nerf")
+    p.add_argument("--resume", action="store_true",
+                   help="continue the run in --out from its checkpoint.npz, bit-for-bit (settings come from it)")
+    p.add_argument("--checkpoint-every", type=int, metavar="N",
+                   help="write a checkpoint every N steps (default 0: only at the end and on Ctrl-C)")
     p.add_argument("--steps", type=int)
     p.add_argument("--seconds", type=float)
     p.add_argument("--batch-rays", type=int)
@@ -144,6 +209,37 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--pixel-center", type=float, help="0.5 (Mitsuba, mitsnerf) or 0 (original NeRF loader); default from the data")
     p.add_argument("--background", type=float, nargs=3, metavar=("R", "G", "B"), help="background for foreign PNG data (default white)")
     p.set_defaults(func=cmd_train)
+
+    p = sub.add_parser("render", help="render a trained run from any camera or an orbit, with depth and opacity maps",
+                       description="Render RUN: a dataset view (--split/--index, default the first test view), "
+                                   "a point (--look-from), or an orbit (--orbit N: frames, orbit.gif, and orbit.mp4 "
+                                   "if imageio-ffmpeg is installed). Each view: STEM.exr/.png, STEM_depth.exr/.png, "
+                                   "STEM_opacity.exr/.png.")
+    p.add_argument("run", help="run directory (mitsnerf train --out)")
+    p.add_argument("--out", help="output directory (default: RUN/renders)")
+    p.add_argument("--split", help="dataset split of the reference view (default: test)")
+    p.add_argument("--index", type=int, default=0, help="view index in --split (default 0)")
+    p.add_argument("--look-from", type=float, nargs=3, metavar=("X", "Y", "Z"), help="camera position, world units")
+    p.add_argument("--look-at", type=float, nargs=3, metavar=("X", "Y", "Z"), default=(0.0, 0.0, 0.0),
+                   help="point the camera looks at (default: the box centre)")
+    p.add_argument("--fov", type=float, help="horizontal field of view, degrees (default: the reference view's)")
+    p.add_argument("--size", type=int, nargs="+", metavar="N", help="image size W [H] (default: the reference view's)")
+    p.add_argument("--orbit", type=int, default=0, metavar="N", help="render N cameras around the vertical axis")
+    p.add_argument("--elevation", type=float, help="orbit elevation, degrees (default: the reference view's)")
+    p.add_argument("--radius", type=float, help="orbit radius (default: the reference view's distance)")
+    p.add_argument("--fps", type=float, default=12.0, help="orbit animation frame rate (default 12)")
+    p.set_defaults(func=cmd_render)
+
+    p = sub.add_parser("export", help="sample a run's learned field on a grid: Mitsuba .vol files + numpy arrays",
+                       epilog=EXPORT_EPILOG, formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("run", help="run directory (mitsnerf train --out)")
+    p.add_argument("--out", help="output directory (default: RUN/export)")
+    p.add_argument("--resolution", type=int, default=64, metavar="R", help="grid resolution R (default 64)")
+    p.add_argument("--direction", type=float, nargs=3, metavar=("X", "Y", "Z"),
+                   help="colour seen looking along this direction (default: averaged over directions)")
+    p.add_argument("--directions", type=int, default=16, metavar="M",
+                   help="number of view directions the colour is averaged over (default 16)")
+    p.set_defaults(func=cmd_export)
 
     p = sub.add_parser("bench", help="run a benchmark and print its table")
     p.add_argument("config", nargs="?", default="default", help="benchmarks/NAME.toml or a path (default: default)")
@@ -164,8 +260,8 @@ def main(argv: list[str] | None = None) -> int:
 
         env.set_variant(args.variant)
         return int(args.func(args) or 0)
-    except KeyboardInterrupt:
-        print("mitsnerf: interrupted", file=sys.stderr)
+    except KeyboardInterrupt as exc:
+        print("mitsnerf: interrupted" + (f"; {exc}" if str(exc) else ""), file=sys.stderr)
         return 130
     except Exception as exc:  # one line for errors a user can act on; tracebacks for bugs
         from mitsnerf._llvm import LLVMError

@@ -1,0 +1,189 @@
+"""Export a learned field as a Mitsuba heterogeneous medium (``mitsnerf export RUN``).
+
+The run's field ``(x, d) -> (c, sigma)`` is sampled at the voxel centres of an ``R^3`` grid
+over the scene box (docs/conventions.md: voxel ``[k, j, i]`` is centred at
+``x = ((i + 0.5)/R - 0.5, (j + 0.5)/R - 0.5, (k + 0.5)/R - 0.5)``)::
+
+    sigma_t[k, j, i] = (1/M) sum_m sigma(x, d_m)
+    color[k, j, i]   = (1/M) sum_m c(x, d_m)
+
+over ``M`` ray directions ``d_m``. By default these are ``M = 16`` directions spread evenly
+over the sphere (a Fibonacci lattice), i.e. the **view-averaged** colour; with
+``direction=(x, y, z)`` it is the colour a camera looking along that one direction sees.
+(A density that depends only on position, as every mitsnerf field's does, is unchanged by
+the averaging.) Sampling at voxel centres makes Mitsuba's trilinear ``gridvolume`` lookup
+return exactly the sampled values there.
+
+Files written to ``OUT`` (atomically)::
+
+    sigma_t.vol   (R, R, R, 1) float32 extinction per unit length, Mitsuba's .vol format
+    albedo.vol    (R, R, R, 3) the colour clipped to [0, 1]
+    sigma_t.npy   (R, R, R) float32, indexed [z, y, x]
+    color.npy     (R, R, R, 3) float32, unclipped
+    export.json   resolution, directions, box, source run and method
+
+The density carries over exactly: ``sigma_t`` means extinction per unit length in both
+worlds. The colour does not in general: a NeRF's colour is radiance leaving the medium
+toward the camera, not a single-scattering albedo, so a medium built from it has the right
+shape but only roughly the right shading. For ``mitsuba-inverse`` the field's colour *is*
+the medium's albedo and the export is that medium (resampled to ``R``).
+
+Putting it into a Mitsuba scene (the box ``[-0.5, 0.5]^3``; ``gridvolume`` maps ``[0, 1]^3``,
+hence ``translate(-0.5)``)::
+
+    import mitsuba as mi
+    mi.set_variant("llvm_ad_rgb")
+    grid = lambda name: {"type": "gridvolume", "filename": f"OUT/{name}",
+                         "to_world": mi.ScalarTransform4f().translate(-0.5)}
+    scene = mi.load_dict({
+        "type": "scene",
+        "integrator": {"type": "volpath", "max_depth": -1},
+        "medium_box": {
+            "type": "cube", "to_world": mi.ScalarTransform4f().scale(0.5), "bsdf": {"type": "null"},
+            "interior": {"type": "heterogeneous", "scale": 1.0,
+                         "sigma_t": grid("sigma_t.vol"), "albedo": grid("albedo.vol")},
+        },
+        "sky": {"type": "constant", "radiance": {"type": "rgb", "value": [0.5, 0.55, 0.6]}},
+    })
+"""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+from typing import Any, Sequence
+
+import numpy as np
+
+from mitsnerf.data.atomic import atomic_write_bytes, atomic_write_json
+from mitsnerf.data.vol import write_vol
+from mitsnerf.render.rays import BOX_MAX, BOX_MIN
+
+DEFAULT_DIRECTIONS = 16
+
+
+def fibonacci_directions(m: int) -> np.ndarray:
+    """``m`` unit vectors (m, 3) spread evenly over the sphere (Fibonacci lattice).
+
+    >>> d = fibonacci_directions(16)
+    >>> d.shape, bool(np.allclose(np.linalg.norm(d, axis=1), 1)), bool(abs(d.mean(axis=0)).max() < 0.05)
+    ((16, 3), True, True)
+    """
+    if m < 1:
+        raise ValueError(f"directions: must be >= 1, got {m}")
+    k = np.arange(m) + 0.5
+    z = 1.0 - 2.0 * k / m
+    phi = math.pi * (3.0 - math.sqrt(5.0)) * k
+    r = np.sqrt(np.maximum(1.0 - z * z, 0.0))
+    return np.stack([r * np.cos(phi), r * np.sin(phi), z], axis=-1)
+
+
+def voxel_centres(resolution: int, box_min=BOX_MIN, box_max=BOX_MAX) -> np.ndarray:
+    """World positions (R, R, R, 3) of the voxel centres, indexed ``[z, y, x]``, last axis (x, y, z).
+
+    >>> voxel_centres(2)[0, 0, 1].tolist()   # voxel k=0, j=0, i=1
+    [0.25, -0.25, -0.25]
+    """
+    c = [lo + (np.arange(resolution) + 0.5) / resolution * (hi - lo) for lo, hi in zip(box_min, box_max)]
+    z, y, x = np.meshgrid(c[2], c[1], c[0], indexing="ij")
+    return np.stack([x, y, z], axis=-1)
+
+
+def sample_field(
+    field,
+    resolution: int,
+    directions: np.ndarray | Sequence[float] | None = None,
+    box_min=BOX_MIN,
+    box_max=BOX_MAX,
+    chunk_points: int = 1 << 17,
+) -> tuple[np.ndarray, np.ndarray]:
+    """``(sigma_t (R, R, R), color (R, R, R, 3))`` float32: the field averaged over ``directions``.
+
+    ``directions``: (M, 3) or one (3,) direction (normalised here); None: the
+    :data:`DEFAULT_DIRECTIONS` Fibonacci directions.
+    """
+    import drjit as dr
+    import mitsuba as mi
+
+    if resolution < 1:
+        raise ValueError(f"resolution: must be >= 1, got {resolution}")
+    dirs = fibonacci_directions(DEFAULT_DIRECTIONS) if directions is None else np.asarray(directions, dtype=np.float64)
+    dirs = dirs.reshape(-1, 3)
+    norms = np.linalg.norm(dirs, axis=1, keepdims=True)
+    if not np.all(norms > 0) or not np.all(np.isfinite(dirs)):
+        raise ValueError(f"direction: must be finite and non-zero, got {dirs.tolist()}")
+    dirs = dirs / norms
+    points = voxel_centres(resolution, box_min, box_max).reshape(-1, 3).astype(np.float32)
+    sigma = np.zeros(len(points), dtype=np.float64)
+    color = np.zeros((len(points), 3), dtype=np.float64)
+    with dr.suspend_grad():
+        for start in range(0, len(points), chunk_points):
+            p = points[start:start + chunk_points]
+            n = len(p)
+            x = mi.Array3f(p[:, 0], p[:, 1], p[:, 2])
+            for d in dirs:
+                rgb, s = field(x, mi.Array3f(*(float(c) for c in d)) + dr.zeros(mi.Array3f, n))
+                sigma[start:start + n] += np.asarray(s, dtype=np.float64)
+                color[start:start + n] += np.stack([np.asarray(c, dtype=np.float64) for c in rgb], axis=-1)
+    r = resolution
+    sigma = (sigma / len(dirs)).astype(np.float32).reshape(r, r, r)
+    color = (color / len(dirs)).astype(np.float32).reshape(r, r, r, 3)
+    return sigma, color
+
+
+def _save_npy(path: Path, array: np.ndarray) -> None:
+    import io
+
+    buf = io.BytesIO()
+    np.save(buf, array)
+    atomic_write_bytes(path, buf.getvalue())
+
+
+def export_field(
+    field,
+    out_dir: Path,
+    resolution: int = 64,
+    direction: Sequence[float] | None = None,
+    n_directions: int = DEFAULT_DIRECTIONS,
+    box_min=BOX_MIN,
+    box_max=BOX_MAX,
+    info: dict[str, Any] | None = None,
+) -> dict[str, Path]:
+    """Sample ``field`` and write the files of the module docstring to ``out_dir``; returns them by name."""
+    dirs = np.asarray(direction, dtype=np.float64) if direction is not None else fibonacci_directions(n_directions)
+    sigma, color = sample_field(field, resolution, dirs, box_min, box_max)
+    if not (np.isfinite(sigma).all() and np.isfinite(color).all()):
+        raise ValueError("the field returned non-finite values; nothing exported")
+    out_dir = Path(out_dir)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    paths = {name: out_dir / name for name in ("sigma_t.vol", "albedo.vol", "sigma_t.npy", "color.npy", "export.json")}
+    write_vol(paths["sigma_t.vol"], np.maximum(sigma, 0.0), box_min, box_max)
+    write_vol(paths["albedo.vol"], np.clip(color, 0.0, 1.0), box_min, box_max)
+    _save_npy(paths["sigma_t.npy"], sigma)
+    _save_npy(paths["color.npy"], color)
+    atomic_write_json(paths["export.json"], {
+        **(info or {}),
+        "resolution": resolution,
+        "box_min": list(box_min),
+        "box_max": list(box_max),
+        "colour": (f"seen looking along {np.asarray(direction, dtype=float).tolist()}" if direction is not None
+                   else f"averaged over {n_directions} Fibonacci directions"),
+        "sigma_t_max": float(sigma.max()),
+        "sampled_at": "voxel centres ((i + 0.5) / R) of the box, [z, y, x]",
+    })
+    return paths
+
+
+def export_run(run_dir: Path, out_dir: Path | None = None, resolution: int = 64,
+               direction: Sequence[float] | None = None, n_directions: int = DEFAULT_DIRECTIONS) -> dict[str, Path]:
+    """Export the field of the run in ``run_dir`` (default ``OUT = RUN/export``)."""
+    from mitsnerf.run import load_run
+
+    model, _, config = load_run(Path(run_dir))
+    out_dir = Path(out_dir) if out_dir is not None else Path(run_dir) / "export"
+    try:
+        field = model.field()
+    except NotImplementedError:
+        raise ValueError(f"{run_dir}: method {config.get('method')!r} has no queryable field to export") from None
+    return export_field(field, out_dir, resolution, direction, n_directions,
+                        info={"run": str(run_dir), "method": config.get("method")})

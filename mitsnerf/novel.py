@@ -1,0 +1,243 @@
+"""Novel views of a trained run: any camera or an orbit, with depth and opacity maps (``mitsnerf render``).
+
+Cameras (world is Z-up, cameras look at ``look_at``, default the box centre):
+
+- a dataset view: ``split`` and ``index`` (default: the first test view);
+- a point: ``look_from = (x, y, z)``;
+- an orbit of ``N`` cameras around the vertical axis through ``look_at``, at the reference
+  view's distance and elevation unless given: camera ``k`` sits at azimuth
+  ``phi_k = phi_0 + 360 k / N`` degrees, position
+  ``look_at + r (cos e cos phi_k, cos e sin phi_k, sin e)``.
+
+Field of view and image size default to the reference view's (the dataset view above).
+
+Files written for a view named ``STEM`` (orbit frames are ``orbit/frame_000`` ...)::
+
+    STEM.exr            linear RGB, alpha = opacity
+    STEM.png            sRGB preview
+    STEM_depth.exr      D = sum_i w_i t_i / (1 - T_N): expected distance from the camera at which
+                        light is absorbed or scattered, given it is (0 where 1 - T_N < 1e-4);
+                        the same value in R, G, B
+    STEM_depth.png      D mapped through matplotlib's 'viridis' from the nearest to the farthest
+                        pixel with opacity > 0.01 (others black)
+    STEM_opacity.exr    1 - T_N in R, G, B
+    STEM_opacity.png    the same, grey, linear (not sRGB-encoded)
+
+and for an orbit also ``orbit.gif`` (pillow) and, only if ``imageio-ffmpeg`` is installed,
+``orbit.mp4``. All files are written atomically.
+"""
+
+from __future__ import annotations
+
+import importlib.util
+import io
+import math
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Sequence
+
+import numpy as np
+
+from mitsnerf.data.atomic import atomic_path, atomic_write_bytes
+from mitsnerf.data.images import write_exr, write_png
+from mitsnerf.math.camera import Camera, look_at as look_at_matrix
+
+MIN_OPACITY = 1e-4
+"""Depth is reported only where the opacity exceeds this."""
+
+
+def orbit_cameras(
+    n: int,
+    radius: float,
+    elevation_deg: float,
+    width: int,
+    height: int,
+    fov_x_deg: float,
+    target: Sequence[float] = (0.0, 0.0, 0.0),
+    start_azimuth_deg: float = 0.0,
+) -> list[Camera]:
+    """``n`` cameras evenly spaced in azimuth around the vertical axis through ``target``.
+
+    >>> cams = orbit_cameras(4, 2.0, 0.0, 8, 8, 40.0)
+    >>> [c.origin.round(6).tolist() for c in cams[:2]]
+    [[2.0, 0.0, 0.0], [0.0, 2.0, 0.0]]
+    """
+    if n < 1:
+        raise ValueError(f"orbit: needs at least 1 camera, got {n}")
+    if not radius > 0:
+        raise ValueError(f"radius: must be > 0, got {radius}")
+    e = math.radians(elevation_deg)
+    target = np.asarray(target, dtype=np.float64)
+    cams = []
+    for k in range(n):
+        phi = math.radians(start_azimuth_deg + 360.0 * k / n)
+        pos = target + radius * np.array([math.cos(e) * math.cos(phi), math.cos(e) * math.sin(phi), math.sin(e)])
+        cams.append(Camera.from_fov(look_at_matrix(pos, target), width, height, fov_x_deg))
+    return cams
+
+
+def normalised_depth(depth: np.ndarray, opacity: np.ndarray) -> np.ndarray:
+    """``sum_i w_i t_i / (1 - T_N)`` where the opacity exceeds :data:`MIN_OPACITY`, else 0.
+
+    >>> normalised_depth(np.array([0.5, 1e-6]), np.array([0.25, 1e-6])).tolist()
+    [2.0, 0.0]
+    """
+    seen = opacity > MIN_OPACITY
+    return np.where(seen, depth / np.where(seen, opacity, 1.0), 0.0).astype(np.float32)
+
+
+def depth_colours(depth: np.ndarray, opacity: np.ndarray, threshold: float = 0.01) -> np.ndarray:
+    """(H, W, 3) display colours in [0, 1]: viridis from near to far where opacity > threshold, else black."""
+    from matplotlib import colormaps
+
+    seen = opacity > threshold
+    out = np.zeros((*depth.shape, 3), dtype=np.float32)
+    if seen.any():
+        near, far = float(depth[seen].min()), float(depth[seen].max())
+        x = (depth - near) / max(far - near, 1e-9)
+        out[seen] = colormaps["viridis"](np.clip(x[seen], 0.0, 1.0))[:, :3]
+    return out
+
+
+def _grey3(a: np.ndarray) -> np.ndarray:
+    return np.repeat(np.asarray(a, dtype=np.float32)[..., None], 3, axis=-1)
+
+
+def _to_uint8(display: np.ndarray) -> np.ndarray:
+    return (np.clip(display, 0.0, 1.0) * 255.0 + 0.5).astype(np.uint8)
+
+
+def write_display_png(path: Path, display: np.ndarray) -> None:
+    """Write already display-encoded values in [0, 1] (H, W, 3) as an 8-bit PNG, atomically."""
+    from PIL import Image
+
+    buf = io.BytesIO()
+    Image.fromarray(_to_uint8(display)).save(buf, format="PNG")
+    atomic_write_bytes(path, buf.getvalue())
+
+
+def write_views(out_dir: Path, stem: str, rendered) -> list[Path]:
+    """The six files of one rendered view (see the module docstring); returns their paths."""
+    out_dir = Path(out_dir)
+    (out_dir / stem).parent.mkdir(parents=True, exist_ok=True)
+    depth = normalised_depth(rendered.depth, rendered.opacity)
+    files = {
+        f"{stem}.exr": lambda p: write_exr(p, np.concatenate([rendered.rgb, rendered.opacity[..., None]], axis=-1)),
+        f"{stem}.png": lambda p: write_png(p, rendered.rgb),
+        f"{stem}_depth.exr": lambda p: write_exr(p, _grey3(depth)),
+        f"{stem}_depth.png": lambda p: write_display_png(p, depth_colours(depth, rendered.opacity)),
+        f"{stem}_opacity.exr": lambda p: write_exr(p, _grey3(rendered.opacity)),
+        f"{stem}_opacity.png": lambda p: write_display_png(p, _grey3(rendered.opacity)),
+    }
+    paths = []
+    for name, write in files.items():
+        write(out_dir / name)
+        paths.append(out_dir / name)
+    return paths
+
+
+def write_gif(path: Path, frames: Sequence[np.ndarray], fps: float = 12.0) -> None:
+    """An animated, looping GIF of display frames (H, W, 3) in [0, 1], atomically."""
+    from PIL import Image
+
+    images = [Image.fromarray(_to_uint8(f)) for f in frames]
+    buf = io.BytesIO()
+    images[0].save(buf, format="GIF", save_all=True, append_images=images[1:],
+                   duration=max(int(round(1000.0 / fps)), 10), loop=0)
+    atomic_write_bytes(path, buf.getvalue())
+
+
+def mp4_available() -> bool:
+    """Whether ``imageio-ffmpeg`` (optional) is installed."""
+    return importlib.util.find_spec("imageio_ffmpeg") is not None
+
+
+def write_mp4(path: Path, frames: Sequence[np.ndarray], fps: float = 12.0) -> None:
+    """An H.264 MP4 of display frames through ``imageio-ffmpeg`` (padded to even sizes), atomically."""
+    import imageio_ffmpeg
+
+    first = _to_uint8(frames[0])
+    h, w = first.shape[:2]
+    H, W = h + h % 2, w + w % 2
+    with atomic_path(path) as tmp:
+        writer = imageio_ffmpeg.write_frames(str(tmp), (W, H), fps=fps, macro_block_size=1, output_params=["-f", "mp4"])
+        writer.send(None)
+        for f in frames:
+            img = np.zeros((H, W, 3), dtype=np.uint8)
+            img[:h, :w] = _to_uint8(f)
+            writer.send(np.ascontiguousarray(img))
+        writer.close()
+
+
+@dataclass(frozen=True)
+class ViewRequest:
+    """Which cameras ``render_run`` renders; unset values come from the reference view."""
+
+    split: str | None = None
+    index: int = 0
+    look_from: tuple[float, float, float] | None = None
+    look_at: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    fov: float | None = None
+    size: tuple[int, int] | None = None
+    orbit: int = 0
+    elevation: float | None = None
+    radius: float | None = None
+    fps: float = 12.0
+
+
+def _reference(dataset, split: str | None, index: int):
+    splits = dataset.splits
+    split = split or ("test" if "test" in splits else splits[0])
+    views = dataset.views(split)
+    if not 0 <= index < len(views):
+        raise ValueError(f"--index: split {split!r} has views 0..{len(views) - 1}, got {index}")
+    return views.cameras[index], views.pixel_center, f"{split}_{index:03d}"
+
+
+def cameras_for(request: ViewRequest, dataset) -> tuple[list[Camera], list[str], float]:
+    """The cameras of ``request`` with their file stems, and the pixel-centre convention."""
+    ref, pixel_center, ref_name = _reference(dataset, request.split, request.index)
+    width, height = request.size or (ref.width, ref.height)
+    fov = request.fov or ref.fov_x_deg
+    target = np.asarray(request.look_at, dtype=np.float64)
+    if request.orbit:
+        offset = ref.origin - target
+        radius = request.radius or float(np.linalg.norm(offset))
+        elevation = request.elevation
+        if elevation is None:
+            elevation = math.degrees(math.asin(np.clip(offset[2] / np.linalg.norm(offset), -1.0, 1.0)))
+        start = math.degrees(math.atan2(offset[1], offset[0]))
+        cams = orbit_cameras(request.orbit, radius, elevation, width, height, fov, target, start)
+        return cams, [f"orbit/frame_{k:03d}" for k in range(len(cams))], pixel_center
+    if request.look_from is not None:
+        cam = Camera.from_fov(look_at_matrix(request.look_from, target), width, height, fov)
+        return [cam], ["view"], pixel_center
+    if request.size is None and request.fov is None:
+        return [ref], [ref_name], pixel_center
+    return [Camera.from_fov(ref.c2w, width, height, fov)], [ref_name], pixel_center
+
+
+def render_run(run_dir: Path, out_dir: Path, request: ViewRequest = ViewRequest(), progress: bool = True) -> list[Path]:
+    """Render the views of ``request`` from the run in ``run_dir`` into ``out_dir``; returns the files."""
+    from tqdm.auto import tqdm
+
+    from mitsnerf.evaluate import render_camera
+    from mitsnerf.math.color import linear_to_srgb
+    from mitsnerf.run import load_run
+
+    model, dataset, _ = load_run(Path(run_dir))
+    cams, stems, pixel_center = cameras_for(request, dataset)
+    out_dir = Path(out_dir)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    written, frames = [], []
+    for cam, stem in tqdm(list(zip(cams, stems)), desc="render", unit="view", disable=not progress or len(cams) < 2, leave=False):
+        rendered = render_camera(model, cam, pixel_center=pixel_center)
+        written += write_views(out_dir, stem, rendered)
+        frames.append(linear_to_srgb(np.clip(rendered.rgb, 0.0, 1.0)))
+    if request.orbit:
+        write_gif(out_dir / "orbit.gif", frames, request.fps)
+        written.append(out_dir / "orbit.gif")
+        if mp4_available():
+            write_mp4(out_dir / "orbit.mp4", frames, request.fps)
+            written.append(out_dir / "orbit.mp4")
+    return written

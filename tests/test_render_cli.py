@@ -1,0 +1,110 @@
+"""``mitsnerf train`` (checkpoints, --resume, errors), ``render`` and ``export`` on a tiny run."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from mitsnerf.cli import main
+from mitsnerf.data.images import read_exr, read_png
+from mitsnerf.errors import TrainingError
+
+TINY = {
+    "name": "tiny-cli",
+    "description": "a 16^3 cloud, 12x12 views",
+    "volume": {"family": "cloud", "resolution": 16, "seed": 1, "sigma_t_scale": 30.0, "params": {"albedo": [0.8, 0.8, 0.8]}},
+    "lights": [
+        {"type": "constant", "radiance": [0.5, 0.55, 0.6]},
+        {"type": "directional", "direction": [-0.4, -0.8, -0.45], "irradiance": [4.0, 3.8, 3.5]},
+    ],
+    "cameras": {"rig": "sphere", "n_train": 3, "n_test": 2, "width": 12, "height": 12, "fov": 40.0, "radius": 2.2, "seed": 0},
+    "render": {"spp_train": 4, "spp_test": 4, "max_depth": 8, "seed": 0, "noise_floor": False},
+}
+NERF = ["--set", "network.width=8", "--set", "network.depth=1", "--set", "network.head_width=8",
+        "--set", "network.features=4", "--set", "n_samples=8"]
+
+
+@pytest.fixture(scope="module")
+def run_dir(tmp_path_factory):
+    from mitsnerf.scene.generate import generate_dataset
+    from mitsnerf.scene.spec import parse_scene
+
+    root = tmp_path_factory.mktemp("cli")
+    dataset = generate_dataset(parse_scene(TINY, "tiny"), root / "data", progress=False)
+    run = root / "run"
+    assert main(["train", str(dataset), "--out", str(run), "--steps", "4", "--batch-rays", "64",
+                 "--checkpoint-every", "2", *NERF]) == 0
+    return run
+
+
+def test_train_writes_a_run_with_its_final_checkpoint(run_dir):
+    from mitsnerf.checkpoint import load_checkpoint
+
+    names = {p.name for p in run_dir.iterdir()}
+    assert {"config.json", "params.npz", "metrics.json", "checkpoint.npz", "test"} <= names
+    ckpt = load_checkpoint(run_dir / "checkpoint.npz")
+    assert ckpt.step == 4 and ckpt.config["method"] == "nerf" and ckpt.config["train"]["checkpoint_every"] == 2
+
+
+def test_render_a_dataset_view_writes_rgb_depth_and_opacity(run_dir, tmp_path, capsys):
+    assert main(["render", str(run_dir), "--out", str(tmp_path)]) == 0
+    for suffix in ("", "_depth", "_opacity"):
+        assert read_exr(tmp_path / f"test_000{suffix}.exr").shape == (12, 12, 4 if suffix == "" else 3)
+        assert read_png(tmp_path / f"test_000{suffix}.png").shape[:2] == (12, 12)
+    rgba = read_exr(tmp_path / "test_000.exr")
+    opacity = read_exr(tmp_path / "test_000_opacity.exr")[..., 0]
+    np.testing.assert_array_equal(rgba[..., 3], opacity)
+    assert "6 files" in capsys.readouterr().out
+
+
+def test_render_look_from_with_size_and_an_orbit_gif(run_dir, tmp_path):
+    from PIL import Image
+
+    assert main(["render", str(run_dir), "--out", str(tmp_path), "--look-from", "2", "0", "0.5",
+                 "--fov", "30", "--size", "10", "6"]) == 0
+    assert read_exr(tmp_path / "view.exr").shape == (6, 10, 4)
+    assert main(["render", str(run_dir), "--out", str(tmp_path), "--orbit", "3", "--size", "8"]) == 0
+    assert sorted(p.name for p in (tmp_path / "orbit").glob("frame_*.png") if "_" not in p.stem[6:]) == \
+        ["frame_000.png", "frame_001.png", "frame_002.png"]
+    with Image.open(tmp_path / "orbit.gif") as gif:
+        assert gif.n_frames == 3
+
+
+def test_export_cli_writes_the_medium(run_dir, tmp_path):
+    from mitsnerf.data.vol import read_vol
+
+    assert main(["export", str(run_dir), "--out", str(tmp_path), "--resolution", "4", "--directions", "2"]) == 0
+    sigma, lo, hi = read_vol(tmp_path / "sigma_t.vol")
+    assert sigma.shape == (4, 4, 4, 1) and lo == (-0.5, -0.5, -0.5)
+    assert read_vol(tmp_path / "albedo.vol")[0].shape == (4, 4, 4, 3)
+    info = json.loads((tmp_path / "export.json").read_text())
+    assert info["method"] == "nerf" and "averaged over 2" in info["colour"]
+
+
+def test_resume_continues_the_run(run_dir, tmp_path):
+    import shutil
+
+    from mitsnerf.checkpoint import load_checkpoint
+
+    run = tmp_path / "run"
+    shutil.copytree(run_dir, run)
+    assert main(["train", "--resume", "--out", str(run), "--steps", "6"]) == 0
+    ckpt = load_checkpoint(run / "checkpoint.npz")
+    assert ckpt.step == 6
+    assert [h["step"] for h in json.loads((run / "history.json").read_text())] == [4, 6]
+    assert main(["train", "--resume", "--out", str(run), "--lr", "0.5"]) == 2  # settings come from the checkpoint
+
+
+def test_training_errors_are_one_line_and_exit_non_zero(run_dir, monkeypatch, capsys):
+    import mitsnerf.run
+
+    def nan(*args, **kwargs):
+        raise TrainingError(None, "step 7", "loss became nan; stopped; last good checkpoint: RUN/checkpoint.npz (step 6)")
+
+    monkeypatch.setattr(mitsnerf.run, "fit", nan)
+    config = json.loads((run_dir / "config.json").read_text())
+    assert main(["train", config["dataset"], "--out", str(run_dir.parent / "never")]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert err == ["mitsnerf: error: step 7: loss became nan; stopped; last good checkpoint: RUN/checkpoint.npz (step 6)"]
