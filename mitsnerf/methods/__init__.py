@@ -10,6 +10,7 @@ from dataclasses import dataclass
 from types import MappingProxyType
 from typing import Any
 
+from mitsnerf.methods.mitsuba_inverse import MitsubaInverseConfig, MitsubaInverseModel
 from mitsnerf.methods.nerf import NeRFMethodConfig, NeRFModel
 
 
@@ -24,6 +25,8 @@ class MethodEntry:
 METHODS = MappingProxyType(
     {
         "nerf": MethodEntry("nerf", NeRFMethodConfig, NeRFModel, "positional-encoding MLP, stratified samples"),
+        "mitsuba-inverse": MethodEntry("mitsuba-inverse", MitsubaInverseConfig, MitsubaInverseModel,
+                                       "sigma_t/albedo grids through Mitsuba's prbvolpath, coarse to fine"),
     }
 )
 

@@ -1,0 +1,88 @@
+"""``mitsuba-inverse`` on a tiny generated dataset: it trains, upsamples, clamps, evaluates and resumes."""
+
+from __future__ import annotations
+
+import mitsuba as mi
+import numpy as np
+import pytest
+
+from mitsnerf.checkpoint import capture, restore_optimizer
+from mitsnerf.errors import DatasetError
+from mitsnerf.evaluate import evaluate_views
+from mitsnerf.methods.base import SceneInfo
+from mitsnerf.methods.mitsuba_inverse import MitsubaInverseConfig, MitsubaInverseModel
+from mitsnerf.render.background import ConstantBackground
+from mitsnerf.train import PixelData, TrainConfig, make_optimizer, train
+
+TINY = {
+    "name": "tiny-inverse",
+    "description": "a 16^3 cloud, 12x12 views",
+    "volume": {"family": "cloud", "resolution": 16, "seed": 1, "sigma_t_scale": 30.0, "params": {"albedo": [0.8, 0.8, 0.8]}},
+    "lights": [
+        {"type": "constant", "radiance": [0.5, 0.55, 0.6]},
+        {"type": "directional", "direction": [-0.4, -0.8, -0.45], "irradiance": [4.0, 3.8, 3.5]},
+    ],
+    "cameras": {"rig": "sphere", "n_train": 4, "n_test": 2, "width": 12, "height": 12, "fov": 40.0, "radius": 2.2, "seed": 0},
+    "render": {"spp_train": 32, "spp_test": 32, "max_depth": 8, "seed": 0, "noise_floor": False},
+}
+CONFIG = MitsubaInverseConfig(resolutions=(8, 16), upsample_at=(10,), spp=16, eval_spp=32, sigma_t_max=40.0, lr=1.0)
+FLAT = TrainConfig(steps=20, log_every=5, lr_final_factor=1.0)  # no decay: 20 steps only
+
+
+@pytest.fixture(scope="module")
+def tiny(tmp_path_factory):
+    from mitsnerf.data.dataset import load_dataset
+    from mitsnerf.run import scene_info
+    from mitsnerf.scene.generate import generate_dataset
+    from mitsnerf.scene.spec import parse_scene
+
+    root = generate_dataset(parse_scene(TINY, "tiny"), tmp_path_factory.mktemp("inverse"), progress=False)
+    dataset = load_dataset(root)
+    views = dataset.views("train")
+    return dataset, scene_info(dataset, views.images), PixelData.from_views(views.images, views.cameras)
+
+
+def test_a_few_steps_lower_the_image_error_and_upsample(tiny):
+    dataset, info, data = tiny
+    model = MitsubaInverseModel(CONFIG, info)
+    assert model.max_depth == 8  # the dataset's, not prbvolpath's default 6
+    before = evaluate_views(model, data.images, data.cameras, keep_renders=False).psnr_mean
+    result, opt = train(model, data, FLAT, CONFIG.lr, progress=False)
+    after = evaluate_views(model, data.images, data.cameras, keep_renders=False).psnr_mean
+    assert after > before + 1.0, (before, after)
+    assert result.steps == 20 and result.rays_per_s > 0
+    assert model.resolution == 16 and opt["sigma_t"].shape == (16, 16, 16, 1) and opt["albedo"].shape == (16, 16, 16, 3)
+    sigma = np.asarray(model.sigma_t)
+    assert sigma.min() >= 0 and sigma.max() <= CONFIG.sigma_t_max
+    assert model.lr_scales(9) == {"sigma_t": 1.0, "albedo": CONFIG.albedo_lr_factor}
+    assert model.lr_scales(10)["sigma_t"] == 0.5
+
+    test = dataset.views("test")
+    rendered = evaluate_views(model, test.images, test.cameras).renders[0]
+    assert rendered.rgb.shape == (12, 12, 3) and rendered.opacity.shape == (12, 12)
+    assert 0 < rendered.opacity.max() <= 1
+    field_sigma = model.field().density(mi.Array3f(0.0, 0.0, 0.0))
+    assert np.asarray(field_sigma)[0] > CONFIG.init_sigma_t  # the cloud's centre got denser
+
+
+def test_a_checkpoint_restores_the_upsampled_grids(tiny):
+    _, info, data = tiny
+    model = MitsubaInverseModel(CONFIG, info)
+    _, opt = train(model, data, TrainConfig(steps=11, log_every=11), CONFIG.lr, progress=False)
+    ckpt = capture(11, opt)
+    fresh = MitsubaInverseModel(CONFIG, info)
+    opt2 = make_optimizer(fresh, CONFIG.lr)
+    restore_optimizer(opt2, ckpt)
+    fresh.set_parameters(opt2)
+    assert fresh.resolution == 16
+    np.testing.assert_array_equal(np.asarray(fresh.sigma_t), np.asarray(model.sigma_t))
+    result, _ = train(fresh, data, TrainConfig(steps=12, log_every=1), CONFIG.lr, opt=opt2, start_step=11, progress=False)
+    assert result.steps == 12 and np.isfinite(result.final_loss)
+
+
+def test_it_needs_a_generated_dataset_and_valid_settings():
+    info = SceneInfo((-0.5,) * 3, (0.5,) * 3, ConstantBackground((1, 1, 1)), 1.0)
+    with pytest.raises(DatasetError, match="mitsnerf generate"):
+        MitsubaInverseModel(CONFIG, info)
+    with pytest.raises(ValueError, match="upsample_at"):
+        MitsubaInverseConfig(resolutions=(8, 16), upsample_at=())
