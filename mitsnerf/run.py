@@ -82,7 +82,7 @@ def scene_info(dataset: Dataset, train_images: np.ndarray) -> SceneInfo:
 def dataset_config(dataset: Dataset) -> dict:
     """How to open ``dataset`` again (path and load options), for run configs and checkpoints."""
     return {
-        "dataset": str(dataset.root),
+        "dataset": str(Path(dataset.root).resolve()),
         "dataset_options": {
             "pixel_center": dataset.pixel_center,
             "background": list(dataset.png_background),
