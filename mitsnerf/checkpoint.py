@@ -14,7 +14,7 @@ loadable file. It is a numpy ``.npz`` (read with ``allow_pickle=False``)::
     meta.json = {"format": 1, "step": k, "elapsed": seconds, "config": run config,
                  "history": [...], "optimizer": {"type": "Adam", "lr": ..., "beta_1": ...,
                  "params": {name: {"t": Adam step count, "lr": per-parameter lr or null,
-                                   "promoted": bool}}}}
+                                   "promoted": bool}}}, "rng": "..."}
 
 What makes a resume bit-for-bit: the trainer draws step ``k``'s random numbers from a
 generator seeded by ``(seed, k)`` alone (:func:`mitsnerf.train.step_rng`), so the RNG state
@@ -144,6 +144,7 @@ def save_checkpoint(path: str | os.PathLike, ckpt: Checkpoint) -> None:
         "config": ckpt.config,
         "history": ckpt.history,
         "optimizer": ckpt.optimizer,
+        "rng": "step k draws from mitsnerf.train.step_rng(train.seed, k): the generator state is the step",
     }
     arrays: dict[str, np.ndarray] = {"meta.json": np.frombuffer(json.dumps(meta).encode("utf-8"), dtype=np.uint8)}
     for key, value in ckpt.params.items():
@@ -240,7 +241,9 @@ class Checkpointer:
     ``checkpoint_every`` steps, at the end, on Ctrl-C).
 
     ``config`` is stored with each checkpoint (what ``train --resume`` rebuilds the run
-    from); ``model`` supplies ``extra_state()``.
+    from); ``model`` supplies ``extra_state()``, read when the checkpoint is written. (After
+    a Ctrl-C that lands inside ``Model.on_step``, that state may already include the
+    interrupted step's update while the parameters are those of the step before.)
     """
 
     def __init__(self, path: str | os.PathLike, config: Mapping[str, Any] | None = None, model=None) -> None:
