@@ -201,7 +201,7 @@ def train(
             opt.set_learning_rate(lr)
             scales = model.lr_scales(step)
             if scales:
-                opt.set_learning_rate({k: lr * float(f) for k, f in scales.items()})
+                opt.set_learning_rate({k: lr * float(f) for k, f in scales.items() if k in opt})
 
             rng = step_rng(config.seed, step)
             own = model.training_loss(data, step, rng)

@@ -187,7 +187,10 @@ class MitsubaInverseModel(Model):
 
     def lr_scales(self, step: int) -> Mapping[str, float]:
         factor = self.config.upsample_lr_factor ** self.level(step)
-        return {"sigma_t": factor, "albedo": factor * self.config.albedo_lr_factor}
+        scales = {"sigma_t": factor}
+        if self.config.optimize_albedo:
+            scales["albedo"] = factor * self.config.albedo_lr_factor
+        return scales
 
     def on_step(self, step: int, opt) -> None:
         """Upsample after ``upsample_at`` steps; clamp sigma_t to [0, sigma_t_max], albedo to [0, 1]."""

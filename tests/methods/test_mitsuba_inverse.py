@@ -80,6 +80,14 @@ def test_a_checkpoint_restores_the_upsampled_grids(tiny):
     assert result.steps == 12 and np.isfinite(result.final_loss)
 
 
+def test_a_fixed_albedo_is_not_optimised(tiny):
+    _, info, data = tiny
+    model = MitsubaInverseModel(MitsubaInverseConfig(resolutions=(8,), upsample_at=(), spp=2, optimize_albedo=False), info)
+    assert set(model.parameters()) == {"sigma_t"} and set(model.lr_scales(0)) == {"sigma_t"}
+    train(model, data, TrainConfig(steps=2, log_every=1), 0.5, progress=False)
+    np.testing.assert_array_equal(np.asarray(model.albedo), np.float32(0.6))
+
+
 def test_it_needs_a_generated_dataset_and_valid_settings():
     info = SceneInfo((-0.5,) * 3, (0.5,) * 3, ConstantBackground((1, 1, 1)), 1.0)
     with pytest.raises(DatasetError, match="mitsnerf generate"):
