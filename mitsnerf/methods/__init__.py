@@ -12,6 +12,7 @@ from typing import Any
 
 from mitsnerf.methods.mitsuba_inverse import MitsubaInverseConfig, MitsubaInverseModel
 from mitsnerf.methods.nerf import NeRFMethodConfig, NeRFModel
+from mitsnerf.methods.ngp import NGPMethodConfig, NGPModel
 
 
 @dataclass(frozen=True)
@@ -27,6 +28,7 @@ METHODS = MappingProxyType(
         "nerf": MethodEntry("nerf", NeRFMethodConfig, NeRFModel, "positional-encoding MLP, stratified samples"),
         "mitsuba-inverse": MethodEntry("mitsuba-inverse", MitsubaInverseConfig, MitsubaInverseModel,
                                        "sigma_t/albedo grids through Mitsuba's prbvolpath, coarse to fine"),
+        "ngp": MethodEntry("ngp", NGPMethodConfig, NGPModel, "hash-grid encoding, tiny MLPs, occupancy-grid skipping"),
     }
 )
 

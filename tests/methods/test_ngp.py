@@ -1,0 +1,39 @@
+import numpy as np
+import pytest
+
+from mitsnerf.fields.ngp import NGPConfig
+from mitsnerf.fields.occupancy import OccupancyConfig
+from mitsnerf.methods import get_method
+from mitsnerf.methods.ngp import NGPMethodConfig, NGPModel
+from mitsnerf.train import TrainConfig, train
+
+TINY = NGPConfig(n_levels=4, log2_hashmap_size=12, base_resolution=8, max_resolution=32, hidden=16,
+                 geo_features=7, color_hidden=16, sh_degree=1)
+
+
+def test_training_lowers_the_loss_and_the_occupancy_grid_skips_empty_space(tiny_views):
+    data, info = tiny_views()
+    config = NGPMethodConfig(network=TINY, occupancy=OccupancyConfig(resolution=16, update_every=10), n_samples=32)
+    model = NGPModel(config, info)
+    result, _ = train(model, data, TrainConfig(steps=80, batch_rays=256, log_every=10), 2e-2, progress=False)
+    losses = [h["loss"] for h in result.history]
+    assert np.mean(losses[-2:]) < 0.5 * losses[0]
+    assert model.grid.updates == 8
+    assert model.active_fraction < 0.8
+    assert 0.0 < model.grid.occupied_fraction() < 0.9
+    state = model.extra_state()
+    assert state["occupancy.rho"].shape == (16**3,)
+
+
+def test_without_occupancy_every_sample_is_evaluated(tiny_views):
+    data, info = tiny_views(n_views=2, size=6)
+    model = NGPModel(NGPMethodConfig(network=TINY, use_occupancy=False, n_samples=8), info)
+    train(model, data, TrainConfig(steps=3, batch_rays=32), 1e-2, progress=False)
+    assert model.grid is None and model.active_fraction == 1.0
+
+
+def test_registered_with_its_config():
+    entry = get_method("ngp")
+    assert entry.config_type is NGPMethodConfig and entry.model_type is NGPModel
+    with pytest.raises(ValueError, match="max_resolution"):
+        NGPConfig(base_resolution=64, max_resolution=32)
