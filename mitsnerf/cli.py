@@ -172,6 +172,20 @@ def cmd_bench(args) -> int:
     return 0
 
 
+def cmd_check(args) -> int:
+    from mitsnerf.verify.runner import format_table, run_checks
+
+    progress = None if args.no_progress else (
+        lambda r: print(f"  {r.name}: {r.status} ({r.seconds:.1f} s)", file=sys.stderr, flush=True))
+    results = run_checks(args.quality, out=args.out, only=args.case, progress=progress)
+    print(format_table(results))
+    failed = [r.name for r in results if r.passed is False]
+    if failed:
+        print(f"mitsnerf check: {len(failed)} case(s) failed: {', '.join(failed)}", file=sys.stderr)
+        return 1
+    return 0
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="mitsnerf", description=__doc__.splitlines()[0])
     parser.add_argument("--variant", help="Mitsuba variant (default: $MITSNERF_VARIANT, else cuda_ad_rgb if a GPU is usable, else llvm_ad_rgb)")
@@ -248,6 +262,16 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--results", default="results", help="results root (default: results)")
     p.add_argument("--no-progress", action="store_true")
     p.set_defaults(func=cmd_bench)
+
+    p = sub.add_parser("check", help="verify the integrator against Mitsuba's volpath, closed forms and finite differences",
+                       description="Run the verification cases (mitsnerf.verify) and print a table; "
+                                   "exit status 1 if any case fails.")
+    p.add_argument("--quality", choices=("quick", "thorough"), default="quick",
+                   help="quick: 12x12 images, 1024 spp (about 20 s); thorough: 32x32, 4096 spp (minutes)")
+    p.add_argument("--out", help="directory for the images of failing cases (default: a new temporary directory)")
+    p.add_argument("--case", action="append", metavar="NAME", help="run only this case (repeatable)")
+    p.add_argument("--no-progress", action="store_true")
+    p.set_defaults(func=cmd_check)
     return parser
 
 
