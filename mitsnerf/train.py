@@ -217,6 +217,8 @@ def train(
                 loss = mse
                 for extra in (out.extra_losses or {}).values():
                     loss = loss + extra
+                for aux in (out.aux_rgb or {}).values():
+                    loss = loss + dr.mean(dr.square(aux - target), axis=None)
             else:
                 B, loss, mse = own.rays, own.loss, own.mse
             dr.backward(loss)

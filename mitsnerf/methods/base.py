@@ -57,6 +57,9 @@ class RenderOutput:
 
     composite: Composite
     extra_losses: Mapping[str, Any] = None  # name -> Float of width 1, added to the loss
+    aux_rgb: Mapping[str, Any] = None
+    """name -> Array3f (R,): further colour predictions of the same rays, each supervised by
+    the same photometric MSE as ``rgb`` and added to the loss (NeRF's coarse pass)."""
 
     @property
     def rgb(self):
