@@ -267,7 +267,7 @@ def build_parser() -> argparse.ArgumentParser:
                        description="Run the verification cases (mitsnerf.verify) and print a table; "
                                    "exit status 1 if any case fails.")
     p.add_argument("--quality", choices=("quick", "thorough"), default="quick",
-                   help="quick: 12x12 images, 1024 spp (about 20 s); thorough: 32x32, 4096 spp (minutes)")
+                   help="quick: 12x12 images, 1024-4096 spp (under a minute); thorough: 24x24, 4096-16384 spp (minutes)")
     p.add_argument("--out", help="directory for the images of failing cases (default: a new temporary directory)")
     p.add_argument("--case", action="append", metavar="NAME", help="run only this case (repeatable)")
     p.add_argument("--no-progress", action="store_true")

@@ -62,7 +62,7 @@ class Quality:
 
 QUALITIES = {
     "quick": Quality("quick", width=12, spp=1024, n_samples=64),
-    "thorough": Quality("thorough", width=32, spp=4096, n_samples=256),
+    "thorough": Quality("thorough", width=24, spp=4096, n_samples=128),
 }
 
 
@@ -165,9 +165,9 @@ SUN = tuple(float(v) for v in np.array([0.3, 0.5, -0.8]) / np.linalg.norm([0.3, 
 SCENARIOS: tuple[VolpathScenario, ...] = (
     VolpathScenario("absorption_constant", "albedo 0, constant environment",
                     sigma_t_max=8.0, albedo="zero", environment="constant", source="zero",
-                    env_radiance=(0.6, 0.8, 1.0), detects=("delta_wrong_end", "no_background")),
+                    env_radiance=(0.6, 0.8, 1.0), spp_factor=4.0, detects=("delta_wrong_end", "no_background")),
     VolpathScenario("absorption_envmap", "albedo 0, envmap environment",
-                    sigma_t_max=8.0, albedo="zero", environment="envmap", source="zero",
+                    sigma_t_max=8.0, albedo="zero", environment="envmap", source="zero", spp_factor=4.0,
                     detects=("delta_wrong_end", "no_background")),
     VolpathScenario("white_furnace", "albedo 1, environment 1, unlimited depth",
                     sigma_t_max=8.0, albedo="one", environment="constant", source="one",
