@@ -94,7 +94,7 @@ def make_problem(case: GradientCase, quality: Quality, composite_fn=composite) -
     if case.parameter == "color_grid":
         return mi.TensorXf(albedo_np), lambda theta: loss_of(GridField.from_arrays(sigma_np, color=theta))
     if case.parameter == "nerf_weights":
-        config = NeRFConfig(width=16, depth=2, pos_octaves=3, dir_octaves=1, features=4, head_width=8)
+        config = NeRFConfig(width=16, depth=3, skip=2, pos_octaves=3, dir_octaves=1, features=4, head_width=8)
         field = NeRFField.create(config, mi.TensorXf, seed=3)
         layer = field.net.trunk[0]
 

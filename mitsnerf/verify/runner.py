@@ -236,7 +236,7 @@ def plugin_case(case: C.PluginCase, quality: C.Quality, composite_fn=composite,
         r = quality.resolution
         field = GridField.from_arrays(C.front_heavy_sigma_t(r, 8.0), color=C.procedural_albedo(r))
     else:
-        field = NeRFField.create(NeRFConfig(width=32, depth=2), mi.TensorXf, seed=quality.seed + 1)
+        field = NeRFField.create(NeRFConfig(width=32, depth=2, skip=None), mi.TensorXf, seed=quality.seed + 1)
     env = (M.envmap_environment(C.environment_bitmap()) if case.environment == "envmap"
            else M.constant_environment((0.6, 0.8, 1.0)))
     scene = mi.load_dict({
