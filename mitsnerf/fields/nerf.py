@@ -1,6 +1,7 @@
 """The NeRF field ``F(x, d) -> (c, sigma)`` as a ``drjit.nn`` network in tensor mode.
 
-Architecture (Mildenhall et al. 2020, sizes configurable)::
+Architecture (Mildenhall et al. 2020, sizes configurable; the defaults are NeRF's
+encodings and skip connection on a CPU-sized trunk of 4 x 64 instead of 8 x 256)::
 
     p      = (x - box_min) / (box_max - box_min)                  in [0, 1]^3
     gamma(p) = [p, sin(2 pi 2^k p), cos(2 pi 2^k p)]_{k < L_x}     (drjit.nn.SinEncode, period 1)
@@ -27,16 +28,17 @@ from mitsnerf.render.rays import BOX_MAX, BOX_MIN
 class NeRFConfig:
     """Sizes and output scalings of the NeRF network."""
 
-    pos_octaves: int = 8
+    pos_octaves: int = 10
     """Frequencies L_x of the positional encoding of x (NeRF: 10)."""
     dir_octaves: int = 4
     """Frequencies L_d of the encoding of the view direction (NeRF: 4)."""
     width: int = 64
     """Width W of the trunk (NeRF: 256)."""
-    depth: int = 3
+    depth: int = 4
     """Number of hidden layers D of the trunk (NeRF: 8)."""
-    skip: int | None = None
-    """Trunk layer index at which the encoded input is concatenated again (NeRF: 4); None: no skip."""
+    skip: int | None = 2
+    """Trunk layer index at which the encoded input is concatenated again (NeRF: 4, of 8); None, or
+    an index >= depth (a trunk too shallow for it): no skip."""
     features: int = 15
     """Position features passed from the trunk to the colour head."""
     head_width: int = 32
@@ -55,8 +57,8 @@ class NeRFConfig:
         for name in ("width", "depth", "features", "head_width"):
             if getattr(self, name) < 1:
                 raise ValueError(f"{name}: must be >= 1, got {getattr(self, name)}")
-        if self.skip is not None and not 0 < self.skip < self.depth:
-            raise ValueError(f"skip: must be None or in [1, depth), got {self.skip}")
+        if self.skip is not None and self.skip < 1:
+            raise ValueError(f"skip: must be None or >= 1, got {self.skip}")
         if not (self.sigma_scale > 0 and self.c_max > 0):
             raise ValueError("sigma_scale, c_max: must be > 0")
 

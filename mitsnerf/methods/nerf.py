@@ -1,63 +1,213 @@
-"""``nerf``: a positional-encoding MLP field rendered by stratified emission-absorption quadrature."""
+"""``nerf``: positional-encoding MLPs with NeRF's coarse-to-fine (hierarchical) sampling.
+
+Per ray (Mildenhall et al. 2020, section 5.2)::
+
+    coarse:  N_c stratified samples t_i            -> network_c -> C_c = composite(...)
+             w_i = T_i (1 - exp(-sigma_i delta_i))    (the coarse compositing weights)
+    fine:    N_f samples from the piecewise-constant pdf of w over the coarse intervals
+             [t_i, t_{i+1}] (inverse CDF, mitsnerf.math.sampling.sample_pdf), merged with
+             the coarse ones and sorted; deltas from the sorted set
+             -> network_f on all N_c + N_f      -> C_f = composite(...)
+    loss:    |C_c - C|^2 + |C_f - C|^2            (both networks supervised)
+
+The coarse samples come from :func:`mitsnerf.render.volume.sample_rays` and both
+passes composite with :func:`mitsnerf.math.composite.composite`, as every method.
+``n_importance = 0`` is the single-pass method: one network, ``n_samples`` stratified
+samples (what ``nerf`` was before the fine pass; ``NeRFMethodConfig.single_pass()``).
+
+| name           | type              | default      | meaning                                          |
+|----------------|-------------------|--------------|--------------------------------------------------|
+| network        | NeRFConfig        | NeRFConfig() | the fine network (the only one if single-pass)   |
+| coarse_network | NeRFConfig / None | None         | the coarse network's sizes (None: as network)    |
+| n_samples      | int               | 32           | stratified coarse samples per ray N_c            |
+| n_importance   | int               | 64           | importance samples per ray N_f (0: single pass)  |
+| lr             | float             | 5e-3         | Adam learning rate                               |
+"""
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any, Mapping
 
+import drjit as dr
 import mitsuba as mi
 
 from mitsnerf.fields.nerf import NeRFConfig, NeRFField
+from mitsnerf.math.composite import composite, weights
+from mitsnerf.math.sampling import deltas_from_sorted_t, merge_sorted_t, sample_pdf
 from mitsnerf.methods.base import Model, RenderOutput, SceneInfo
-from mitsnerf.render.volume import render_rays
+from mitsnerf.render.rays import intersect_box
+from mitsnerf.render.volume import render_rays, sample_rays
+
+COARSE_PREFIX = "coarse."
+"""Parameter names of the coarse network; the fine network's keep the single-pass names."""
 
 
 @dataclass(frozen=True)
 class NeRFMethodConfig:
-    """Configuration of the ``nerf`` method."""
+    """Configuration of the ``nerf`` method (see the module docstring's table)."""
 
     network: NeRFConfig = field(default_factory=NeRFConfig)
-    n_samples: int = 64
-    """Stratified samples per ray (N)."""
+    """The fine network: sizes of the MLP evaluated on coarse + importance samples."""
+    coarse_network: NeRFConfig | None = None
+    """The coarse network's sizes; None: the same as ``network``."""
+    n_samples: int = 32
+    """Stratified (coarse) samples per ray N_c."""
+    n_importance: int = 64
+    """Importance samples per ray N_f drawn from the coarse weights; 0: single pass, one network."""
     lr: float = 5e-3
     """Adam learning rate."""
 
     def __post_init__(self) -> None:
         if self.n_samples < 1:
             raise ValueError(f"n_samples: must be >= 1, got {self.n_samples}")
+        if self.n_importance < 0:
+            raise ValueError(f"n_importance: must be >= 0 (0: single pass), got {self.n_importance}")
         if not self.lr > 0:
             raise ValueError(f"lr: must be > 0, got {self.lr}")
+
+    @classmethod
+    def single_pass(cls, n_samples: int = 64, **kwargs) -> "NeRFMethodConfig":
+        """One network, ``n_samples`` stratified samples, no fine pass.
+
+        >>> NeRFMethodConfig.single_pass().n_importance
+        0
+        """
+        return cls(n_samples=n_samples, n_importance=0, **kwargs)
+
+
+def _split_jitter(u, n_rays: int, n_c: int, n_f: int):
+    """The trainer's ``u`` (R*(n_c+n_f),) as coarse (R*n_c,) and fine (R*n_f,) jitter (None: None)."""
+    if u is None:
+        return None, None
+    Float = type(u)
+    UInt32 = dr.uint32_array_t(Float)
+    u_c = dr.gather(Float, u, dr.arange(UInt32, n_rays * n_c))
+    u_f = dr.gather(Float, u, dr.arange(UInt32, n_rays * n_c, n_rays * (n_c + n_f))) if n_f else None
+    return u_c, u_f
+
+
+def coarse_edges(t, t_f, n: int):
+    """Bin edges ``[t_0, ..., t_{N-1}, t_f]`` per ray (R*(N+1),) of samples ``t`` (R*N,).
+
+    Coarse weight ``w_i`` belongs to the interval ``[t_i, t_{i+1}]`` (``[t_{N-1}, t_f]`` for
+    the last), the quadrature's own intervals, so these are the pdf's bins.
+
+    >>> from drjit.llvm import Float
+    >>> coarse_edges(Float(0.1, 0.6), Float(1.0), 2)
+    [0.1, 0.6, 1]
+    """
+    Float = type(t)
+    UInt32 = dr.uint32_array_t(Float)
+    n_rays = dr.width(t) // n
+    idx = dr.arange(UInt32, n_rays * (n + 1))
+    ray = idx // (n + 1)
+    k = idx - ray * (n + 1)
+    last = k == n
+    tf = dr.gather(Float, t_f, ray) if dr.width(t_f) > 1 else Float(t_f)
+    return dr.select(last, tf, dr.gather(Float, dr.detach(t), ray * n + k, ~last))
+
+
+def importance_strata(n_rays: int, n: int, u, Float):
+    """Increasing ``u_j = (j + xi_j) / n`` per ray for :func:`sample_pdf` (``xi = 1/2`` without jitter)."""
+    UInt32 = dr.uint32_array_t(Float)
+    j = dr.arange(UInt32, n_rays * n) % n
+    xi = 0.5 if u is None else u
+    return (Float(j) + xi) / n
 
 
 class NeRFModel(Model):
     name = "nerf"
 
     def __init__(self, config: NeRFMethodConfig, scene: SceneInfo, seed: int = 0) -> None:
-        net_config = config.network
-        if net_config.c_max < scene.radiance_max:
-            from dataclasses import replace
-
-            net_config = replace(net_config, c_max=max(1.0, 1.25 * scene.radiance_max))
         self.config = config
         self.scene = scene
-        self._field = NeRFField.create(net_config, mi.TensorXf, seed, scene.box_min, scene.box_max)
+        fine = self._scaled(config.network, scene)
+        self._field = NeRFField.create(fine, mi.TensorXf, seed, scene.box_min, scene.box_max)
+        self._coarse = None
+        if config.n_importance > 0:
+            coarse = self._scaled(config.coarse_network or config.network, scene)
+            self._coarse = NeRFField.create(coarse, mi.TensorXf, seed + 1, scene.box_min, scene.box_max)
+
+    @staticmethod
+    def _scaled(net_config: NeRFConfig, scene: SceneInfo) -> NeRFConfig:
+        if net_config.c_max < scene.radiance_max:
+            return replace(net_config, c_max=max(1.0, 1.25 * scene.radiance_max))
+        return net_config
+
+    @property
+    def hierarchical(self) -> bool:
+        return self._coarse is not None
 
     def parameters(self) -> Mapping[str, Any]:
-        return dict(self._field.net.items())
+        params = dict(self._field.net.items())
+        if self._coarse is not None:
+            params.update({COARSE_PREFIX + k: v for k, v in self._coarse.net.items()})
+        return params
 
     def set_parameters(self, values: Mapping[str, Any]) -> None:
         for key, value in values.items():
-            self._field.net[key] = value
+            if key.startswith(COARSE_PREFIX):
+                if self._coarse is not None:
+                    self._coarse.net[key[len(COARSE_PREFIX):]] = value
+            else:
+                self._field.net[key] = value
 
     def samples_per_ray(self) -> int:
-        return self.config.n_samples
+        """Network evaluations per ray: N_c (+ N_c + N_f for the fine pass)."""
+        c = self.config
+        return c.n_samples + (c.n_samples + c.n_importance if self.hierarchical else 0)
+
+    def jitter_size(self) -> int:
+        return self.config.n_samples + (self.config.n_importance if self.hierarchical else 0)
 
     def field(self):
         return self._field
 
+    def coarse_field(self):
+        """The coarse network's field (None when single-pass)."""
+        return self._coarse
+
+    def _background(self, d):
+        bg = self.scene.background
+        return bg(d) if callable(bg) else (0.0 if bg is None else bg)
+
     def render_rays(self, o, d, *, u=None, training: bool = False) -> RenderOutput:
-        comp = render_rays(
-            self._field, o, d, self.config.n_samples, u=u, background=self.scene.background,
-            box_min=self.scene.box_min, box_max=self.scene.box_max,
-        )
-        return RenderOutput(comp, {})
+        cfg, scene = self.config, self.scene
+        if not self.hierarchical:
+            comp = render_rays(
+                self._field, o, d, cfg.n_samples, u=u, background=scene.background,
+                box_min=scene.box_min, box_max=scene.box_max,
+            )
+            return RenderOutput(comp, {})
+
+        n_c, n_f = cfg.n_samples, cfg.n_importance
+        n_rays = dr.width(o)
+        u_c, u_f = _split_jitter(u, n_rays, n_c, n_f)
+        bg = self._background(d)
+        Float = type(o.x)
+
+        # Coarse pass: stratified samples through the coarse network.
+        s, _ = sample_rays(o, d, n_c, u_c, scene.box_min, scene.box_max)
+        if training:
+            rgb_c, sigma_c = self._coarse(s.x, s.d)
+            comp_c = composite(sigma_c, s.delta, rgb_c, n_c, background=bg, t=s.t)
+        else:
+            sigma_c = self._coarse.density(s.x)  # only its weights are needed
+        w_c, _ = weights(dr.detach(sigma_c), s.delta, n_c)
+
+        # Fine pass: importance samples from the coarse weights, merged with the coarse ones.
+        _, t_f, _ = intersect_box(o, d, scene.box_min, scene.box_max)
+        edges = coarse_edges(s.t, t_f, n_c)
+        t_imp = sample_pdf(edges, w_c, n_c, n_f, importance_strata(n_rays, n_f, u_f, Float))
+        n = n_c + n_f
+        t = merge_sorted_t(s.t, n_c, t_imp, n_f)
+        delta = deltas_from_sorted_t(t, t_f, n)
+        UInt32 = dr.uint32_array_t(Float)
+        ray = dr.arange(UInt32, n_rays * n) // n
+        Array3f = type(o)
+        d_s = dr.gather(Array3f, d, ray)
+        x = dr.gather(Array3f, o, ray) + t * d_s
+        rgb, sigma = self._field(x, d_s)
+        comp = composite(sigma, delta, rgb, n, background=bg, t=t)
+        return RenderOutput(comp, {}, aux_rgb={"coarse": comp_c.rgb} if training else None)
