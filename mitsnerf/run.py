@@ -15,7 +15,7 @@ from __future__ import annotations
 import shutil
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Mapping
+from typing import Any, Callable, Mapping
 
 import numpy as np
 
@@ -154,6 +154,7 @@ def fit(
     progress: bool = True,
     max_train_eval_views: int = 4,
     resume: bool = False,
+    on_log: Callable[[dict, Model], None] | None = None,
 ) -> RunResult:
     """Train ``method`` on ``dataset`` and evaluate it on every test view.
 
@@ -161,6 +162,10 @@ def fit(
     removes an old one there); ``resume=True`` continues from it instead, which must be
     of the same method, method settings and training settings (except
     :data:`RESUMABLE_CHANGES`).
+
+    ``on_log(entry, model)`` is called after each training-history entry (the trainer's hook:
+    its time is kept off the training clock, it may add keys to ``entry``), e.g. to evaluate
+    held-out views during training (:class:`mitsnerf.bench.worker.CurveRecorder`).
     """
     train_views = dataset.views("train")
     test_views = dataset.views("test")
@@ -187,7 +192,8 @@ def fit(
     elif resume:
         raise ValueError("resume: needs the run directory (out_dir) holding the checkpoint")
     result, _ = train(model, data, train_config, base_lr, opt=opt, start_step=start_step, elapsed=elapsed,
-                      history=history, progress=progress, checkpointer=checkpointer)
+                      history=history, progress=progress, checkpointer=checkpointer,
+                      on_log=None if on_log is None else (lambda entry: on_log(entry, model)))
 
     test_eval = evaluate_views(model, test_views.images, test_views.cameras, pixel_center=pixel_center)
     k = min(max_train_eval_views, len(train_views.cameras))

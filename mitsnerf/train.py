@@ -151,6 +151,10 @@ def train(
     ``render_rays``; the scheduled learning rate is multiplied per parameter by
     :meth:`Model.lr_scales`.
 
+    ``on_log(entry)`` runs after each history entry; it may add keys to ``entry`` (they stay
+    in the history), and the time it takes is kept off the training clock (the ``seconds``
+    budget, the logged and returned seconds, rays/s), so it may evaluate the model.
+
     ``checkpointer`` (a :class:`mitsnerf.checkpoint.Checkpointer`) writes the state after
     every ``config.checkpoint_every`` steps (skipped while the loss looks diverging, so the
     file left is the last good one), at the end, and on ``KeyboardInterrupt``: then the
@@ -256,7 +260,11 @@ def train(
                             f"stayed above {factor:g} x its minimum {best:.3g} (now {mean:.3g}); stopped; {where()}",
                         )
                 if on_log is not None:
+                    paused = time.perf_counter()
                     on_log(entry)
+                    paused = time.perf_counter() - paused  # the hook's time is not training time
+                    start += paused
+                    t_loop += paused
             healthy = not factor or (bad == 0 and loss_value <= factor * best)
             due = config.checkpoint_every and step % config.checkpoint_every == 0
             if checkpointer is not None and due and healthy:
