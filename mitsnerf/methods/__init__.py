@@ -13,6 +13,7 @@ from typing import Any
 from mitsnerf.methods.mitsuba_inverse import MitsubaInverseConfig, MitsubaInverseModel
 from mitsnerf.methods.nerf import NeRFMethodConfig, NeRFModel
 from mitsnerf.methods.ngp import NGPMethodConfig, NGPModel
+from mitsnerf.methods.voxel import VoxelMethodConfig, VoxelModel
 
 
 @dataclass(frozen=True)
@@ -29,6 +30,7 @@ METHODS = MappingProxyType(
         "mitsuba-inverse": MethodEntry("mitsuba-inverse", MitsubaInverseConfig, MitsubaInverseModel,
                                        "sigma_t/albedo grids through Mitsuba's prbvolpath, coarse to fine"),
         "ngp": MethodEntry("ngp", NGPMethodConfig, NGPModel, "hash-grid encoding, tiny MLPs, occupancy-grid skipping"),
+        "voxel": MethodEntry("voxel", VoxelMethodConfig, VoxelModel, "dense density + SH grid, TV prior, coarse to fine"),
     }
 )
 

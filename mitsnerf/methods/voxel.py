@@ -1,0 +1,154 @@
+"""``voxel``: a dense density + SH-colour grid, trained coarse to fine with a total-variation prior.
+
+The field (:class:`mitsnerf.fields.voxel.VoxelField`) is rendered by the shared
+emission-absorption renderer (:func:`mitsnerf.render.volume.render_rays`), like the
+ground truth. The loss adds ``tv_sigma * TV(s) + tv_sh * TV(k)`` (as ``extra_losses``)
+to the photometric MSE. Training starts at ``initial_resolution`` and doubles the grids
+(trilinearly, :func:`mitsnerf.fields.voxel.upsample`) after each step listed in
+``upsample_steps`` until ``resolution``; the upsampled grids replace the optimiser's
+entries (their Adam state restarts).
+
+| name               | type             | default   | meaning                                           |
+|--------------------|------------------|-----------|---------------------------------------------------|
+| grid               | VoxelFieldConfig |           | SH degree, activations, initial density           |
+| resolution         | int              | 64        | final grid resolution R                           |
+| initial_resolution | int              | 32        | resolution training starts at                     |
+| upsample_steps     | tuple of int     | (250,)    | steps after which the resolution doubles          |
+| n_samples          | int              | 128       | stratified samples per ray                        |
+| tv_sigma           | float            | 1e-3      | weight of TV on the raw density grid              |
+| tv_sh              | float            | 1e-3      | weight of TV on the SH coefficient grid           |
+| lr                 | float            | 0.3       | Adam learning rate                                |
+| lr_sh_factor       | float            | 1.0       | the SH grid's learning rate relative to lr        |
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field, replace
+from typing import Any, Mapping
+
+import mitsuba as mi
+
+from mitsnerf.fields.voxel import VoxelField, VoxelFieldConfig, total_variation, upsample
+from mitsnerf.methods.base import Model, RenderOutput, SceneInfo
+from mitsnerf.render.volume import render_rays
+
+SIGMA_KEY = "sigma_raw"
+SH_KEY = "sh"
+
+
+@dataclass(frozen=True)
+class VoxelMethodConfig:
+    """Configuration of the ``voxel`` method (see the module docstring's table)."""
+
+    grid: VoxelFieldConfig = field(default_factory=VoxelFieldConfig)
+    """What each voxel holds: SH degree, activations, initial density."""
+    resolution: int = 64
+    """Final grid resolution R (voxels per axis)."""
+    initial_resolution: int = 32
+    """Resolution at the start; doubled after each of ``upsample_steps`` until ``resolution``."""
+    upsample_steps: tuple[int, ...] = (250,)
+    """Steps (0-based) after which the grids are doubled; the list must cover the doublings needed."""
+    n_samples: int = 128
+    """Stratified samples per ray."""
+    tv_sigma: float = 1e-3
+    """Weight of the total-variation prior on the raw density grid."""
+    tv_sh: float = 1e-3
+    """Weight of the total-variation prior on the SH coefficient grid."""
+    lr: float = 0.3
+    """Adam learning rate."""
+    lr_sh_factor: float = 1.0
+    """The SH grid's learning rate as a fraction of the scheduled one."""
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "upsample_steps", tuple(int(s) for s in self.upsample_steps))
+        if not 2 <= self.initial_resolution <= self.resolution <= 512:
+            raise ValueError(
+                f"initial_resolution, resolution: need 2 <= initial_resolution <= resolution <= 512, "
+                f"got {self.initial_resolution}, {self.resolution}"
+            )
+        doublings, r = 0, self.initial_resolution
+        while r < self.resolution:
+            r *= 2
+            doublings += 1
+        if r != self.resolution:
+            raise ValueError(
+                f"resolution: must be initial_resolution ({self.initial_resolution}) times a power of 2, got {self.resolution}"
+            )
+        if len(self.upsample_steps) != doublings:
+            raise ValueError(
+                f"upsample_steps: {self.initial_resolution} -> {self.resolution} takes {doublings} doubling(s), "
+                f"got {len(self.upsample_steps)} step(s) {list(self.upsample_steps)}"
+            )
+        if any(b <= a for a, b in zip(self.upsample_steps, self.upsample_steps[1:])) or any(s < 0 for s in self.upsample_steps):
+            raise ValueError(f"upsample_steps: must be increasing and >= 0, got {list(self.upsample_steps)}")
+        if self.n_samples < 1:
+            raise ValueError(f"n_samples: must be >= 1, got {self.n_samples}")
+        if self.tv_sigma < 0 or self.tv_sh < 0:
+            raise ValueError("tv_sigma, tv_sh: must be >= 0")
+        if not (self.lr > 0 and self.lr_sh_factor > 0):
+            raise ValueError("lr, lr_sh_factor: must be > 0")
+
+    def resolution_at(self, step: int) -> int:
+        """Grid resolution used at (0-based) ``step``.
+
+        >>> VoxelMethodConfig(resolution=128, initial_resolution=32, upsample_steps=(10, 20)).resolution_at(15)
+        64
+        """
+        return self.initial_resolution * 2 ** sum(1 for s in self.upsample_steps if step > s)
+
+
+class VoxelModel(Model):
+    name = "voxel"
+
+    def __init__(self, config: VoxelMethodConfig, scene: SceneInfo, seed: int = 0) -> None:
+        field_config = config.grid
+        if field_config.c_max < scene.radiance_max:
+            field_config = replace(field_config, c_max=max(1.0, 1.25 * scene.radiance_max))
+        self.config = config
+        self.scene = scene
+        self._field = VoxelField.create(field_config, config.initial_resolution, mi.TensorXf, scene.box_min, scene.box_max)
+
+    def parameters(self) -> Mapping[str, Any]:
+        return {SIGMA_KEY: self._field.sigma_raw, SH_KEY: self._field.sh}
+
+    def set_parameters(self, values: Mapping[str, Any]) -> None:
+        """Take new grids (any resolution: a resumed run may hold upsampled ones)."""
+        sigma = values[SIGMA_KEY] if SIGMA_KEY in values else None
+        sh = values[SH_KEY] if SH_KEY in values else None
+        if sigma is not None or sh is not None:
+            self._field = self._field.with_grids(sigma, sh)
+
+    def samples_per_ray(self) -> int:
+        return self.config.n_samples
+
+    def field(self):
+        return self._field
+
+    @property
+    def resolution(self) -> int:
+        return self._field.resolution
+
+    def lr_scales(self, step: int) -> Mapping[str, float]:
+        return {SH_KEY: self.config.lr_sh_factor} if self.config.lr_sh_factor != 1.0 else {}
+
+    def render_rays(self, o, d, *, u=None, training: bool = False) -> RenderOutput:
+        comp = render_rays(
+            self._field, o, d, self.config.n_samples, u=u, background=self.scene.background,
+            box_min=self.scene.box_min, box_max=self.scene.box_max,
+        )
+        extra = {}
+        if training:
+            if self.config.tv_sigma > 0:
+                extra["tv_sigma"] = self.config.tv_sigma * total_variation(self._field.sigma_raw)
+            if self.config.tv_sh > 0:
+                extra["tv_sh"] = self.config.tv_sh * total_variation(self._field.sh)
+        return RenderOutput(comp, extra)
+
+    def on_step(self, step: int, opt) -> None:
+        """After a step listed in ``upsample_steps``: double both grids and re-register them."""
+        if step not in self.config.upsample_steps:
+            return
+        r = 2 * self.resolution
+        for key in (SIGMA_KEY, SH_KEY):
+            opt[key] = upsample(opt[key], r)  # a new shape: the optimiser resets its state
+        self.set_parameters(opt)

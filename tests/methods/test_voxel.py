@@ -1,0 +1,91 @@
+import drjit as dr
+import mitsuba as mi
+import numpy as np
+import pytest
+
+from mitsnerf.fields.voxel import VoxelField, VoxelFieldConfig, total_variation, upsample
+from mitsnerf.methods import get_method
+from mitsnerf.methods.voxel import SH_KEY, SIGMA_KEY, VoxelMethodConfig, VoxelModel
+from mitsnerf.train import TrainConfig, make_optimizer, train
+
+
+def test_training_lowers_the_loss_and_upsamples_on_schedule(tiny_views):
+    data, info = tiny_views()
+    config = VoxelMethodConfig(resolution=16, initial_resolution=8, upsample_steps=(40,), n_samples=32)
+    model = VoxelModel(config, info)
+    result, opt = train(model, data, TrainConfig(steps=80, batch_rays=256, log_every=10), 0.3, progress=False)
+    losses = [h["loss"] for h in result.history]
+    assert np.mean(losses[-2:]) < 0.5 * losses[0]
+    assert model.resolution == 16
+    assert opt[SIGMA_KEY].shape == (16, 16, 16, 1) and opt[SH_KEY].shape == (16, 16, 16, 12)
+    # the model renders the optimiser's (upsampled) grids
+    assert model.parameters()[SIGMA_KEY].shape == (16, 16, 16, 1)
+
+
+def test_upsampling_keeps_the_rendered_field():
+    rng = np.random.default_rng(0)
+    r = 8
+    c = (np.arange(r) + 0.5) / r
+    z, y, x = np.meshgrid(c, c, c, indexing="ij")
+    smooth = np.sin(2 * x + y) + z**2
+    sigma_raw = mi.TensorXf(smooth[..., None].astype(np.float32))
+    sh = mi.TensorXf(np.repeat(smooth[..., None], 12, -1).astype(np.float32))
+    f = VoxelField(VoxelFieldConfig(), sigma_raw, sh)
+    g = f.with_grids(upsample(sigma_raw, 2 * r), upsample(sh, 2 * r))
+    assert g.resolution == 2 * r
+    p = rng.uniform(-0.4, 0.4, (2000, 3)).astype(np.float32)
+    x3 = mi.Array3f(*p.T)
+    np.testing.assert_allclose(np.asarray(g.density(x3)), np.asarray(f.density(x3)), rtol=0.02)
+
+
+def test_upsample_is_exact_on_linear_grids():
+    # Trilinear interpolation reproduces a linear function away from the clamped border.
+    r = 4
+    c = (np.arange(r) + 0.5) / r
+    z, y, x = np.meshgrid(c, c, c, indexing="ij")
+    lin = (x + 2 * y - z).astype(np.float32)[..., None]
+    up = upsample(mi.TensorXf(lin), 8).numpy()[..., 0]
+    c8 = (np.arange(8) + 0.5) / 8
+    z8, y8, x8 = np.meshgrid(c8, c8, c8, indexing="ij")
+    inner = (slice(1, 7),) * 3
+    np.testing.assert_allclose(up[inner], (x8 + 2 * y8 - z8)[inner], atol=1e-5)
+
+
+def test_total_variation_is_zero_on_constants_and_pulls_neighbours_together():
+    g = dr.full(mi.TensorXf, 3.0, (4, 4, 4, 2))
+    assert total_variation(g)[0] == 0.0
+    a = np.zeros((4, 4, 4, 1), np.float32)
+    a[1, 2, 3] = 1.0
+    t = mi.TensorXf(a)
+    dr.enable_grad(t)
+    dr.backward(total_variation(t))
+    grad = dr.grad(t).numpy()
+    assert grad[1, 2, 3, 0] > 0 and grad[1, 2, 2, 0] < 0
+
+
+def test_a_resumed_model_takes_upsampled_grids():
+    from mitsnerf.methods.base import SceneInfo
+    from mitsnerf.render.background import ConstantBackground
+
+    info = SceneInfo((-0.5,) * 3, (0.5,) * 3, ConstantBackground((0, 0, 0)), 1.0)
+    config = VoxelMethodConfig(resolution=8, initial_resolution=4, upsample_steps=(3,), n_samples=8)
+    model = VoxelModel(config, info)
+    opt = make_optimizer(model, 0.1)
+    model.on_step(2, opt)
+    assert model.resolution == 4
+    model.on_step(3, opt)
+    assert model.resolution == 8 and opt[SH_KEY].shape == (8, 8, 8, 12)
+    fresh = VoxelModel(config, info)
+    fresh.set_parameters({k: opt[k] for k in opt.keys()})
+    assert fresh.resolution == 8
+    assert config.resolution_at(3) == 4 and config.resolution_at(4) == 8
+
+
+def test_config_is_validated():
+    assert get_method("voxel").config_type is VoxelMethodConfig
+    with pytest.raises(ValueError, match="upsample_steps"):
+        VoxelMethodConfig(resolution=64, initial_resolution=16, upsample_steps=(10,))
+    with pytest.raises(ValueError, match="power of 2"):
+        VoxelMethodConfig(resolution=48, initial_resolution=32, upsample_steps=(10,))
+    with pytest.raises(ValueError, match="sh_degree"):
+        VoxelFieldConfig(sh_degree=4)
