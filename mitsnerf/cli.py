@@ -166,9 +166,20 @@ def cmd_bench(args) -> int:
         data_root=Path(args.data) if args.data else default_data_root(),
         results_root=Path(args.results),
         progress=not args.no_progress,
+        executor=args.executor,
+        workers=args.workers,
+        address=args.address,
+        cpus_per_cell=args.cpus_per_cell,
+        force=args.force,
     )
-    _, table = run_benchmark(config, options)
-    print(table)
+    result = run_benchmark(config, options)
+    print(result.markdown)
+    print(f"\n{len(result.computed)} cells run, {len(result.skipped)} already done -> {result.out_root} "
+          f"({', '.join(sorted(p for p in result.files if '/' not in p))})")
+    if result.failed:
+        print(f"mitsnerf: {len(result.failed)} cells failed: " + "; ".join(f"{f['key']}: {f['error']}" for f in result.failed),
+              file=sys.stderr)
+        return 1
     return 0
 
 
@@ -261,6 +272,15 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--data", help="dataset cache root (default: $MITSNERF_DATA or ./data)")
     p.add_argument("--results", default="results", help="results root (default: results)")
     p.add_argument("--no-progress", action="store_true")
+    p.add_argument("--executor", choices=("sequential", "pool", "ray"), default="sequential",
+                   help="where cells run: this process one after another (default; the only one whose timings "
+                        "are comparable), a local process pool, or Ray (pip install 'mitsnerf[ray]')")
+    p.add_argument("--address", help="Ray cluster address (--executor ray; default: start a local instance)")
+    p.add_argument("--workers", type=int, default=0, metavar="N", help="cells at once (pool, ray)")
+    p.add_argument("--cpus-per-cell", type=int, default=0, metavar="N",
+                   help="Dr.Jit threads (Ray: CPUs) per cell (default: all cores; cores/workers in a pool; 1 on Ray)")
+    p.add_argument("--force", action="store_true",
+                   help="recompute every cell (default: skip cells with a result for the same config and code)")
     p.set_defaults(func=cmd_bench)
 
     p = sub.add_parser("check", help="verify the integrator against Mitsuba's volpath, closed forms and finite differences",

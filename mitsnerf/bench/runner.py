@@ -1,44 +1,39 @@
-"""Run a benchmark: every (scene, method, seed) cell, then one table.
+"""Run a benchmark: plan every (scene, method, seed) cell, run the missing ones, write the outputs.
 
-Ground truth comes from the dataset cache (generated on first use); each cell's
-files go to ``results/<bench>/<scene>/<label>-seed<k>/``.
+1. **Plan** (:func:`plan_cells`): every cell resolved and validated before anything runs
+   (scene spec with the ``--quick`` overrides, method config, training budget, evaluation).
+2. **Skip** cells whose ``result.json`` has the same config hash and code version
+   (:func:`mitsnerf.bench.cells.is_done`) unless ``force``; an interrupted sweep resumes.
+3. **Ground truth**: the datasets of scenes with pending cells are generated once, here
+   (cached by :func:`mitsnerf.scene.generate.generate_dataset`).
+4. **Run** the pending cells on an executor (:mod:`mitsnerf.bench.executors`); each finished
+   cell is written at once, atomically (a failed one as ``error.json``, retried next time).
+5. **Outputs** from every cell on disk (:func:`write_outputs`), under ``results/<bench>[-quick]/``:
+   ``table.md`` (printed too), ``table.csv`` (per scene and method), ``average.csv``,
+   ``cells.csv`` (one row per cell), ``results.json`` (everything, with provenance),
+   ``plots/*.png`` and ``report.html`` (self-contained).
 """
 
 from __future__ import annotations
 
+import json
 import os
-from dataclasses import dataclass
+import sys
+from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, Callable
+
+import numpy as np
 
 from mitsnerf import env
+from mitsnerf.bench.cells import (ARTEFACTS_FILE, ERROR_FILE, Cell, cell_dir, code_version, is_done, read_record,
+                                  write_error, write_result)
 from mitsnerf.bench.config import BenchConfig
-from mitsnerf.bench.tables import csv_table, markdown_table
-from mitsnerf.config import from_dict
+from mitsnerf.bench.tables import average_rows, cell_row, csv_keys, csv_table, markdown_report, scene_rows
+from mitsnerf.config import from_dict, to_dict
 from mitsnerf.data.atomic import atomic_write_json, atomic_write_text
-from mitsnerf.data.dataset import load_dataset
-from mitsnerf.run import fit
-from mitsnerf.scene.generate import generate_dataset
-from mitsnerf.scene.spec import load_scene
-from mitsnerf.train import TrainConfig
 
 DATA_ENV = "MITSNERF_DATA"
-
-COLUMNS = (
-    ("scene", "scene", 0),
-    ("method", "method", 0),
-    ("seed", "seed", 0),
-    ("psnr_train", "PSNR train", 2),
-    ("psnr_test", "PSNR test", 2),
-    ("psnr_test_medium", "PSNR test (medium)", 2),
-    ("noise_floor_psnr", "GT noise floor", 2),
-    ("ssim_test", "SSIM test", 4),
-    ("train_seconds", "train s", 1),
-    ("steps", "steps", 0),
-    ("rays_per_s", "rays/s", 0),
-    ("samples_per_s", "samples/s", 0),
-)
-BEST = {"psnr_test": "max", "psnr_test_medium": "max", "ssim_test": "max", "psnr_train": "max"}
 
 
 def default_data_root() -> Path:
@@ -51,37 +46,231 @@ class BenchOptions:
     data_root: Path = Path("data")
     results_root: Path = Path("results")
     progress: bool = True
+    executor: str = "sequential"
+    """``sequential`` (in this process), ``pool`` (local processes) or ``ray``."""
+    workers: int = 0
+    """Cells at once for ``pool`` and ``ray`` (0: the executor's default)."""
+    address: str | None = None
+    """Ray cluster address (``ray`` only; None: start a local instance)."""
+    cpus_per_cell: int = 0
+    """Dr.Jit threads (Ray: CPUs) per cell (0: all cores sequentially; cores / workers in a pool; 1 on Ray)."""
+    force: bool = False
+    """Recompute every cell, even those with a result for the same config and code."""
+    code_version: str | None = None
+    """The code version results are keyed by (None: :func:`mitsnerf.bench.cells.code_version`)."""
+    report: bool = True
+    """Write the plots and the HTML report (tables are always written)."""
 
 
-def run_benchmark(config: BenchConfig, options: BenchOptions) -> tuple[list[dict], str]:
-    """Run every cell; returns (rows, Markdown table). Writes table.md/.csv and results.json."""
-    out_root = options.results_root / (config.name + ("-quick" if options.quick else ""))
-    rows: list[dict] = []
-    for scene_name in config.scenes:
-        spec = load_scene(scene_name)
+@dataclass
+class BenchResult:
+    out_root: Path
+    cells: list[Cell]
+    records: list[dict]
+    failed: list[dict]
+    computed: list[str] = field(default_factory=list)
+    """Keys of the cells run this time (finished)."""
+    skipped: list[str] = field(default_factory=list)
+    """Keys of the cells whose results were already there."""
+    per_scene: list[dict] = field(default_factory=list)
+    average: list[dict] = field(default_factory=list)
+    markdown: str = ""
+    files: dict[str, Path] = field(default_factory=dict)
+
+
+def out_root_of(config: BenchConfig, options: BenchOptions) -> Path:
+    return Path(options.results_root) / (config.name + ("-quick" if options.quick else ""))
+
+
+def plan_cells(config: BenchConfig, options: BenchOptions) -> list[Cell]:
+    """Every cell of ``config``, resolved and validated (ValueError naming the method or scene)."""
+    from mitsnerf.methods import get_method
+    from mitsnerf.scene.generate import dataset_dir
+    from mitsnerf.scene.spec import load_scene
+    from mitsnerf.train import TrainConfig
+
+    import mitsuba as mi
+
+    variant = mi.variant() or env.set_variant()
+    version = options.code_version or code_version()
+    out_root = out_root_of(config, options).resolve()
+    data_root = Path(options.data_root).resolve()
+    evalc = to_dict(config.eval_config(options.quick))
+    specs = []
+    for name in config.scenes:
+        spec = load_scene(name)
         if options.quick and config.quick.scene:
             spec = spec.with_overrides(dict(config.quick.scene))
-        dataset_dir = generate_dataset(spec, options.data_root, progress=options.progress)
-        dataset = load_dataset(dataset_dir)
-        floor = (dataset.manifest.get("noise_floor") or {}).get("psnr")
-        for method in config.methods:
-            method_config = dict(method.config)
-            train_values = dict(method.train)
-            if options.quick:
-                method_config.update(config.quick.config)
-                train_values.update(config.quick.train)
+        specs.append(spec)
+    names = [s.name for s in specs]
+    if len(set(names)) != len(names):
+        raise ValueError(f"scenes: two specs share a name ({', '.join(names)}); results are keyed by name")
+    methods = []
+    for method in config.methods:
+        mconfig, train = config.method_settings(method, options.quick)
+        if "seed" in train:
+            raise ValueError(f"{method.label}: train.seed: set by the benchmark's seeds, not per method")
+        entry = get_method(method.name)
+        try:
+            resolved = to_dict(from_dict(entry.config_type, mconfig))
+        except ValueError as exc:
+            raise ValueError(f"method {method.label}: config.{exc}") from None
+        methods.append((method, resolved, train))
+    cells = []
+    for spec in specs:
+        ds_dir = str(dataset_dir(spec, data_root))
+        for method, resolved, train in methods:
             for seed in config.seeds:
-                train_config = from_dict(TrainConfig, {**train_values, "seed": seed})
-                cell_dir = out_root / scene_name / f"{method.label}-seed{seed}"
-                if options.progress:
-                    print(f"[{scene_name} / {method.label} / seed {seed}] training ...", flush=True)
-                run = fit(dataset, method.name, method_config, train_config, cell_dir, progress=options.progress)
-                row = {"scene": scene_name, "method": method.label, "seed": seed, "noise_floor_psnr": floor, **run.metrics()}
-                row["method"] = method.label
-                rows.append(row)
-    table = markdown_table(rows, COLUMNS, BEST)
+                try:
+                    train_config = to_dict(from_dict(TrainConfig, {**train, "seed": seed}))
+                except ValueError as exc:
+                    raise ValueError(f"method {method.label}: train.{exc}") from None
+                cells.append(Cell(
+                    bench=config.name, scene=spec.name, label=method.label, method=method.name, seed=seed,
+                    spec=spec.to_dict(), method_config=resolved, train=train_config, eval=evalc,
+                    variant=variant, code_version=version, dataset_dir=ds_dir, data_root=str(data_root),
+                    out_dir=str(cell_dir(out_root, spec.name, method.label, seed)), quick=options.quick,
+                ))
+    return cells
+
+
+def _generate(cells: list[Cell], options: BenchOptions, log: Callable[[str], None]) -> None:
+    """Generate (or find cached) the dataset of every scene among ``cells``, here, once."""
+    from mitsnerf.scene.generate import generate_dataset
+    from mitsnerf.scene.spec import parse_scene
+
+    seen: set[str] = set()
+    for cell in cells:
+        if cell.dataset_dir in seen:
+            continue
+        seen.add(cell.dataset_dir)
+        if not (Path(cell.dataset_dir) / "manifest.json").is_file():
+            log(f"[{cell.scene}] rendering the ground truth (cached for later runs) ...")
+        path = generate_dataset(parse_scene(dict(cell.spec), f"<scene {cell.scene}>"), Path(cell.data_root),
+                                progress=options.progress)
+        if str(path.resolve()) != str(Path(cell.dataset_dir).resolve()):  # pragma: no cover (hash drift)
+            raise RuntimeError(f"dataset of {cell.scene} went to {path}, planned {cell.dataset_dir}")
+
+
+def _load_artefacts(cell: Cell) -> dict[str, np.ndarray]:
+    path = cell.path / ARTEFACTS_FILE
+    if not path.is_file():
+        return {}
+    try:
+        with np.load(path, allow_pickle=False) as z:
+            return {k: z[k] for k in z.files}
+    except (OSError, ValueError):
+        return {}
+
+
+def collect(cells: list[Cell]) -> tuple[list[dict], list[dict]]:
+    """``(records, failures)`` on disk for ``cells`` (matching config hash and code version)."""
+    records, failed = [], []
+    for cell in cells:
+        if is_done(cell):
+            records.append(read_record(cell.path))
+            continue
+        err = read_record(cell.path, ERROR_FILE)
+        if err and err.get("config_hash") == cell.config_hash and err.get("code_version") == cell.code_version:
+            failed.append({**err, "scene": cell.scene, "method": cell.label, "seed": cell.seed})
+    return records, failed
+
+
+def write_outputs(config: BenchConfig, options: BenchOptions, cells: list[Cell], result: BenchResult) -> BenchResult:
+    """Tables, CSV, JSON, plots and the HTML report from the cells' results on disk."""
+    out_root = out_root_of(config, options)
     out_root.mkdir(parents=True, exist_ok=True)
-    atomic_write_text(out_root / "table.md", table + "\n")
-    atomic_write_text(out_root / "table.csv", csv_table(rows, [c[0] for c in COLUMNS]))
-    atomic_write_json(out_root / "results.json", {"benchmark": config.name, "quick": options.quick, "provenance": env.provenance(), "rows": rows})
-    return rows, table
+    records, failed = collect(cells)
+    scenes = list(dict.fromkeys(c.scene for c in cells))
+    methods = [m.label for m in config.methods]
+    per_scene = scene_rows(records, failed, scenes, methods)
+    average = average_rows(per_scene, methods)
+    markdown = markdown_report(per_scene, average)
+    files = {"table.md": out_root / "table.md", "table.csv": out_root / "table.csv",
+             "average.csv": out_root / "average.csv", "cells.csv": out_root / "cells.csv",
+             "results.json": out_root / "results.json"}
+    title = f"mitsnerf benchmark {config.name}" + (" (quick)" if options.quick else "")
+    atomic_write_text(files["table.md"], f"# {title}\n\n{markdown}\n")
+    atomic_write_text(files["table.csv"], csv_table(per_scene, csv_keys(per_scene)))
+    atomic_write_text(files["average.csv"], csv_table(average, csv_keys(average)))
+    cell_rows = [cell_row(r) for r in records]
+    atomic_write_text(files["cells.csv"], csv_table(cell_rows, ["scene", "method", "seed"] + [k for k in csv_keys(cell_rows) if k not in ("scene", "method", "seed", "seeds", "note")]))
+    provenance = env.provenance()
+    config_data = {"name": config.name, "description": config.description, "quick": options.quick,
+                   "cells": [c.identity() for c in cells]}
+    notes = [f"code version {cells[0].code_version if cells else '?'}; executor {options.executor}; "
+             f"{len(records)} of {len(cells)} cells have results"]
+    atomic_write_json(files["results.json"], {
+        "benchmark": config.name, "description": config.description, "quick": options.quick,
+        "code_version": cells[0].code_version if cells else None, "provenance": provenance,
+        "executor": options.executor, "tables": {"per_scene": per_scene, "average": average},
+        "failed": failed, "cells": records, "config": config_data,
+    })
+    if options.report:
+        from mitsnerf.bench.plots import scene_figures
+        from mitsnerf.bench.report import write_report
+
+        figures = {}
+        for scene in scenes:
+            mine = [r for r in records if r["scene"] == scene]
+            if not mine:
+                continue
+            arts = {c.key: _load_artefacts(c) for c in cells if c.scene == scene and is_done(c)}
+            figures[scene] = scene_figures(scene, mine, methods, arts, out_root / "plots")
+            for _, path in figures[scene]:
+                files[f"plots/{path.name}"] = path
+        files["report.html"] = write_report(out_root / "report.html", title=title, per_scene=per_scene,
+                                            average=average, figures=figures, provenance=provenance,
+                                            config=config_data, failed=failed, notes=notes)
+    result.records, result.failed = records, failed
+    result.per_scene, result.average, result.markdown, result.files = per_scene, average, markdown, files
+    return result
+
+
+def run_benchmark(config: BenchConfig, options: BenchOptions, log: Callable[[str], None] | None = None) -> BenchResult:
+    """Run every missing cell of ``config``, then write the outputs; see the module docstring.
+
+    ``log`` receives one line per event (default: print to stderr when ``options.progress``).
+    An interrupt (Ctrl-C) keeps every finished cell on disk and re-raises.
+    """
+    from mitsnerf.bench.executors import run_cells
+
+    if log is None:
+        log = (lambda line: print(line, file=sys.stderr, flush=True)) if options.progress else (lambda line: None)
+    cells = plan_cells(config, options)
+    out_root = out_root_of(config, options)
+    result = BenchResult(out_root=out_root, cells=cells, records=[], failed=[])
+    pending = [c for c in cells if options.force or not is_done(c)]
+    result.skipped = [c.key for c in cells if c not in pending]
+    if result.skipped:
+        log(f"{len(result.skipped)} of {len(cells)} cells already done (same config and code); "
+            f"{len(pending)} to run" + (" (--force recomputes them)" if pending else ""))
+    if pending:
+        _generate(pending, options, log)
+        total = len(pending)
+
+        def on_done(cell: Cell, record: dict, artefacts: bytes) -> None:
+            write_result(cell, record, artefacts)
+            result.computed.append(cell.key)
+            m = record["metrics"]
+            med = m.get("psnr_test_medium")
+            log(f"[{len(result.computed)}/{total}] {cell.key}: PSNR {m['psnr_test']:.2f} dB"
+                + (f" (medium {med:.2f})" if med is not None else "")
+                + f", {m['train_seconds']:.1f} s, {m['steps']} steps")
+
+        def on_error(cell: Cell, message: str, details: str) -> None:
+            write_error(cell, message, details)
+            log(f"[failed] {cell.key}: {message}")
+
+        def on_start(cell: Cell) -> None:
+            log(f"[{len(result.computed) + 1}/{total}] {cell.key}: training {cell.method} ...")
+
+        try:
+            run_cells(options.executor, pending, on_done, on_error, progress=options.progress,
+                      workers=options.workers, threads=options.cpus_per_cell, address=options.address,
+                      on_start=on_start)
+        except KeyboardInterrupt:
+            log(f"interrupted: {len(result.computed)} cells finished this run are saved; "
+                "run the same command again to resume")
+            raise
+    return write_outputs(config, options, cells, result)

@@ -1,11 +1,68 @@
-"""Result tables as Markdown (terminal and file) and CSV."""
+"""Result tables: cells aggregated per (scene, method) over seeds and averaged over scenes, as
+Markdown (terminal and file), CSV and JSON-ready rows; the best value per column marked.
+
+Two tables each: *quality* (image scores in both encodings, whole image and medium pixels,
+the ground truth's noise floor next to them, density-field errors) and *cost* (training
+time, throughput, peak memory, parameters).
+"""
 
 from __future__ import annotations
 
 import csv
 import io
 import math
-from typing import Any, Sequence
+from typing import Any, Iterable, Sequence
+
+Column = tuple[str, str, int]
+"""(key, header, decimals)."""
+
+KEYS: tuple[Column, ...] = (("scene", "scene", 0), ("method", "method", 0), ("seeds", "seeds", 0))
+QUALITY: tuple[Column, ...] = KEYS + (
+    ("psnr_test", "PSNR lin", 2),
+    ("psnr_test_medium", "PSNR lin medium", 2),
+    ("noise_floor_psnr", "GT floor", 2),
+    ("noise_floor_psnr_medium", "GT floor medium", 2),
+    ("psnr_test_srgb", "PSNR sRGB", 2),
+    ("psnr_test_medium_srgb", "PSNR sRGB medium", 2),
+    ("ssim_test", "SSIM lin", 4),
+    ("ssim_test_srgb", "SSIM sRGB", 4),
+    ("psnr_train", "PSNR train", 2),
+    ("density_rel_l1", "sigma rel L1", 3),
+    ("density_rel_l2", "sigma rel L2", 3),
+    ("density_psnr", "sigma PSNR", 2),
+    ("tau_rel_l1", "tau rel L1", 3),
+    ("transmittance_mae", "T MAE", 4),
+    ("note", "note", 0),
+)
+COST: tuple[Column, ...] = KEYS + (
+    ("train_seconds", "train s", 1),
+    ("steps", "steps", 0),
+    ("rays_per_s", "rays/s", 0),
+    ("samples_per_s", "samples/s", 0),
+    ("peak_rss_mb", "peak RSS MiB", 0),
+    ("num_parameters", "params", 0),
+    ("curve_eval_seconds", "curve eval s", 1),
+    ("note", "note", 0),
+)
+BEST: dict[str, str] = {
+    "psnr_test": "max", "psnr_test_medium": "max", "psnr_test_srgb": "max", "psnr_test_medium_srgb": "max",
+    "ssim_test": "max", "ssim_test_srgb": "max", "psnr_train": "max",
+    "density_rel_l1": "min", "density_rel_l2": "min", "density_psnr": "max", "tau_rel_l1": "min",
+    "transmittance_mae": "min", "rays_per_s": "max", "samples_per_s": "max", "peak_rss_mb": "min",
+}
+LEGEND = (
+    "PSNR/SSIM of the test views; lin: linear radiance clipped to [0, 1]; sRGB: the clipped values "
+    "sRGB-encoded; medium: only pixels whose ray crosses the true medium. GT floor: PSNR between two "
+    "independent ground-truth renders of the test views (manifest noise_floor; a noise-free model scores "
+    "about 3 dB above it). sigma: learned against true density on the voxel centres; tau: optical depth "
+    "along every test ray; T MAE: mean abs error of the transmittance exp(-tau). train s excludes "
+    "held-out evaluation. peak RSS: the process high-water mark (see each cell's worker note). "
+    "Bold: best in the column (per scene). Means over seeds."
+)
+
+
+def _is_number(v: Any) -> bool:
+    return isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)
 
 
 def _fmt(value: Any, digits: int) -> str:
@@ -22,10 +79,26 @@ def _fmt(value: Any, digits: int) -> str:
     return str(value)
 
 
-def markdown_table(rows: Sequence[dict], columns: Sequence[tuple[str, str, int]], best: dict[str, str] | None = None) -> str:
+def best_values(rows: Sequence[dict], best: dict[str, str], group: str | None = None) -> dict[tuple[Any, str], Any]:
+    """``{(group value, key): best value}`` over rows with at least two numbers in the column."""
+    marks: dict[tuple[Any, str], Any] = {}
+    groups: dict[Any, list[dict]] = {}
+    for row in rows:
+        groups.setdefault(row.get(group) if group else None, []).append(row)
+    for g, members in groups.items():
+        for key, how in best.items():
+            values = [r[key] for r in members if _is_number(r.get(key))]
+            if len(values) > 1:
+                marks[(g, key)] = max(values) if how == "max" else min(values)
+    return marks
+
+
+def markdown_table(rows: Sequence[dict], columns: Sequence[Column], best: dict[str, str] | None = None,
+                   group: str | None = None) -> str:
     """A Markdown table of ``rows``; ``columns`` are (key, header, decimals).
 
-    ``best`` maps a key to ``"max"`` or ``"min"``: the best value in that column is bold.
+    ``best`` maps a key to ``"max"`` or ``"min"``: the best value in that column is bold
+    (within each group of rows sharing ``row[group]`` when ``group`` is given).
 
     >>> print(markdown_table([{"m": "a", "p": 30.0}, {"m": "b", "p": 31.5}], [("m", "method", 0), ("p", "PSNR", 2)], {"p": "max"}))
     | method | PSNR |
@@ -33,18 +106,14 @@ def markdown_table(rows: Sequence[dict], columns: Sequence[tuple[str, str, int]]
     | a | 30.00 |
     | b | **31.50** |
     """
-    best = best or {}
-    marks: dict[str, Any] = {}
-    for key, how in best.items():
-        values = [r.get(key) for r in rows if isinstance(r.get(key), (int, float)) and not math.isnan(r.get(key))]
-        if len(values) > 1:
-            marks[key] = max(values) if how == "max" else min(values)
+    marks = best_values(rows, best or {}, group)
     lines = ["| " + " | ".join(h for _, h, _ in columns) + " |", "|" + "---|" * len(columns)]
     for row in rows:
         cells = []
         for key, _, digits in columns:
             text = _fmt(row.get(key), digits)
-            if key in marks and row.get(key) == marks[key]:
+            mark = marks.get((row.get(group) if group else None, key))
+            if mark is not None and row.get(key) == mark:
                 text = f"**{text}**"
             cells.append(text)
         lines.append("| " + " | ".join(cells) + " |")
@@ -53,8 +122,92 @@ def markdown_table(rows: Sequence[dict], columns: Sequence[tuple[str, str, int]]
 
 def csv_table(rows: Sequence[dict], keys: Sequence[str]) -> str:
     buf = io.StringIO()
-    writer = csv.DictWriter(buf, fieldnames=list(keys), extrasaction="ignore")
+    writer = csv.DictWriter(buf, fieldnames=list(keys), extrasaction="ignore", lineterminator="\n")
     writer.writeheader()
     for row in rows:
         writer.writerow({k: row.get(k) for k in keys})
     return buf.getvalue()
+
+
+def cell_row(record: dict) -> dict:
+    """One cell's scalar metrics, flat, with scene/method/seed."""
+    row = {"scene": record["scene"], "method": record["method"], "seed": record["seed"]}
+    for key, value in (record.get("metrics") or {}).items():
+        if value is None or _is_number(value) or isinstance(value, str):
+            row[key] = value
+    return row
+
+
+def _aggregate(rows: Sequence[dict], base: dict) -> dict:
+    out = dict(base)
+    keys: list[str] = []
+    for row in rows:
+        keys.extend(k for k in row if k not in keys and k not in ("scene", "method", "seed", "note", "density_note"))
+    for key in keys:
+        values = [r[key] for r in rows if _is_number(r.get(key))]
+        if not values:
+            out[key] = None
+            continue
+        mean = sum(values) / len(values)
+        out[key] = mean
+        if len(values) > 1:
+            out[f"{key}_std"] = math.sqrt(sum((v - mean) ** 2 for v in values) / (len(values) - 1))
+    return out
+
+
+def scene_rows(records: Sequence[dict], failed: Iterable[dict] = (), scenes: Sequence[str] = (),
+               methods: Sequence[str] = ()) -> list[dict]:
+    """One row per (scene, method): means (and ``_std`` over seeds), in config order."""
+    cells = [cell_row(r) for r in records]
+    failed = list(failed)
+    scenes = list(scenes) or sorted({c["scene"] for c in cells} | {f["scene"] for f in failed})
+    methods = list(methods) or sorted({c["method"] for c in cells} | {f["method"] for f in failed})
+    rows = []
+    for scene in scenes:
+        for method in methods:
+            members = [c for c in cells if c["scene"] == scene and c["method"] == method]
+            n_failed = sum(1 for f in failed if f["scene"] == scene and f["method"] == method)
+            if not members and not n_failed:
+                continue
+            row = _aggregate(members, {"scene": scene, "method": method, "seeds": len(members)})
+            notes = sorted({c["density_note"] for c in members if c.get("density_note")})
+            if n_failed:
+                notes.insert(0, f"{n_failed} failed")
+            row["note"] = "; ".join(notes) or None
+            rows.append(row)
+    return rows
+
+
+def average_rows(rows: Sequence[dict], methods: Sequence[str] = ()) -> list[dict]:
+    """One row per method: the mean over scenes of the per-scene means."""
+    methods = list(methods) or list(dict.fromkeys(r["method"] for r in rows))
+    out = []
+    for method in methods:
+        members = [{k: v for k, v in r.items() if not k.endswith("_std")} for r in rows if r["method"] == method]
+        if not members:
+            continue
+        row = _aggregate(members, {"scene": f"mean of {len(members)}", "method": method,
+                                   "seeds": sum(r["seeds"] for r in members)})
+        row["note"] = "; ".join(sorted({r["note"] for r in members if r.get("note")})) or None
+        out.append(row)
+    return out
+
+
+def markdown_report(per_scene: Sequence[dict], average: Sequence[dict]) -> str:
+    """The Markdown printed and written as ``table.md``: quality and cost, per scene and averaged."""
+    parts = ["## Quality per scene", "", markdown_table(per_scene, QUALITY, BEST, group="scene"), "",
+             "## Cost per scene", "", markdown_table(per_scene, COST, BEST, group="scene")]
+    if len({r["scene"] for r in per_scene}) > 1:
+        parts += ["", "## Quality averaged over scenes", "", markdown_table(average, QUALITY, BEST), "",
+                  "## Cost averaged over scenes", "", markdown_table(average, COST, BEST)]
+    parts += ["", LEGEND]
+    return "\n".join(parts)
+
+
+def csv_keys(rows: Sequence[dict]) -> list[str]:
+    """Every column of ``rows``: the table columns first, then the rest in first-seen order."""
+    keys = [k for k, _, _ in QUALITY + COST]
+    keys = list(dict.fromkeys(keys))
+    for row in rows:
+        keys.extend(k for k in row if k not in keys)
+    return keys

@@ -1,0 +1,154 @@
+"""The cells of a sweep: one (scene, method, seed) each, fully resolved, hashed, and their results on disk.
+
+A :class:`Cell` carries everything a worker needs (the scene spec as data, the resolved
+method and training configs, the evaluation settings, the variant, where to write), so it
+can run in another process or on another machine. Its ``config_hash`` covers all of that
+except the paths; a result on disk counts as done when its ``config_hash`` and
+``code_version`` both match (see :func:`is_done`), so a sweep run again computes only what
+is missing or stale.
+
+Layout under ``results/<bench>[-quick]/``::
+
+    cells/<scene>/<label>-seed<k>/result.json     the record (metrics, curve, provenance), written last
+                                 /artefacts.npz   images and density slices for the plots
+                                 /error.json      instead of result.json when the cell failed
+                                 /run/            mitsnerf.run.fit's run directory (params, checkpoint, renders)
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, Mapping
+
+RESULT_FILE = "result.json"
+ARTEFACTS_FILE = "artefacts.npz"
+ERROR_FILE = "error.json"
+RECORD_FORMAT = 1
+"""Version of the result record layout; part of every cell's hash."""
+
+
+def code_version() -> str:
+    """The code a result was computed with: ``<mitsnerf version>+<commit>`` (``+dirty`` if modified).
+
+    A dirty checkout cannot be told apart from another dirty checkout of the same commit:
+    pass ``--force`` after changing code without committing.
+    """
+    from mitsnerf import __version__
+    from mitsnerf.env import git_commit
+
+    return f"{__version__}+{git_commit()}"
+
+
+def canonical_hash(obj: Any) -> str:
+    """sha256 of the canonical JSON (sorted keys, no spaces) of ``obj``."""
+    text = json.dumps(obj, sort_keys=True, separators=(",", ":"), allow_nan=False)
+    return hashlib.sha256(text.encode("utf-8")).hexdigest()
+
+
+@dataclass(frozen=True)
+class Cell:
+    """One (scene, method, seed) run of a benchmark, resolved and self-contained."""
+
+    bench: str
+    scene: str
+    """The scene spec's name (unique within a benchmark)."""
+    label: str
+    """The method's column label."""
+    method: str
+    """The registered method name."""
+    seed: int
+    spec: Mapping[str, Any]
+    """``SceneSpec.to_dict()`` after the benchmark's overrides: a worker can regenerate the dataset."""
+    method_config: Mapping[str, Any]
+    """The method's config, every field resolved (``to_dict`` of the dataclass)."""
+    train: Mapping[str, Any]
+    """``TrainConfig`` resolved, seed included."""
+    eval: Mapping[str, Any]
+    """``EvalConfig`` resolved."""
+    variant: str
+    code_version: str
+    dataset_dir: str
+    """Where the driver generated the dataset (absolute)."""
+    data_root: str
+    """Dataset cache root a worker regenerates into when ``dataset_dir`` is missing there."""
+    out_dir: str
+    """The cell's directory (absolute)."""
+    quick: bool = False
+
+    @property
+    def key(self) -> str:
+        """``scene/label-seedK``, unique within a benchmark."""
+        return f"{self.scene}/{self.label}-seed{self.seed}"
+
+    def identity(self) -> dict[str, Any]:
+        """Everything that decides the cell's result, except the code version."""
+        return {
+            "record_format": RECORD_FORMAT,
+            "scene": self.scene,
+            "spec": self.spec,
+            "method": self.method,
+            "label": self.label,
+            "seed": self.seed,
+            "method_config": self.method_config,
+            "train": self.train,
+            "eval": self.eval,
+            "variant": self.variant,
+        }
+
+    @property
+    def config_hash(self) -> str:
+        return canonical_hash(self.identity())
+
+    @property
+    def path(self) -> Path:
+        return Path(self.out_dir)
+
+
+def cell_dir(out_root: Path, scene: str, label: str, seed: int) -> Path:
+    return Path(out_root) / "cells" / scene / f"{label}-seed{seed}"
+
+
+def read_record(directory: Path, name: str = RESULT_FILE) -> dict | None:
+    """The JSON record in ``directory`` (None if missing or unreadable)."""
+    path = Path(directory) / name
+    try:
+        data = json.loads(path.read_text())
+    except (OSError, ValueError):
+        return None
+    return data if isinstance(data, dict) else None
+
+
+def is_done(cell: Cell) -> bool:
+    """True when the cell's ``result.json`` exists for the same config hash and code version."""
+    record = read_record(cell.path)
+    return bool(record) and record.get("config_hash") == cell.config_hash and record.get("code_version") == cell.code_version
+
+
+def write_result(cell: Cell, record: Mapping[str, Any], artefacts: bytes | None) -> Path:
+    """Write the artefacts, then the record (each atomically; the record last, so a
+    ``result.json`` is only ever seen with its artefacts). Removes a stale ``error.json``."""
+    from mitsnerf.data.atomic import atomic_write_bytes, atomic_write_json
+
+    directory = cell.path
+    directory.mkdir(parents=True, exist_ok=True)
+    if artefacts is not None:
+        atomic_write_bytes(directory / ARTEFACTS_FILE, artefacts)
+    atomic_write_json(directory / RESULT_FILE, dict(record))
+    (directory / ERROR_FILE).unlink(missing_ok=True)
+    return directory / RESULT_FILE
+
+
+def write_error(cell: Cell, message: str, details: str = "") -> Path:
+    """Record a failed cell (``error.json``); a stale ``result.json`` of it is removed, so a
+    resumed sweep tries the cell again."""
+    from mitsnerf.data.atomic import atomic_write_json
+
+    directory = cell.path
+    directory.mkdir(parents=True, exist_ok=True)
+    (directory / RESULT_FILE).unlink(missing_ok=True)
+    atomic_write_json(directory / ERROR_FILE, {"key": cell.key, "config_hash": cell.config_hash,
+                                               "code_version": cell.code_version, "error": message, "details": details})
+    return directory / ERROR_FILE

@@ -1,0 +1,170 @@
+"""Where cells run: in this process one after another (the default), in a local process pool,
+or as Ray tasks on a cluster.
+
+Every executor calls :func:`mitsnerf.bench.worker.run_cell` and hands each finished cell
+to ``on_done(cell, record, artefacts)`` (or a failed one to ``on_error(cell, message,
+details)``) in the driver, which writes it at once, so an interrupted sweep keeps every
+finished cell. Timings are comparable only between cells that had the machine to
+themselves: the sequential executor on an otherwise idle machine. The pool and Ray run
+cells side by side; each cell then gets ``cpus_per_cell`` Dr.Jit threads.
+
+- ``sequential``: in-process; the peak-memory figure is the process's high-water mark, so
+  it includes the cells (and ground-truth renders) that ran before in the same process.
+- ``pool``: ``concurrent.futures.ProcessPoolExecutor`` with ``spawn`` and one cell per
+  worker process (Python >= 3.11; reused processes before), so each cell's peak memory is its own.
+- ``ray``: one Ray task per cell (``num_cpus = cpus_per_cell``, ``max_calls = 1``: a fresh
+  worker process each), on the cluster at ``address`` or a local instance started for the
+  sweep (``ray.init()``). Nodes need the same mitsnerf installed; datasets missing on a node
+  are generated there (cached per node); the results come back to the driver.
+"""
+
+from __future__ import annotations
+
+import os
+import sys
+import traceback
+from typing import Callable, Sequence
+
+from mitsnerf.bench.cells import Cell
+
+EXECUTORS = ("sequential", "pool", "ray")
+OnDone = Callable[[Cell, dict, bytes], None]
+OnError = Callable[[Cell, str, str], None]
+#: Exceptions that fail one cell (recorded, the sweep goes on); anything else is a bug and stops it.
+CELL_ERRORS = (Exception,)
+
+
+def _message(exc: BaseException) -> str:
+    return f"{type(exc).__name__}: {exc}"
+
+
+def run_sequential(cells: Sequence[Cell], on_done: OnDone, on_error: OnError, *, progress: bool = True,
+                   threads: int = 0, on_start: Callable[[Cell], None] | None = None) -> None:
+    """Run the cells one after another in this process."""
+    from mitsnerf.bench.worker import run_cell
+
+    for cell in cells:
+        if on_start is not None:
+            on_start(cell)
+        try:
+            record, artefacts = run_cell(cell, progress=progress, threads=threads, executor="sequential")
+        except CELL_ERRORS as exc:
+            on_error(cell, _message(exc), traceback.format_exc())
+            continue
+        on_done(cell, record, artefacts)
+
+
+def _pool_task(cell: Cell, threads: int) -> tuple[dict, bytes]:
+    from mitsnerf.bench.worker import run_cell
+
+    return run_cell(cell, progress=False, threads=threads, executor="pool", fresh_process=sys.version_info >= (3, 11))
+
+
+def run_pool(cells: Sequence[Cell], on_done: OnDone, on_error: OnError, *, workers: int = 0, threads: int = 0) -> None:
+    """Run the cells in ``workers`` spawned processes (0: one per two cores, at least one)."""
+    import concurrent.futures as cf
+    import multiprocessing as mp
+
+    workers = workers or max(1, (os.cpu_count() or 2) // 2)
+    threads = threads or max(1, (os.cpu_count() or 1) // workers)
+    kwargs = {"max_workers": workers, "mp_context": mp.get_context("spawn")}
+    if sys.version_info >= (3, 11):
+        kwargs["max_tasks_per_child"] = 1
+    with cf.ProcessPoolExecutor(**kwargs) as pool:
+        futures = {pool.submit(_pool_task, cell, threads): cell for cell in cells}
+        try:
+            for future in cf.as_completed(futures):
+                cell = futures[future]
+                try:
+                    record, artefacts = future.result()
+                except CELL_ERRORS as exc:
+                    on_error(cell, _message(exc), "".join(traceback.format_exception(exc)))
+                    continue
+                on_done(cell, record, artefacts)
+        except BaseException:
+            for future in futures:
+                future.cancel()
+            raise
+
+
+def _ray_task(cell: Cell, threads: int) -> tuple[dict, bytes]:
+    from mitsnerf.bench.worker import run_cell
+
+    return run_cell(cell, progress=False, threads=threads, executor="ray", fresh_process=True)
+
+
+def ray_available() -> bool:
+    try:
+        import ray  # noqa: F401
+    except ImportError:
+        return False
+    return True
+
+
+def run_ray(cells: Sequence[Cell], on_done: OnDone, on_error: OnError, *, address: str | None = None,
+            workers: int = 0, threads: int = 0) -> None:
+    """Run the cells as Ray tasks: on the cluster at ``address``, else on a local instance.
+
+    ``workers``: at most that many cells in flight (0: as many as the cluster schedules);
+    ``threads``: CPUs (and Dr.Jit threads) per cell (0: 1). A local instance started here is
+    shut down at the end; a cluster is only disconnected from.
+    """
+    try:
+        import ray
+    except ImportError:
+        raise ValueError("--executor ray: Ray is not installed; pip install 'mitsnerf[ray]' "
+                         "(or: pip install 'ray[default]')") from None
+
+    threads = threads or 1
+    started_here = not ray.is_initialized()
+    if started_here:
+        init = {"address": address, "include_dashboard": False, "log_to_driver": True,
+                "ignore_reinit_error": True}
+        if address is None:
+            init["num_cpus"] = max(os.cpu_count() or 1, threads)
+        ray.init(**init)
+    in_flight: dict = {}
+    try:
+        task = ray.remote(num_cpus=threads, max_calls=1)(_ray_task)
+        queue = list(cells)
+        limit = workers or len(queue)
+        while queue or in_flight:
+            while queue and len(in_flight) < limit:
+                cell = queue.pop(0)
+                in_flight[task.remote(cell, threads)] = cell
+            done, _ = ray.wait(list(in_flight), num_returns=1)
+            for ref in done:
+                cell = in_flight.pop(ref)
+                try:
+                    record, artefacts = ray.get(ref)
+                except CELL_ERRORS as exc:
+                    cause = getattr(exc, "cause", None) or exc
+                    on_error(cell, _message(cause), str(exc))
+                    continue
+                on_done(cell, record, artefacts)
+    except BaseException:
+        for ref in list(in_flight):
+            ray.cancel(ref, force=True)
+        raise
+    finally:
+        if started_here:
+            ray.shutdown()
+
+
+def run_cells(executor: str, cells: Sequence[Cell], on_done: OnDone, on_error: OnError, *, progress: bool = True,
+              workers: int = 0, threads: int = 0, address: str | None = None,
+              on_start: Callable[[Cell], None] | None = None) -> None:
+    """Dispatch to the named executor (one of :data:`EXECUTORS`); ``on_start`` (sequential only)
+    is called before each cell."""
+    if address is not None and executor != "ray":
+        raise ValueError("--address: only with --executor ray")
+    if executor == "sequential":
+        if workers and workers != 1:
+            raise ValueError("--workers: the sequential executor runs one cell at a time (use --executor pool or ray)")
+        run_sequential(cells, on_done, on_error, progress=progress, threads=threads, on_start=on_start)
+    elif executor == "pool":
+        run_pool(cells, on_done, on_error, workers=workers, threads=threads)
+    elif executor == "ray":
+        run_ray(cells, on_done, on_error, address=address, workers=workers, threads=threads)
+    else:
+        raise ValueError(f"--executor: must be one of {', '.join(EXECUTORS)}, got {executor!r}")
