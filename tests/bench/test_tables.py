@@ -1,0 +1,46 @@
+"""Tables: means over seeds, best per scene marked, averages over scenes, failures noted."""
+
+from __future__ import annotations
+
+import pytest
+
+from mitsnerf.bench.tables import BEST, QUALITY, average_rows, csv_table, markdown_table, scene_rows
+
+
+def _record(scene, method, seed, psnr, rel_l1):
+    return {"scene": scene, "method": method, "seed": seed,
+            "metrics": {"psnr_test": psnr, "density_rel_l1": rel_l1, "psnr_test_per_view": [psnr], "density_note": None}}
+
+
+RECORDS = [_record("a", "m1", 0, 30.0, 0.2), _record("a", "m1", 1, 32.0, 0.4), _record("a", "m2", 0, 29.0, 0.1),
+           _record("b", "m1", 0, 20.0, 0.5), _record("b", "m2", 0, 25.0, 0.6)]
+
+
+def test_rows_are_means_over_seeds_in_config_order():
+    rows = scene_rows(RECORDS, scenes=["b", "a"], methods=["m2", "m1"])
+    assert [(r["scene"], r["method"]) for r in rows] == [("b", "m2"), ("b", "m1"), ("a", "m2"), ("a", "m1")]
+    a_m1 = rows[3]
+    assert a_m1["seeds"] == 2 and a_m1["psnr_test"] == 31.0 and a_m1["psnr_test_std"] == pytest.approx(2 ** 0.5)
+    assert "psnr_test_per_view" not in a_m1  # lists stay in the JSON records
+
+
+def test_best_is_marked_per_scene_and_in_the_right_direction():
+    rows = scene_rows(RECORDS, scenes=["a", "b"], methods=["m1", "m2"])
+    md = markdown_table(rows, QUALITY, BEST, group="scene").splitlines()
+    a_m1, a_m2, b_m1, b_m2 = md[2:6]
+    assert "**31.00**" in a_m1 and "**0.100**" in a_m2  # PSNR: max; density error: min
+    assert "**25.00**" in b_m2 and "**0.500**" in b_m1
+
+
+def test_average_over_scenes_and_failures():
+    failed = [{"scene": "b", "method": "m2", "seed": 1, "key": "b/m2-seed1", "error": "boom"}]
+    rows = scene_rows(RECORDS, failed, scenes=["a", "b"], methods=["m1", "m2"])
+    avg = average_rows(rows, ["m1", "m2"])
+    assert [r["method"] for r in avg] == ["m1", "m2"]
+    assert avg[0]["psnr_test"] == pytest.approx((31.0 + 20.0) / 2) and avg[1]["psnr_test"] == pytest.approx(27.0)
+    assert rows[-1]["note"] == "1 failed" and avg[1]["note"] == "1 failed"
+
+
+def test_csv_has_a_header_and_one_line_per_row():
+    text = csv_table(scene_rows(RECORDS), ["scene", "method", "psnr_test"])
+    assert text.splitlines()[0] == "scene,method,psnr_test" and len(text.splitlines()) == 5
