@@ -9,10 +9,11 @@ STAMP  := $(VENV)/.mitsnerf-installed
 
 setup: $(STAMP)
 
-$(STAMP): pyproject.toml scripts/ensure_llvm.sh
+# The ray extra: the test suite runs a tiny sweep on a local Ray instance (about 100 MB download, 350 MB installed).
+$(STAMP): pyproject.toml scripts/ensure_llvm.sh Makefile
 	PYTHON=$(PYTHON) bash scripts/ensure_llvm.sh
 	test -x $(PY) || $(PYTHON) -m venv $(VENV)
-	$(PY) -m pip install -q --disable-pip-version-check -e '.[test]'
+	$(PY) -m pip install -q --disable-pip-version-check -e '.[test,ray]'
 	touch $(STAMP)
 
 bench: setup
