@@ -1,0 +1,215 @@
+#!/usr/bin/env python3
+"""Network training throughput: mitsnerf's Dr.Jit MLPs against the JAX peer, and against this CPU's peak.
+
+The network is the peer's (``../shared/peers/jax_mlp.py``): x in [0, 1)^3 -> [sin(2^k pi x),
+cos(2^k pi x)], k < 10 (60 features) -> 2 hidden layers of 64, ReLU -> 4 outputs; one step is the
+encoding, forward, MSE against 4 smooth targets, backward and an Adam update (lr 1e-3) on the
+peer's synthetic batch (same formula, seed 0). Two mitsnerf paths:
+
+- ``channel-major``: ``drjit.nn.Sequential`` on (C, N) tensors (``SinEncode`` + ``Linear``), as the
+  ``nerf`` field evaluates its network; the encoding's frequencies match the peer's (x / 2 in);
+- ``point-major``: ``mitsnerf.fields.mlp.DenseStack`` on (N, C) tensors (``X W + b``), as the
+  ``ngp`` field does; the encoding from ``dr.sin``/``dr.cos`` on each coordinate.
+
+FLOPs per point are the peer's count, 3 x 2 x sum(d_i d_{i+1}) (forward, and twice that backward);
+the peak is measured as numpy's float32 matrix product of two 4096^2 matrices (the roof any MLP
+here can reach), and a nominal figure is printed from the core count, clock and SIMD width
+(assuming two FMA units per core; stated as such).
+
+Set-up for the peer (outside the project, once): ``python3 -m venv /tmp/jaxenv &&
+/tmp/jaxenv/bin/pip install "jax[cpu]"``. Run (only on an otherwise idle machine):
+    .venv/bin/python benchmarks/throughput_mlp.py [--batch-log2 14 16 18] [--jax-python /tmp/jaxenv/bin/python]
+Prints one JSON line per (path, batch), the peer's lines, and a summary with the ratios.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import os
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+import mitsnerf  # noqa: F401  (libLLVM before drjit)
+from mitsnerf import env
+
+DIMS = (60, 64, 64, 4)
+FREQS = 10
+PEER = Path(__file__).resolve().parents[1].parent / "shared" / "peers" / "jax_mlp.py"
+
+
+def batch(n: int, seed: int = 0) -> tuple[np.ndarray, np.ndarray]:
+    """The peer's synthetic batch: x uniform in [0, 1)^3 (numpy default_rng(seed)) and 4 smooth targets
+    (products of sin(2 pi x) pairs and a Gaussian bump), float32."""
+    rng = np.random.default_rng(seed)
+    x = rng.random((n, 3), dtype=np.float32)
+    s = np.sin(2 * np.pi * x)
+    t = np.stack([s[:, 0] * s[:, 1], s[:, 1] * s[:, 2], s[:, 2] * s[:, 0],
+                  np.exp(-8 * np.sum((x - 0.5) ** 2, 1))], 1).astype(np.float32)
+    return x, t
+
+
+def flops_per_point() -> int:
+    return 3 * 2 * sum(a * b for a, b in zip(DIMS[:-1], DIMS[1:]))
+
+
+def sgemm_flops(n: int = 4096, repeats: int = 5) -> float:
+    a = np.random.default_rng(0).random((n, n), dtype=np.float32)
+    b = np.random.default_rng(1).random((n, n), dtype=np.float32)
+    a @ b
+    times = []
+    for _ in range(repeats):
+        t0 = time.perf_counter()
+        a @ b
+        times.append(time.perf_counter() - t0)
+    return 2.0 * n**3 / float(np.median(times))
+
+
+def nominal_flops() -> tuple[float | None, str]:
+    """cores x max clock x FP32 FLOP/cycle (2 FMA units x SIMD lanes x 2), from /proc/cpuinfo and lscpu."""
+    try:
+        info = Path("/proc/cpuinfo").read_text()
+    except OSError:
+        return None, "no /proc/cpuinfo"
+    flags = next((line.split(":", 1)[1].split() for line in info.splitlines() if line.startswith("flags")), [])
+    lanes = 16 if "avx512f" in flags else 8 if "avx2" in flags else 4
+    mhz = None
+    try:
+        out = subprocess.run(["lscpu"], capture_output=True, text=True, timeout=10).stdout
+        for line in out.splitlines():
+            if line.startswith("CPU max MHz:"):
+                mhz = float(line.split(":")[1])
+    except (OSError, subprocess.SubprocessError, ValueError):
+        pass
+    if mhz is None:
+        values = [float(line.split(":")[1]) for line in info.splitlines() if line.startswith("cpu MHz")]
+        mhz = max(values) if values else None
+    if mhz is None:
+        return None, "no clock found"
+    cores = os.cpu_count() or 1
+    per_cycle = 2 * lanes * 2
+    return cores * mhz * 1e6 * per_cycle, f"{cores} cores x {mhz:.0f} MHz x {per_cycle} FLOP/cycle (2 FMA units x {lanes} lanes, assumed)"
+
+
+def time_steps(step, steps: int) -> float:
+    step()
+    step()  # compilation, first Adam moments
+    times = []
+    for _ in range(steps):
+        t0 = time.perf_counter()
+        step()
+        times.append(time.perf_counter() - t0)
+    return float(np.median(times))
+
+
+def channel_major(n: int, steps: int) -> float:
+    import drjit as dr
+    import drjit.nn as nn
+    import drjit.opt  # noqa: F401
+    import mitsuba as mi
+
+    net = nn.Sequential(nn.SinEncode(FREQS), nn.Linear(-1, DIMS[1]), nn.ReLU(), nn.Linear(-1, DIMS[2]), nn.ReLU(),
+                        nn.Linear(-1, DIMS[3])).alloc(mi.TensorXf, 3, dr.rng(seed=0))
+    xn, tn = batch(n)
+    x = mi.TensorXf(np.ascontiguousarray(xn.T / 2))  # sin(2 pi 2^k (x/2)) = sin(2^k pi x): the peer's frequencies
+    t = mi.TensorXf(np.ascontiguousarray(tn.T))
+    opt = dr.opt.Adam(lr=1e-3)
+    for key, value in net.items():
+        opt[key] = value
+
+    def step() -> float:
+        for key in opt.keys():
+            net[key] = opt[key]
+        loss = dr.mean(dr.square(net(x) - t), axis=None)
+        dr.backward(loss)
+        opt.step()
+        return loss.item()
+
+    return time_steps(step, steps)
+
+
+def point_major(n: int, steps: int) -> float:
+    import drjit as dr
+    import drjit.opt  # noqa: F401
+    import mitsuba as mi
+
+    from mitsnerf.fields.mlp import DenseStack, rows_tensor
+
+    net = DenseStack(list(DIMS), mi.TensorXf, dr.rng(seed=0), prefix="mlp.")
+    xn, tn = batch(n)
+    xs = [mi.Float(np.ascontiguousarray(xn[:, c])) for c in range(3)]
+    t = mi.TensorXf(np.ascontiguousarray(tn))
+    opt = dr.opt.Adam(lr=1e-3)
+    for key, value in net.parameters().items():
+        opt[key] = value
+
+    def step() -> float:
+        for key in opt.keys():
+            net.set_parameter(key, opt[key])
+        rows = []
+        for c in range(3):
+            for k in range(FREQS):
+                a = xs[c] * (2.0**k * math.pi)
+                rows += [dr.sin(a), dr.cos(a)]
+        loss = dr.mean(dr.square(net(rows_tensor(mi.TensorXf, rows, n)) - t), axis=None)
+        dr.backward(loss)
+        opt.step()
+        return loss.item()
+
+    return time_steps(step, steps)
+
+
+def run_peer(python: str, logs: list[int], steps: int) -> list[dict]:
+    cmd = [python, str(PEER), "--batch-log2", *map(str, logs), "--width", str(DIMS[1]), "--depth", "2",
+           "--freqs", str(FREQS), "--steps", str(steps)]
+    out = subprocess.run(cmd, capture_output=True, text=True, check=True).stdout
+    return [json.loads(line) for line in out.splitlines() if line.startswith("{")]
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--batch-log2", type=int, nargs="+", default=[14, 16, 18])
+    ap.add_argument("--steps", type=int, default=10, help="timed steps per batch size (after 2 warm-up steps)")
+    ap.add_argument("--jax-python", default="/tmp/jaxenv/bin/python",
+                    help="a Python with jax installed (skipped if missing)")
+    ap.add_argument("--no-peak", action="store_true", help="skip the numpy matmul roof (a few seconds)")
+    args = ap.parse_args()
+    variant = env.set_variant()
+    import drjit as dr
+
+    fpp = flops_per_point()
+    ours: dict[tuple[str, int], float] = {}
+    for logn in args.batch_log2:
+        n = 2**logn
+        for name, fn in (("channel-major", channel_major), ("point-major", point_major)):
+            med = fn(n, args.steps)
+            ours[(name, n)] = n / med
+            print(json.dumps({"bench": "mlp", "impl": f"mitsnerf {name}", "batch": n, "dims": list(DIMS),
+                              "median_step_s": med, "pts_per_s": n / med, "gflops": fpp * n / med / 1e9,
+                              "threads": dr.thread_count(), "variant": variant}), flush=True)
+    peer: dict[int, float] = {}
+    if Path(args.jax_python).exists() and PEER.is_file():
+        for line in run_peer(args.jax_python, args.batch_log2, args.steps):
+            peer[int(line["batch"])] = float(line["pts_per_s"])
+            print(json.dumps(line), flush=True)
+    else:
+        print(json.dumps({"peer": "jax", "skipped": f"no {args.jax_python} or no {PEER}"}), flush=True)
+    roof = None if args.no_peak else sgemm_flops()
+    nominal, how = nominal_flops()
+    for (name, n), pts in ours.items():
+        print(json.dumps({"summary": f"mitsnerf {name}", "batch": n, "pts_per_s": pts,
+                          "ratio_to_jax": pts / peer[n] if n in peer else None,
+                          "fraction_of_sgemm_roof": pts * fpp / roof if roof else None,
+                          "fraction_of_nominal_peak": pts * fpp / nominal if nominal else None}), flush=True)
+    print(json.dumps({"flops_per_point": fpp, "sgemm_roof_gflops": roof / 1e9 if roof else None,
+                      "nominal_peak_gflops": nominal / 1e9 if nominal else None, "nominal_rule": how}), flush=True)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
