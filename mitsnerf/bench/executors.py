@@ -70,21 +70,21 @@ def run_pool(cells: Sequence[Cell], on_done: OnDone, on_error: OnError, *, worke
     kwargs = {"max_workers": workers, "mp_context": mp.get_context("spawn")}
     if sys.version_info >= (3, 11):
         kwargs["max_tasks_per_child"] = 1
-    with cf.ProcessPoolExecutor(**kwargs) as pool:
+    pool = cf.ProcessPoolExecutor(**kwargs)
+    try:
         futures = {pool.submit(_pool_task, cell, threads): cell for cell in cells}
-        try:
-            for future in cf.as_completed(futures):
-                cell = futures[future]
-                try:
-                    record, artefacts = future.result()
-                except CELL_ERRORS as exc:
-                    on_error(cell, _message(exc), "".join(traceback.format_exception(exc)))
-                    continue
-                on_done(cell, record, artefacts)
-        except BaseException:
-            for future in futures:
-                future.cancel()
-            raise
+        for future in cf.as_completed(futures):
+            cell = futures[future]
+            try:
+                record, artefacts = future.result()
+            except CELL_ERRORS as exc:
+                on_error(cell, _message(exc), "".join(traceback.format_exception(exc)))
+                continue
+            on_done(cell, record, artefacts)
+    except BaseException:
+        pool.shutdown(wait=False, cancel_futures=True)  # Ctrl-C: do not wait for queued cells
+        raise
+    pool.shutdown(wait=True)
 
 
 def _ray_task(cell: Cell, threads: int) -> tuple[dict, bytes]:
