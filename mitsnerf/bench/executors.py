@@ -151,20 +151,31 @@ def run_ray(cells: Sequence[Cell], on_done: OnDone, on_error: OnError, *, addres
             ray.shutdown()
 
 
+def check_options(executor: str, workers: int = 0, threads: int = 0, address: str | None = None) -> None:
+    """ValueError (naming the CLI option) for settings the executor cannot honour."""
+    if executor not in EXECUTORS:
+        raise ValueError(f"--executor: must be one of {', '.join(EXECUTORS)}, got {executor!r}")
+    if address is not None and executor != "ray":
+        raise ValueError("--address: only with --executor ray")
+    if workers < 0 or threads < 0:
+        raise ValueError("--workers, --cpus-per-cell: must be >= 0")
+    if executor == "sequential" and workers > 1:
+        raise ValueError("--workers: the sequential executor runs one cell at a time (use --executor pool or ray)")
+    if executor == "ray" and not ray_available():
+        raise ValueError("--executor ray: Ray is not installed; pip install 'mitsnerf[ray]' (or: pip install 'ray[default]')")
+
+
 def run_cells(executor: str, cells: Sequence[Cell], on_done: OnDone, on_error: OnError, *, progress: bool = True,
               workers: int = 0, threads: int = 0, address: str | None = None,
               on_start: Callable[[Cell], None] | None = None) -> None:
     """Dispatch to the named executor (one of :data:`EXECUTORS`); ``on_start`` (sequential only)
     is called before each cell."""
-    if address is not None and executor != "ray":
-        raise ValueError("--address: only with --executor ray")
+    check_options(executor, workers, threads, address)
     if executor == "sequential":
-        if workers and workers != 1:
-            raise ValueError("--workers: the sequential executor runs one cell at a time (use --executor pool or ray)")
         run_sequential(cells, on_done, on_error, progress=progress, threads=threads, on_start=on_start)
     elif executor == "pool":
         run_pool(cells, on_done, on_error, workers=workers, threads=threads)
     elif executor == "ray":
         run_ray(cells, on_done, on_error, address=address, workers=workers, threads=threads)
-    else:
-        raise ValueError(f"--executor: must be one of {', '.join(EXECUTORS)}, got {executor!r}")
+    else:  # pragma: no cover (check_options)
+        raise ValueError(f"--executor: unknown {executor!r}")

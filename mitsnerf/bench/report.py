@@ -22,8 +22,9 @@ pre { background: #f6f6f6; padding: 0.6em; font-size: 12px; overflow-x: auto; }
 """
 
 
-def html_table(rows: Sequence[dict], columns: Sequence[Column], group: str | None = None) -> str:
-    marks = best_values(rows, BEST, group)
+def html_table(rows: Sequence[dict], columns: Sequence[Column], group: str | None = None,
+               best: dict[str, str] | None = None) -> str:
+    marks = best_values(rows, BEST if best is None else best, group)
     out = ["<table>", "<tr>" + "".join(f"<th>{html.escape(h)}</th>" for _, h, _ in columns) + "</tr>"]
     for row in rows:
         cells = []
@@ -44,7 +45,7 @@ def _img(path: Path) -> str:
 
 def write_report(path: Path, *, title: str, per_scene: Sequence[dict], average: Sequence[dict],
                  figures: dict[str, list[tuple[str, Path]]], provenance: dict[str, Any], config: dict[str, Any],
-                 failed: Sequence[dict] = (), notes: Sequence[str] = ()) -> Path:
+                 failed: Sequence[dict] = (), notes: Sequence[str] = (), best: dict[str, str] | None = None) -> Path:
     """Write the report to ``path`` (atomically) and return it."""
     from mitsnerf.data.atomic import atomic_write_text
 
@@ -56,11 +57,11 @@ def write_report(path: Path, *, title: str, per_scene: Sequence[dict], average: 
     if failed:
         parts.append("<h2>Failed cells</h2><ul>" + "".join(
             f"<li>{html.escape(f['key'])}: {html.escape(f.get('error', ''))}</li>" for f in failed) + "</ul>")
-    parts += ["<h2>Quality per scene</h2>", html_table(per_scene, QUALITY, "scene"),
-              "<h2>Cost per scene</h2>", html_table(per_scene, COST, "scene")]
+    parts += ["<h2>Quality per scene</h2>", html_table(per_scene, QUALITY, "scene", best),
+              "<h2>Cost per scene</h2>", html_table(per_scene, COST, "scene", best)]
     if len({r["scene"] for r in per_scene}) > 1:
-        parts += ["<h2>Quality averaged over scenes</h2>", html_table(average, QUALITY),
-                  "<h2>Cost averaged over scenes</h2>", html_table(average, COST)]
+        parts += ["<h2>Quality averaged over scenes</h2>", html_table(average, QUALITY, None, best),
+                  "<h2>Cost averaged over scenes</h2>", html_table(average, COST, None, best)]
     for scene, figs in figures.items():
         parts.append(f"<h2>Scene {html.escape(scene)}</h2>")
         for caption, fig_path in figs:

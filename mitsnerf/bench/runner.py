@@ -29,7 +29,8 @@ from mitsnerf import env
 from mitsnerf.bench.cells import (ARTEFACTS_FILE, ERROR_FILE, Cell, cell_dir, code_version, is_done, read_record,
                                   write_error, write_result)
 from mitsnerf.bench.config import BenchConfig
-from mitsnerf.bench.tables import average_rows, cell_row, csv_keys, csv_table, markdown_report, scene_rows
+from mitsnerf.bench.tables import (average_rows, best_rules, cell_row, csv_keys, csv_table, markdown_report,
+                                   scene_rows)
 from mitsnerf.config import from_dict, to_dict
 from mitsnerf.data.atomic import atomic_write_json, atomic_write_text
 
@@ -185,7 +186,8 @@ def write_outputs(config: BenchConfig, options: BenchOptions, cells: list[Cell],
     methods = [m.label for m in config.methods]
     per_scene = scene_rows(records, failed, scenes, methods)
     average = average_rows(per_scene, methods)
-    markdown = markdown_report(per_scene, average)
+    best = best_rules(records)
+    markdown = markdown_report(per_scene, average, best)
     files = {"table.md": out_root / "table.md", "table.csv": out_root / "table.csv",
              "average.csv": out_root / "average.csv", "cells.csv": out_root / "cells.csv",
              "results.json": out_root / "results.json"}
@@ -221,7 +223,7 @@ def write_outputs(config: BenchConfig, options: BenchOptions, cells: list[Cell],
                 files[f"plots/{path.name}"] = path
         files["report.html"] = write_report(out_root / "report.html", title=title, per_scene=per_scene,
                                             average=average, figures=figures, provenance=provenance,
-                                            config=config_data, failed=failed, notes=notes)
+                                            config=config_data, failed=failed, notes=notes, best=best)
     result.records, result.failed = records, failed
     result.per_scene, result.average, result.markdown, result.files = per_scene, average, markdown, files
     return result
@@ -233,8 +235,9 @@ def run_benchmark(config: BenchConfig, options: BenchOptions, log: Callable[[str
     ``log`` receives one line per event (default: print to stderr when ``options.progress``).
     An interrupt (Ctrl-C) keeps every finished cell on disk and re-raises.
     """
-    from mitsnerf.bench.executors import run_cells
+    from mitsnerf.bench.executors import check_options, run_cells
 
+    check_options(options.executor, options.workers, options.cpus_per_cell, options.address)
     if log is None:
         log = (lambda line: print(line, file=sys.stderr, flush=True)) if options.progress else (lambda line: None)
     cells = plan_cells(config, options)

@@ -56,7 +56,8 @@ LEGEND = (
     "independent ground-truth renders of the test views (manifest noise_floor; a noise-free model scores "
     "about 3 dB above it). sigma: learned against true density on the voxel centres; tau: optical depth "
     "along every test ray; T MAE: mean abs error of the transmittance exp(-tau). train s excludes "
-    "held-out evaluation. peak RSS: the process high-water mark (see each cell's worker note). "
+    "held-out evaluation. peak RSS: the high-water mark of the process that ran the cell (cumulative over "
+    "the cells of a sequential run, so not marked best there). "
     "Bold: best in the column (per scene). Means over seeds."
 )
 
@@ -193,13 +194,21 @@ def average_rows(rows: Sequence[dict], methods: Sequence[str] = ()) -> list[dict
     return out
 
 
-def markdown_report(per_scene: Sequence[dict], average: Sequence[dict]) -> str:
+def best_rules(records: Sequence[dict]) -> dict[str, str]:
+    """:data:`BEST`, less peak memory unless every cell ran in a fresh process (in a reused one the
+    high-water mark carries the cells before it, so comparing them would mislead)."""
+    fresh = all((r.get("worker") or {}).get("fresh_process") for r in records)
+    return dict(BEST) if fresh else {k: v for k, v in BEST.items() if k != "peak_rss_mb"}
+
+
+def markdown_report(per_scene: Sequence[dict], average: Sequence[dict], best: dict[str, str] | None = None) -> str:
     """The Markdown printed and written as ``table.md``: quality and cost, per scene and averaged."""
-    parts = ["## Quality per scene", "", markdown_table(per_scene, QUALITY, BEST, group="scene"), "",
-             "## Cost per scene", "", markdown_table(per_scene, COST, BEST, group="scene")]
+    best = BEST if best is None else best
+    parts = ["## Quality per scene", "", markdown_table(per_scene, QUALITY, best, group="scene"), "",
+             "## Cost per scene", "", markdown_table(per_scene, COST, best, group="scene")]
     if len({r["scene"] for r in per_scene}) > 1:
-        parts += ["", "## Quality averaged over scenes", "", markdown_table(average, QUALITY, BEST), "",
-                  "## Cost averaged over scenes", "", markdown_table(average, COST, BEST)]
+        parts += ["", "## Quality averaged over scenes", "", markdown_table(average, QUALITY, best), "",
+                  "## Cost averaged over scenes", "", markdown_table(average, COST, best)]
     parts += ["", LEGEND]
     return "\n".join(parts)
 

@@ -89,3 +89,12 @@ def test_the_config_hash_changes_with_what_decides_the_result(tmp_path):
     assert plan_cells(_config(eval={"curve_points": 2}), options)[0].config_hash != base.config_hash
     other_root = BenchOptions(data_root=tmp_path / "x", results_root=tmp_path / "y", code_version="t")
     assert plan_cells(_config(), other_root)[0].config_hash == base.config_hash  # paths are not part of it
+
+
+def test_cli_rejects_executor_options_that_do_not_fit(capsys):
+    from mitsnerf.cli import main
+
+    assert main(["bench", "default", "--quick", "--address", "ray://x:1"]) == 2
+    assert "--address: only with --executor ray" in capsys.readouterr().err
+    assert main(["bench", "default", "--quick", "--workers", "3"]) == 2
+    assert "--workers" in capsys.readouterr().err

@@ -44,3 +44,11 @@ def test_average_over_scenes_and_failures():
 def test_csv_has_a_header_and_one_line_per_row():
     text = csv_table(scene_rows(RECORDS), ["scene", "method", "psnr_test"])
     assert text.splitlines()[0] == "scene,method,psnr_test" and len(text.splitlines()) == 5
+
+
+def test_peak_memory_is_marked_only_when_every_cell_had_a_fresh_process():
+    from mitsnerf.bench.tables import best_rules
+
+    fresh = [{"worker": {"fresh_process": True}}] * 2
+    assert "peak_rss_mb" in best_rules(fresh)
+    assert "peak_rss_mb" not in best_rules(fresh + [{"worker": {"fresh_process": False}}])
