@@ -30,7 +30,8 @@ from mitsnerf.bench.cells import Cell
 EXECUTORS = ("sequential", "pool", "ray")
 OnDone = Callable[[Cell, dict, bytes], None]
 OnError = Callable[[Cell, str, str], None]
-#: Exceptions that fail one cell (recorded, the sweep goes on); anything else is a bug and stops it.
+#: Exceptions that fail one cell (recorded as ``error.json``, retried by the next run; the sweep goes
+#: on). ``KeyboardInterrupt`` and ``SystemExit`` stop the sweep.
 CELL_ERRORS = (Exception,)
 
 

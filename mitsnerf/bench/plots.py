@@ -100,6 +100,9 @@ def per_view(scene: str, records: Sequence[dict], methods: Sequence[str], path: 
                   if r["metrics"].get("noise_floor_psnr_per_view")), None)
     if floor:
         ax.plot(np.arange(len(floor)), [np.nan if v is None else v for v in floor], "k--", lw=1, label="GT noise floor")
+    from matplotlib.ticker import MaxNLocator
+
+    ax.xaxis.set_major_locator(MaxNLocator(integer=True))
     ax.set_xlabel("test view")
     ax.set_ylabel("PSNR, dB (linear, whole image)")
     ax.set_title(f"{scene}: test PSNR per view (mean over seeds)")

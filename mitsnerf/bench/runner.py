@@ -273,7 +273,7 @@ def run_benchmark(config: BenchConfig, options: BenchOptions, log: Callable[[str
                       workers=options.workers, threads=options.cpus_per_cell, address=options.address,
                       on_start=on_start)
         except KeyboardInterrupt:
-            log(f"interrupted: {len(result.computed)} cells finished this run are saved; "
-                "run the same command again to resume")
-            raise
+            raise KeyboardInterrupt(
+                f"{len(result.computed)} cells finished in this run are saved under {out_root}; run the same "
+                "command again to resume (cells not finished start over)") from None
     return write_outputs(config, options, cells, result)
