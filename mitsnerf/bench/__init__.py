@@ -1,1 +1,10 @@
-"""Benchmark sweeps: configurations, the runner, tables."""
+"""Benchmark sweeps (``mitsnerf bench``): every (scene, method, seed) cell of a ``benchmarks/*.toml``.
+
+- :mod:`~mitsnerf.bench.config`: the TOML configs as validated dataclasses (``--quick`` profile);
+- :mod:`~mitsnerf.bench.cells`: resolved, hashed cells and their results on disk (resume);
+- :mod:`~mitsnerf.bench.worker`: one cell: ``mitsnerf.run.fit`` with a held-out PSNR curve, the scores;
+- :mod:`~mitsnerf.bench.scores`: image scores (linear/sRGB, medium pixels), density-field errors;
+- :mod:`~mitsnerf.bench.executors`: sequential, process pool, Ray;
+- :mod:`~mitsnerf.bench.runner`: plan, skip, generate, run, write the outputs;
+- :mod:`~mitsnerf.bench.tables`, :mod:`~mitsnerf.bench.plots`, :mod:`~mitsnerf.bench.report`: the outputs.
+"""
