@@ -15,10 +15,14 @@ the initial ~1 must drop below the threshold within a hundred steps or so, hence
 defaults ``decay = 0.6`` every 8 steps (a factor 100 in 9 updates, 72 steps); the
 dilation, not the memory, is what keeps the grid conservative.
 
-Skipping a cell below the threshold changes a ray's optical depth by at most
-``threshold * chord`` (0.09 across the unit box's diagonal at 0.05), and only where
-the medium is that thin everywhere along the ray; the network is trained with the
-same skipping, so it does not learn on, or need, haze there.
+Skipping cells below the threshold changes a ray's optical depth by at most
+``threshold * chord``, and only where the medium is that thin all along the ray: on
+the default cloud (sigma_t up to 30) the grid of its true density at the default
+threshold 0.5 leaves 5% of the samples of the test views and renders them 90 dB from
+the full render, while a learned field's faint haze (which a lower threshold keeps
+evaluating: 65% of samples after 120 steps at 0.05, 27% at 0.5) is skipped. The network
+is trained with the same skipping, so it does not learn on, or need, haze there. The
+``min(threshold, mean)`` rule lowers the threshold for thin media.
 
 The dilation by one cell makes the grid conservative: on a smooth field, every point
 whose true density exceeds the threshold lies in, or next to, a cell where a
@@ -60,7 +64,7 @@ class OccupancyConfig:
     | resolution    | int   | 64      | cells per axis R (the grid is R^3)                           |
     | update_every  | int   | 8       | training steps between updates                               |
     | decay         | float | 0.6     | factor applied to the kept maximum at each update            |
-    | threshold     | float | 0.05    | density (1/length) above which a cell counts as occupied     |
+    | threshold     | float | 0.5     | density (1/length) above which a cell counts as occupied     |
     | dilate        | int   | 1       | cells by which occupancy is grown (0: none)                  |
     | early_stop_T  | float | 1e-4    | samples behind this estimated transmittance are skipped (0: off) |
     """
@@ -68,7 +72,7 @@ class OccupancyConfig:
     resolution: int = 64
     update_every: int = 8
     decay: float = 0.6
-    threshold: float = 0.05
+    threshold: float = 0.5
     dilate: int = 1
     early_stop_T: float = 1e-4
 
@@ -184,8 +188,9 @@ class OccupancyGrid:
                 dr.scatter(sigma, dr.detach(s), idx)
                 dr.eval(sigma)
             rho = dr.maximum(cfg.decay * self.rho, dr.maximum(sigma, 0.0))
-            mean = float(dr.mean(rho)[0])
-            occupied = rho > min(cfg.threshold, mean)
+            # min(threshold, mean) stays on the device: a Python float would be a new literal,
+            # and so a new kernel to compile, at every update
+            occupied = rho > dr.minimum(dr.opaque(self.Float, cfg.threshold), dr.mean(rho))
             for _ in range(cfg.dilate):
                 occupied = self._dilate(occupied)
             dr.eval(rho, occupied)
@@ -225,12 +230,31 @@ class OccupancyGrid:
         self.updates = int(np.asarray(state.get("occupancy.updates", 1)))
 
 
-def eval_masked(field: Callable[[Any, Any], tuple[Any, Any]], x, d, mask):
+def padded_size(k: int, steps_per_octave: int = 8, multiple: int = 256) -> int:
+    """``k`` rounded up to one of a few sizes: ``2^(j / steps_per_octave)``, then to a multiple of ``multiple``.
+
+    Kernels over tensors of a compacted batch embed its size; rounding it up to one of
+    about 8 sizes per octave lets Dr.Jit reuse compiled kernels (each new size costs
+    ~150 ms of compilation in the ngp field) at under 10% of padding.
+
+    >>> [padded_size(k) for k in (1, 1000, 70000, 70001)]
+    [256, 1024, 71680, 71680]
+    """
+    if k <= 0:
+        return 0
+    j = math.ceil(steps_per_octave * math.log2(k) - 1e-9)
+    size = math.ceil(2.0 ** (j / steps_per_octave))
+    return max(multiple, -(-max(size, k) // multiple) * multiple)
+
+
+def eval_masked(field: Callable[[Any, Any], tuple[Any, Any]], x, d, mask, pad: bool = True):
     """Evaluate ``field(x, d) -> (rgb, sigma)`` only where ``mask``; zeros elsewhere.
 
     The active samples are compacted (``dr.compress``: one synchronisation), gathered,
     evaluated, and scattered back into zero-filled outputs, so gradients reach the
-    field through the active samples only. Shapes: x, d Array3f (M,), mask Bool (M,)
+    field through the active samples only. With ``pad``, the compacted batch is padded
+    (repeating sample 0, results discarded) to :func:`padded_size`, so that varying
+    batch sizes reuse compiled kernels. Shapes: x, d Array3f (M,), mask Bool (M,)
     -> (Array3f (M,), Float (M,)).
 
     >>> import mitsuba as mi
@@ -247,11 +271,17 @@ def eval_masked(field: Callable[[Any, Any], tuple[Any, Any]], x, d, mask):
     if dr.width(d) != m:
         d = d + dr.zeros(Array3f, m)
     idx = dr.compress(mask)
+    k = dr.width(idx)
     sigma = dr.zeros(Float, m)
     rgb = dr.zeros(Array3f, m)
-    if dr.width(idx) == 0:
+    if k == 0:
         return rgb, sigma
+    valid = True
+    if pad and padded_size(k) > k:
+        slot = dr.arange(UInt32, padded_size(k))
+        valid = slot < dr.opaque(UInt32, k)  # opaque: k changes every call, the kernel must not
+        idx = dr.gather(UInt32, idx, slot, valid)
     rgb_k, sigma_k = field(dr.gather(Array3f, x, idx), dr.gather(Array3f, d, idx))
-    dr.scatter(sigma, sigma_k, idx)
-    dr.scatter(rgb, rgb_k, idx)
+    dr.scatter(sigma, sigma_k, idx, valid)
+    dr.scatter(rgb, rgb_k, idx, valid)
     return rgb, sigma
