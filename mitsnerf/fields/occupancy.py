@@ -6,7 +6,7 @@ training steps by evaluating the field at one jittered point per cell::
 
     s_c      = sigma(x_c + (u - 1/2) h)              h = cell size, u ~ U[0, 1)^3
     rho_c   <- max(decay * rho_c, s_c)               (an exponentially forgotten maximum)
-    occ_c    = rho_c > min(threshold, mean_c rho_c)
+    occ_c    = rho_c >= min(threshold, mean_c rho_c)
     occ      = dilate(occ)                           (a cell next to an occupied one is occupied)
 
 instant-ngp forgets with ``decay = 0.95`` every 16 steps over tens of thousands of
@@ -190,7 +190,8 @@ class OccupancyGrid:
             rho = dr.maximum(cfg.decay * self.rho, dr.maximum(sigma, 0.0))
             # min(threshold, mean) stays on the device: a Python float would be a new literal,
             # and so a new kernel to compile, at every update
-            occupied = rho > dr.minimum(dr.opaque(self.Float, cfg.threshold), dr.mean(rho))
+            # (>=: a uniform field, e.g. at initialisation, stays occupied)
+            occupied = rho >= dr.minimum(dr.opaque(self.Float, cfg.threshold), dr.mean(rho))
             for _ in range(cfg.dilate):
                 occupied = self._dilate(occupied)
             dr.eval(rho, occupied)

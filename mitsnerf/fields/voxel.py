@@ -138,28 +138,77 @@ class VoxelField:
         return Array3f(*(c_max * sigmoid(v) for v in raw)), sigma
 
 
+def _tv_terms(flat, shape):
+    """Per-axis neighbour differences of a flat (R0, R1, R2, C) grid: [(stride, coord, n, count)]."""
+    r0, r1, r2, c = shape
+    UInt32 = dr.uint32_array_t(type(flat))
+    e = dr.arange(UInt32, r0 * r1 * r2 * c)
+    v = e // c
+    coords = (v // (r1 * r2), (v // r2) % r1, v % r2)  # (z, y, x) for axes 0, 1, 2
+    strides = (r1 * r2 * c, r2 * c, c)
+    sizes = (r0, r1, r2)
+    out = []
+    for axis in range(3):
+        n = sizes[axis]
+        if n < 2:
+            continue
+        count = (r0 * r1 * r2 // n) * (n - 1) * c
+        out.append((strides[axis], coords[axis], n, count))
+    return e, out
+
+
+class _TotalVariation(dr.CustomOp):
+    """TV value and its exact gradient by a gather stencil (no scattered atomics in the backward pass)."""
+
+    def eval(self, grid):
+        self.grid = grid
+        Float = dr.leaf_t(type(grid))
+        g = grid.array
+        e, terms = _tv_terms(g, grid.shape)
+        value = Float(0.0)
+        for stride, coord, n, count in terms:
+            upper = coord + 1 < n
+            d = dr.gather(Float, g, e + stride, upper) - dr.select(upper, g, 0.0)
+            value = value + dr.sum(dr.square(d)) / count
+        return value
+
+    def forward(self):
+        raise NotImplementedError("total_variation: forward-mode derivatives are not implemented")
+
+    def backward(self):
+        grid = self.grid
+        TensorXf = type(grid)
+        Float = dr.leaf_t(TensorXf)
+        g = grid.array
+        e, terms = _tv_terms(g, grid.shape)
+        grad = dr.zeros(Float, dr.width(g))
+        for stride, coord, n, count in terms:
+            lower, upper = coord > 0, coord + 1 < n
+            below = dr.select(lower, g - dr.gather(Float, g, e - stride, lower), 0.0)
+            above = dr.select(upper, dr.gather(Float, g, e + stride, upper) - g, 0.0)
+            grad = grad + (2.0 / count) * (below - above)
+        self.set_grad_in("grid", TensorXf(grad * self.grad_out(), shape=grid.shape))
+
+    def name(self):
+        return "total_variation"
+
+
 def total_variation(grid):
     """Mean squared difference between neighbouring voxels, summed over the 3 axes, mean over channels.
 
-    ``grid``: a (R, R, R, C) tensor (differentiable) -> Float of width 1.
+    ``grid``: a (R, R, R, C) tensor (differentiable) -> Float of width 1. The gradient is
+    computed directly by a stencil, ``dTV/dg_v = sum_a 2/n_a ((g_v - g_{v-e_a}) - (g_{v+e_a} - g_v))``
+    (terms at the border dropped; ``n_a`` the number of pairs along axis a times C),
+    instead of by differentiating the differences: at 64^3 that took 280 ms of a step.
 
     >>> import mitsuba as mi
     >>> g = mi.TensorXf(np.arange(8, dtype=np.float32).reshape(2, 2, 2, 1))  # +1 in x, +2 in y, +4 in z
     >>> total_variation(g)
     [21]
     """
-    tv = 0.0
-    for axis in range(3):
-        n = grid.shape[axis]
-        if n < 2:
-            continue
-        hi = [slice(None)] * 4
-        lo = [slice(None)] * 4
-        hi[axis] = slice(1, n)
-        lo[axis] = slice(0, n - 1)
-        diff = grid[tuple(hi)] - grid[tuple(lo)]
-        tv = tv + dr.mean(dr.square(diff.array))
-    return tv
+    if grid.ndim != 4:
+        raise ValueError(f"total_variation: expected a (R, R, R, C) tensor, got shape {grid.shape}")
+    return dr.custom(_TotalVariation, grid)
 
 
 def upsample(grid, resolution: int):

@@ -2,7 +2,9 @@
 
 The field (:class:`mitsnerf.fields.voxel.VoxelField`) is rendered by the shared
 emission-absorption renderer (:func:`mitsnerf.render.volume.render_rays`), like the
-ground truth. The loss adds ``tv_sigma * TV(s) + tv_sh * TV(k)`` (as ``extra_losses``)
+ground truth, or, with ``use_occupancy``, by the same samples and compositing with
+empty space skipped (:func:`mitsnerf.methods.ngp.render_rays_skipping`): the backward
+pass scatters every evaluated sample into 8 voxels x channels, the largest cost of a step. The loss adds ``tv_sigma * TV(s) + tv_sh * TV(k)`` (as ``extra_losses``)
 to the photometric MSE. Training starts at ``initial_resolution`` and doubles the grids
 (trilinearly, :func:`mitsnerf.fields.voxel.upsample`) after each step listed in
 ``upsample_steps`` until ``resolution``; the upsampled grids replace the optimiser's
@@ -13,8 +15,10 @@ entries (their Adam state restarts).
 | grid               | VoxelFieldConfig |           | SH degree, activations, initial density           |
 | resolution         | int              | 64        | final grid resolution R                           |
 | initial_resolution | int              | 32        | resolution training starts at                     |
-| upsample_steps     | tuple of int     | (250,)    | steps after which the resolution doubles          |
+| upsample_steps     | tuple of int     | (150,)    | steps after which the resolution doubles          |
 | n_samples          | int              | 128       | stratified samples per ray                        |
+| use_occupancy      | bool             | true      | skip empty space with an occupancy grid (as ngp)  |
+| occupancy          | OccupancyConfig  |           | its resolution, update period, threshold          |
 | tv_sigma           | float            | 1e-3      | weight of TV on the raw density grid              |
 | tv_sh              | float            | 1e-3      | weight of TV on the SH coefficient grid           |
 | lr                 | float            | 0.3       | Adam learning rate                                |
@@ -26,10 +30,13 @@ from __future__ import annotations
 from dataclasses import dataclass, field, replace
 from typing import Any, Mapping
 
+import drjit as dr
 import mitsuba as mi
 
+from mitsnerf.fields.occupancy import OccupancyConfig, OccupancyGrid
 from mitsnerf.fields.voxel import VoxelField, VoxelFieldConfig, total_variation, upsample
 from mitsnerf.methods.base import Model, RenderOutput, SceneInfo
+from mitsnerf.methods.ngp import render_rays_skipping
 from mitsnerf.render.volume import render_rays
 
 SIGMA_KEY = "sigma_raw"
@@ -46,10 +53,14 @@ class VoxelMethodConfig:
     """Final grid resolution R (voxels per axis)."""
     initial_resolution: int = 32
     """Resolution at the start; doubled after each of ``upsample_steps`` until ``resolution``."""
-    upsample_steps: tuple[int, ...] = (250,)
+    upsample_steps: tuple[int, ...] = (150,)
     """Steps (0-based) after which the grids are doubled; the list must cover the doublings needed."""
     n_samples: int = 128
     """Stratified samples per ray."""
+    use_occupancy: bool = True
+    """Skip samples in empty cells of an occupancy grid refreshed from the voxel density (as ngp)."""
+    occupancy: OccupancyConfig = field(default_factory=OccupancyConfig)
+    """The occupancy grid's settings."""
     tv_sigma: float = 1e-3
     """Weight of the total-variation prior on the raw density grid."""
     tv_sh: float = 1e-3
@@ -107,6 +118,10 @@ class VoxelModel(Model):
         self.config = config
         self.scene = scene
         self._field = VoxelField.create(field_config, config.initial_resolution, mi.TensorXf, scene.box_min, scene.box_max)
+        self.seed = seed
+        self.grid = OccupancyGrid(config.occupancy, mi.Float, scene.box_min, scene.box_max) if config.use_occupancy else None
+        self.active_fraction = 1.0
+        """Share of the last batch's samples that were evaluated (a diagnostic)."""
 
     def parameters(self) -> Mapping[str, Any]:
         return {SIGMA_KEY: self._field.sigma_raw, SH_KEY: self._field.sh}
@@ -132,10 +147,18 @@ class VoxelModel(Model):
         return {SH_KEY: self.config.lr_sh_factor} if self.config.lr_sh_factor != 1.0 else {}
 
     def render_rays(self, o, d, *, u=None, training: bool = False) -> RenderOutput:
-        comp = render_rays(
-            self._field, o, d, self.config.n_samples, u=u, background=self.scene.background,
-            box_min=self.scene.box_min, box_max=self.scene.box_max,
-        )
+        if self.grid is None:
+            comp = render_rays(
+                self._field, o, d, self.config.n_samples, u=u, background=self.scene.background,
+                box_min=self.scene.box_min, box_max=self.scene.box_max,
+            )
+        else:
+            comp, mask = render_rays_skipping(
+                self._field, self.grid, o, d, self.config.n_samples, u=u, background=self.scene.background,
+                box_min=self.scene.box_min, box_max=self.scene.box_max,
+            )
+            if training:
+                self.active_fraction = int(dr.count(mask)[0]) / max(dr.width(mask), 1)
         extra = {}
         if training:
             if self.config.tv_sigma > 0:
@@ -145,10 +168,19 @@ class VoxelModel(Model):
         return RenderOutput(comp, extra)
 
     def on_step(self, step: int, opt) -> None:
-        """After a step listed in ``upsample_steps``: double both grids and re-register them."""
-        if step not in self.config.upsample_steps:
-            return
-        r = 2 * self.resolution
-        for key in (SIGMA_KEY, SH_KEY):
-            opt[key] = upsample(opt[key], r)  # a new shape: the optimiser resets its state
-        self.set_parameters(opt)
+        """Double both grids after a step listed in ``upsample_steps`` (re-registered in the
+        optimiser); refresh the occupancy grid every ``occupancy.update_every`` steps."""
+        if step in self.config.upsample_steps:
+            r = 2 * self.resolution
+            for key in (SIGMA_KEY, SH_KEY):
+                opt[key] = upsample(opt[key], r)  # a new shape: the optimiser resets its state
+            self.set_parameters(opt)
+        if self.grid is not None and (step + 1) % self.config.occupancy.update_every == 0:
+            self.grid.update(self._field.density, self.seed, step)
+
+    def extra_state(self) -> dict:
+        return self.grid.state() if self.grid is not None else {}
+
+    def load_extra_state(self, state: Mapping) -> None:
+        if self.grid is not None and "occupancy.rho" in state:
+            self.grid.load_state(state)

@@ -89,3 +89,25 @@ def test_config_is_validated():
         VoxelMethodConfig(resolution=48, initial_resolution=32, upsample_steps=(10,))
     with pytest.raises(ValueError, match="sh_degree"):
         VoxelFieldConfig(sh_degree=4)
+
+
+def _tv_numpy(g):
+    return sum(np.mean(np.diff(g, axis=a) ** 2) for a in range(3))
+
+
+def test_total_variation_value_and_gradient_match_numpy():
+    rng = np.random.default_rng(1)
+    g = rng.normal(size=(5, 4, 3, 2)).astype(np.float32)
+    t = mi.TensorXf(g)
+    dr.enable_grad(t)
+    tv = total_variation(t)
+    np.testing.assert_allclose(tv[0], _tv_numpy(g.astype(np.float64)), rtol=1e-5)
+    dr.backward(2.0 * tv)
+    grad = dr.grad(t).numpy()
+    eps = 1e-3
+    for index in [(0, 0, 0, 0), (2, 1, 1, 1), (4, 3, 2, 0), (1, 3, 0, 1)]:
+        gp, gm = g.astype(np.float64).copy(), g.astype(np.float64).copy()
+        gp[index] += eps
+        gm[index] -= eps
+        fd = 2.0 * (_tv_numpy(gp) - _tv_numpy(gm)) / (2 * eps)
+        assert grad[index] == pytest.approx(fd, rel=1e-3, abs=1e-5)
