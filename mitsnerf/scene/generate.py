@@ -33,7 +33,8 @@ from mitsnerf.scene.to_mitsuba import ENVMAP_FILE, background_description, load_
 
 #: Version of the dataset layout and generation rules; part of the dataset hash.
 #: 2: the noise floor's medium mask is the centre-ray opacity > 1e-3 rule of ``mitsnerf.run``.
-FORMAT_VERSION = 2
+#: 3: the plume family rises along the world's up axis z (it lay along y); families are part of the data.
+FORMAT_VERSION = 3
 SPLITS = ("train", "test", "test_ref")
 #: Opacity along a pixel's centre ray above which it "sees the medium" (``noise_floor.psnr_medium``).
 MEDIUM_OPACITY = 1e-3

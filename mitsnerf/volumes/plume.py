@@ -1,25 +1,25 @@
 """``plume``: thin rising wisps, a high-frequency, anisotropic field.
 
 Stresses what smooth fields and coarse grids miss: thin filaments (a few voxels across at 128^3)
-stretched along the rising axis ``y`` (up, as in the OpenGL camera convention), twisted and
+stretched along the rising axis ``z`` (the world's up: mitsnerf is Z-up), twisted and
 displaced sideways by low-frequency turbulence.
 
-With ``t = (y + 0.4) / 0.8`` the height in the plume (0 at the bottom, 1 at the top)::
+With ``t = (z + 0.4) / 0.8`` the height in the plume (0 at the bottom, 1 at the top)::
 
-    (x', z')  = rotate_y(twist * t) (x, z) + turbulence * (m_1(p), m_2(p))     m_i: 2-octave fBm at
+    (x', y')  = rotate_z(twist * t) (x, y) + turbulence * (m_1(p), m_2(p))     m_i: 2-octave fBm at
                                                                               turbulence_frequency
-    q         = (f x', f y / stretch, f z')                                    f = base_frequency
+    q         = (f x', f y', f z / stretch)                                    f = base_frequency
     ridge_i   = clip(1 - |fbm_i(q)| / width, 0, 1)^2                           i = 1, 2
     env       = (1 - smoothstep(0.5 R(t), R(t), rho)) * smoothstep(0, 0.15, t) * (1 - smoothstep(0.8, 1, t))
-    R(t)      = radius_bottom + (radius_top - radius_bottom) t,    rho = sqrt(x'^2 + z'^2)
+    R(t)      = radius_bottom + (radius_top - radius_bottom) t,    rho = sqrt(x'^2 + y'^2)
     density   = env * ridge_1 * ridge_2
 
 Each ridge is a thin sheet around a zero set of noise, vertical because the noise is stretched along
-``y``; the product of two is non-zero near their intersections: vertical filaments.
+``z``; the product of two is non-zero near their intersections: vertical filaments.
 ``radius_top + turbulence * sqrt(3)/2 <= 0.45`` keeps the medium off the box faces.
 
 >>> g = generate(Params(), 16, seed=0)
->>> g.density.shape, bool(0.0 < g.density.mean() < 0.2), bool(g.density[:, 0].max() == 0.0)
+>>> g.density.shape, bool(0.0 < g.density.mean() < 0.2), bool(g.density[0].max() == 0.0)
 ((16, 16, 16), True, True)
 """
 
@@ -35,7 +35,7 @@ from mitsnerf.volumes.base import (
 from mitsnerf.volumes.noise import NOISE_BOUND, GradientNoise, fbm
 from mitsnerf.volumes.params import check_fbm, check_float, check_rgb, normalise
 
-_Y_BOTTOM, _Y_TOP = -0.4, 0.4
+_Z_BOTTOM, _Z_TOP = -0.4, 0.4
 
 
 @dataclass(frozen=True)
@@ -52,7 +52,7 @@ class Params:
     | width                 | float          | 0.15            | half-width of a ridge, in noise units       |
     | turbulence            | float          | 0.1             | sideways displacement amplitude             |
     | turbulence_frequency  | float          | 2.0             | frequency of the displacement field         |
-    | twist                 | float          | 1.5             | rotation about y from bottom to top, radians|
+    | twist                 | float          | 1.5             | rotation about z from bottom to top, radians|
     | radius_bottom         | float          | 0.06            | plume radius at the bottom                  |
     | radius_top            | float          | 0.32            | plume radius at the top                     |
     | albedo                | 3 floats       | (0.9, 0.9, 0.9) | constant single-scattering albedo           |
@@ -101,30 +101,30 @@ def generate(params: Params, resolution: int, seed: int) -> VolumeGrids:
     plume, the filaments where the envelope is non-zero.
     """
     rng = np.random.default_rng(seed)
-    swirl_x, swirl_z, fil_1, fil_2 = (GradientNoise(rng) for _ in range(4))
+    swirl_x, swirl_y, fil_1, fil_2 = (GradientNoise(rng) for _ in range(4))
     zc, yc, xc = voxel_centres(resolution)
     reach = max(params.radius_bottom, params.radius_top) + params.turbulence * NOISE_BOUND
-    candidate = (xc * xc + zc * zc <= reach * reach) & (yc >= _Y_BOTTOM) & (yc <= _Y_TOP)
+    candidate = (xc * xc + yc * yc <= reach * reach) & (zc >= _Z_BOTTOM) & (zc <= _Z_TOP)
     kk, jj, ii = np.nonzero(candidate)
     x, y, z = xc.ravel()[ii], yc.ravel()[jj], zc.ravel()[kk]
 
-    t = (y - _Y_BOTTOM) / (_Y_TOP - _Y_BOTTOM)
+    t = (z - _Z_BOTTOM) / (_Z_TOP - _Z_BOTTOM)
     angle = params.twist * t
     c, s = np.cos(angle), np.sin(angle)
     ft = params.turbulence_frequency
-    xw = c * x - s * z + params.turbulence * fbm(swirl_x, x, y, z, frequency=ft, octaves=2)
-    zw = s * x + c * z + params.turbulence * fbm(swirl_z, x, y, z, frequency=ft, octaves=2)
+    xw = c * x - s * y + params.turbulence * fbm(swirl_x, x, y, z, frequency=ft, octaves=2)
+    yw = s * x + c * y + params.turbulence * fbm(swirl_y, x, y, z, frequency=ft, octaves=2)
     radius = params.radius_bottom + (params.radius_top - params.radius_bottom) * t
-    rho = np.sqrt(xw * xw + zw * zw)
+    rho = np.sqrt(xw * xw + yw * yw)
     env = 1.0 - smoothstep(0.5 * radius, radius, rho)
     env *= smoothstep(0.0, 0.15, t) * (1.0 - smoothstep(0.8, 1.0, t))
 
     inside = env > 0.0
-    xw, zw, ys, values = xw[inside], zw[inside], y[inside] / np.float32(params.stretch), env[inside]
+    xw, yw, zs, values = xw[inside], yw[inside], z[inside] / np.float32(params.stretch), env[inside]
     octave = dict(frequency=params.base_frequency, octaves=params.octaves,
                   persistence=params.persistence, lacunarity=params.lacunarity)
     for noise in (fil_1, fil_2):
-        ridge = np.clip(1.0 - np.abs(fbm(noise, xw, ys, zw, **octave)) / np.float32(params.width), 0.0, 1.0)
+        ridge = np.clip(1.0 - np.abs(fbm(noise, xw, yw, zs, **octave)) / np.float32(params.width), 0.0, 1.0)
         values = values * ridge * ridge
 
     density = np.zeros((resolution,) * 3, np.float32)
