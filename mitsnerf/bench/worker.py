@@ -134,7 +134,8 @@ def run_cell(cell: Cell, *, progress: bool = False, threads: int = 0, executor: 
     curve = CurveRecorder(test.images[:k], test.cameras[:k], None if masks is None else masks[:k], pc,
                           train_config.steps, train_config.seconds, evalc.curve_points)
     run = fit(dataset, cell.method, dict(cell.method_config), train_config, Path(cell.out_dir) / "run",
-              progress=progress, max_train_eval_views=evalc.train_eval_views, on_log=curve)
+              progress=progress, max_train_eval_views=evalc.train_eval_views, on_log=curve,
+              test_masks=masks)
 
     preds = np.stack([r.rgb for r in run.test.renders])
     metrics: dict[str, Any] = {}
