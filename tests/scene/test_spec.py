@@ -117,7 +117,7 @@ def test_library_loads_and_names_resolve():
     assert families >= {"cloud", "plume", "blobs", "shell", "lattice", "nebula"}
     cloud = load_scene("cloud")
     assert (cloud.cameras.width, cloud.cameras.n_train, cloud.cameras.n_test) == (64, 40, 8)
-    assert (cloud.render.spp_train, cloud.render.spp_test, cloud.volume.resolution) == (64, 512, 64)
+    assert (cloud.render.spp_train, cloud.render.spp_test, cloud.volume.resolution) == (64, 2048, 64)
 
 
 def test_unknown_name_lists_known():
