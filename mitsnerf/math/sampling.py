@@ -22,9 +22,12 @@ def stratified_t(t_n, t_f, n: int, u=None):
         delta_i = t_{i+1} - t_i,   delta_{N-1} = t_f - t_{N-1}
 
     so each ``t_i`` lies in its own stratum ``[t_n + i/N (t_f - t_n), t_n + (i+1)/N (t_f - t_n))``
-    and the deltas of a ray sum to ``t_f - t_0``: the quadrature covers ``[t_0, t_f]``,
-    leaving out ``[t_n, t_0)`` (expected length ``(t_f - t_n) / 2N``), so its error in
-    optical depth is first order in ``1/N``. ``u_0 = 0`` makes it start at ``t_n``.
+    and the deltas of a ray sum to ``t_f - t_0``: each sample stands for ``[t_i, t_{i+1})``.
+    With midpoints (``u = 0.5``, ``h = (t_f - t_n) / N``) the optical depth is
+    ``h sum_{i<N-1} sigma(t_i) + (h/2) sigma(t_{N-1})``, the midpoint rule minus half an
+    interval at the exit: its error is ``-(h/2) sigma_t(t_f) + O(h^2)``, first order in ``1/N``
+    where the medium is dense at the exit, second order where it vanishes there.
+    ``u = 0`` everywhere gives the left Riemann sum from ``t_n``, exact for constant ``sigma``.
 
     Args:
         t_n, t_f: per-ray entry and exit distances, Float of shape (R,).

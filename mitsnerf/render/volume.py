@@ -77,7 +77,7 @@ def render_rays(
     Example: a homogeneous box of ``sigma = 2`` and ``c = 1`` seen along the z axis
     (length 1) in front of a white background gives ``1 - e^-2 + e^-2 = 1``; with
     ``u = 0`` the samples start at ``t_n`` and the opacity is exactly ``1 - e^-2``
-    (with midpoints the quadrature covers ``[t_0, t_f]``, missing ``L / 2N``)::
+    (with midpoints it misses half an interval, ``L / 2N``, at the exit)::
 
         >>> import drjit as dr
         >>> from drjit.llvm.ad import Array3f, Float

@@ -43,8 +43,8 @@ def test_rays_missing_the_box_see_exactly_the_background():
 
 def test_midpoint_quadrature_error_is_first_order(blob_grid):
     # The stratified quadrature covers [t_0, t_f]; with midpoints its optical-depth error is
-    # about sigma L / 2N at the box entry, so the error of the rendered opacity of a dense
-    # homogeneous medium falls as 1/N: halving when N doubles.
+    # -(h/2) sigma_t(t_f) (half an interval missing at the exit), so the error of the rendered
+    # opacity of a homogeneous medium falls as 1/N: halving when N doubles.
     field = GridField.from_arrays(np.full((4, 4, 4), 2.0, np.float32))
     o, d = mi.Array3f(0.0, 0.0, -2.0), mi.Array3f(0.0, 0.0, 1.0)
     exact = 1 - np.exp(-2.0)
