@@ -198,7 +198,10 @@ def cmd_check(args) -> int:
 
 
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(prog="mitsnerf", description=__doc__.splitlines()[0])
+    parser = argparse.ArgumentParser(
+        prog="mitsnerf",
+        description="Mitsuba 3 ground truth for participating media, Dr.Jit NeRFs fitted to it, and the benchmarks between them.",
+    )
     parser.add_argument("--variant", help="Mitsuba variant (default: $MITSNERF_VARIANT, else cuda_ad_rgb if a GPU is usable, else llvm_ad_rgb)")
     sub = parser.add_subparsers(dest="command", required=True)
 
