@@ -10,6 +10,19 @@ Architecture (Mueller et al. 2022, sizes configurable)::
     sigma   = exp(min(s + sigma_bias, 15))                                (position only)
     c       = c_max * sigmoid(MLP_c([g, SH_0..(L_sh+1)^2-1(d)]))          (features + direction)
 
+Defaults, measured on the default cloud (64^3 fBm, 40 training views at 64 spp, whose
+noise is ~32 dB on medium pixels; 600 steps of 2048 rays), test PSNR (medium pixels):
+
+    16 levels to 256, SH degree 3 (680 steps):        39.6 dB (30.9)  train 48.5: fits the noise
+    12 levels to 128, SH degree 2:                    39.4 dB (30.7)
+     8 levels to  64, SH degree 1:                    40.6 dB (32.0)
+     8 levels to  64, SH degree 0 (the default):      43.4 dB (34.7)
+
+Capacity above the data's own resolution, and any direction input, let the field follow
+the training views' per-pixel noise. The scenes mitsnerf generates have an isotropic
+phase function, so their exact emission ``albedo * J(x)`` does not depend on the
+direction; ``sh_degree`` 1-3 remain for anisotropic media or foreign data.
+
 The MLPs are point-major tensor products (:mod:`mitsnerf.fields.mlp`), the fastest
 path measured on the LLVM backend. The hash table is one flat Float array kept by the
 field (``encoding.data``), apart from the MLPs: ``drjit.nn`` does not pack it.
@@ -42,31 +55,31 @@ class NGPConfig:
 
     | name               | type  | default | meaning                                                 |
     |--------------------|-------|---------|---------------------------------------------------------|
-    | n_levels           | int   | 16      | resolution levels L                                     |
+    | n_levels           | int   | 8       | resolution levels L                                     |
     | features_per_level | int   | 2       | features F per level (even)                             |
     | log2_hashmap_size  | int   | 15      | T: at most 2^T entries per level                        |
     | base_resolution    | int   | 16      | N_min, the coarsest level's resolution                  |
-    | max_resolution     | int   | 256     | N_max, the finest level's resolution                    |
+    | max_resolution     | int   | 64      | N_max, the finest level's resolution                    |
     | hidden             | int   | 64      | width of the density MLP's hidden layer                 |
     | geo_features       | int   | 15      | features passed from the density MLP to the colour MLP  |
     | color_hidden       | int   | 64      | width of the colour MLP's hidden layers                 |
     | color_layers       | int   | 1       | hidden layers of the colour MLP (instant-ngp: 2)        |
-    | sh_degree          | int   | 3       | highest SH band of the direction encoding (16 functions)|
+    | sh_degree          | int   | 0       | highest SH band of the direction encoding (0: constant) |
     | sigma_bias         | float | 0.0     | added to the density pre-activation (0: sigma starts ~1)|
     | c_max              | float | 1.0     | largest colour (radiance) the colour MLP can output     |
     | init_scale         | float | 1e-4    | hash-table entries start uniform in +-init_scale        |
     """
 
-    n_levels: int = 16
+    n_levels: int = 8
     features_per_level: int = 2
     log2_hashmap_size: int = 15
     base_resolution: int = 16
-    max_resolution: int = 256
+    max_resolution: int = 64
     hidden: int = 64
     geo_features: int = 15
     color_hidden: int = 64
     color_layers: int = 1
-    sh_degree: int = 3
+    sh_degree: int = 0
     sigma_bias: float = 0.0
     c_max: float = 1.0
     init_scale: float = 1e-4
