@@ -25,7 +25,7 @@ def test_nerf_density_depends_on_position_only():
 
 def test_the_default_is_nerfs_design():
     config = NeRFMethodConfig()
-    assert config.n_importance > 0 and config.coarse_network is None
+    assert config.n_importance > 0 and config.coarse_network.width <= config.network.width
     assert (config.network.pos_octaves, config.network.dir_octaves) == (10, 4)
     assert config.network.skip is not None and config.network.skip < config.network.depth
 
