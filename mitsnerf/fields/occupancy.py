@@ -275,13 +275,14 @@ def eval_masked(field: Callable[[Any, Any], tuple[Any, Any]], x, d, mask, pad: b
     k = dr.width(idx)
     sigma = dr.zeros(Float, m)
     rgb = dr.zeros(Array3f, m)
-    if k == 0:
+    if k == 0 and not pad:
         return rgb, sigma
     valid = True
-    if pad and padded_size(k) > k:
-        slot = dr.arange(UInt32, padded_size(k))
+    if pad and padded_size(max(k, 1)) > k:
+        slot = dr.arange(UInt32, padded_size(max(k, 1)))
         valid = slot < dr.opaque(UInt32, k)  # opaque: k changes every call, the kernel must not
-        idx = dr.gather(UInt32, idx, slot, valid)
+        # (with nothing active the field still runs on padding, so a loss keeps its gradient path)
+        idx = dr.gather(UInt32, idx, slot, valid) if k else dr.zeros(UInt32, dr.width(slot))
     rgb_k, sigma_k = field(dr.gather(Array3f, x, idx), dr.gather(Array3f, d, idx))
     dr.scatter(sigma, sigma_k, idx, valid)
     dr.scatter(rgb, rgb_k, idx, valid)

@@ -218,9 +218,9 @@ def upsample(grid, resolution: int):
     only by the interpolation of an interpolation. Returns a detached tensor.
 
     >>> import mitsuba as mi
-    >>> g = mi.TensorXf(np.array([0.0, 1.0], np.float32).reshape(1, 1, 2, 1))
-    >>> upsample(dr.full(mi.TensorXf, 2.0, (2, 2, 2, 1)), 4).shape
-    (4, 4, 4, 1)
+    >>> up = upsample(dr.full(mi.TensorXf, 2.0, (2, 2, 2, 1)), 4)
+    >>> up.shape, float(dr.max(up.array)[0]), float(dr.min(up.array)[0])
+    ((4, 4, 4, 1), 2.0, 2.0)
     """
     import mitsuba as mi
 

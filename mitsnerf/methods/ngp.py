@@ -1,7 +1,7 @@
 """``ngp``: a hash-grid field (instant-ngp) with an occupancy grid that skips empty space.
 
-Each ray gets the same stratified samples as every method
-(:func:`mitsnerf.render.volume.sample_rays`); the occupancy grid
+Rendered by :func:`mitsnerf.render.skipping.render_rays_skipping`: each ray gets the
+same stratified samples as every method (:func:`mitsnerf.render.volume.sample_rays`); the occupancy grid
 (:mod:`mitsnerf.fields.occupancy`) keeps only those in occupied cells whose
 estimated transmittance is above ``early_stop_T``; the field is evaluated on those
 alone and the samples are composited by :func:`mitsnerf.math.composite.composite`,
@@ -18,11 +18,9 @@ import drjit as dr
 import mitsuba as mi
 
 from mitsnerf.fields.ngp import NGPConfig, NGPField
-from mitsnerf.fields.occupancy import OccupancyConfig, OccupancyGrid, eval_masked
-from mitsnerf.math.composite import Composite, composite
+from mitsnerf.fields.occupancy import OccupancyConfig, OccupancyGrid
 from mitsnerf.methods.base import Model, RenderOutput, SceneInfo
-from mitsnerf.render.rays import BOX_MAX, BOX_MIN
-from mitsnerf.render.volume import sample_rays
+from mitsnerf.render.skipping import render_rays_skipping
 
 
 @dataclass(frozen=True)
@@ -49,49 +47,6 @@ class NGPMethodConfig:
             raise ValueError(f"n_samples: must be >= 1, got {self.n_samples}")
         if not self.lr > 0:
             raise ValueError(f"lr: must be > 0, got {self.lr}")
-
-
-def render_rays_skipping(
-    field,
-    grid: OccupancyGrid | None,
-    o,
-    d,
-    n_samples: int,
-    *,
-    u=None,
-    background=None,
-    box_min=BOX_MIN,
-    box_max=BOX_MAX,
-) -> tuple[Composite, Any]:
-    """:func:`mitsnerf.render.volume.render_rays` with empty-space skipping and early ray stopping.
-
-    Samples are placed and composited exactly as there; ``field`` is evaluated only on
-    the samples ``grid.sample_mask`` keeps (all of them when ``grid`` is None), the
-    others count as empty (``sigma = 0``). Returns (composite, mask Bool (R*N,)).
-
-    Example: a slab of ``sigma = 2`` seen through a grid that has not been updated
-    (everything occupied) renders as without the grid::
-
-        >>> from mitsnerf.env import set_variant; _ = set_variant("llvm_ad_rgb")
-        >>> slab = lambda x, d: (mi.Array3f(1.0) + 0 * x.x, mi.Float(2.0) + 0 * x.x)
-        >>> grid = OccupancyGrid(OccupancyConfig(resolution=4), mi.Float)
-        >>> out, mask = render_rays_skipping(slab, grid, mi.Array3f(0, 0, -2), mi.Array3f(0, 0, 1), 8)
-        >>> out.opacity  # 1 - exp(-2 * 15/16), as render_rays
-        [0.846645]
-    """
-    s, _ = sample_rays(o, d, n_samples, u, box_min, box_max)
-    if grid is None:
-        mask = dr.full(dr.mask_t(s.t), True, dr.width(s.t))
-    else:
-        mask = grid.sample_mask(s.x, s.delta, n_samples)
-    rgb, sigma = eval_masked(field, s.x, s.d, mask)
-    if background is None:
-        bg = 0.0
-    elif callable(background):
-        bg = background(d)
-    else:
-        bg = background
-    return composite(sigma, s.delta, rgb, n_samples, background=bg, t=s.t), mask
 
 
 class NGPModel(Model):

@@ -3,7 +3,7 @@
 The field (:class:`mitsnerf.fields.voxel.VoxelField`) is rendered by the shared
 emission-absorption renderer (:func:`mitsnerf.render.volume.render_rays`), like the
 ground truth, or, with ``use_occupancy``, by the same samples and compositing with
-empty space skipped (:func:`mitsnerf.methods.ngp.render_rays_skipping`): the backward
+empty space skipped (:func:`mitsnerf.render.skipping.render_rays_skipping`): the backward
 pass scatters every evaluated sample into 8 voxels x channels, the largest cost of a step. The loss adds ``tv_sigma * TV(s) + tv_sh * TV(k)`` (as ``extra_losses``)
 to the photometric MSE. Training starts at ``initial_resolution`` and doubles the grids
 (trilinearly, :func:`mitsnerf.fields.voxel.upsample`) after each step listed in
@@ -36,7 +36,7 @@ import mitsuba as mi
 from mitsnerf.fields.occupancy import OccupancyConfig, OccupancyGrid
 from mitsnerf.fields.voxel import VoxelField, VoxelFieldConfig, total_variation, upsample
 from mitsnerf.methods.base import Model, RenderOutput, SceneInfo
-from mitsnerf.methods.ngp import render_rays_skipping
+from mitsnerf.render.skipping import render_rays_skipping
 from mitsnerf.render.volume import render_rays
 
 SIGMA_KEY = "sigma_raw"

@@ -8,7 +8,7 @@ import pytest
 
 from mitsnerf.fields.grid import GridField
 from mitsnerf.fields.occupancy import OccupancyConfig, OccupancyGrid, eval_masked
-from mitsnerf.methods.ngp import render_rays_skipping
+from mitsnerf.render.skipping import render_rays_skipping
 from mitsnerf.render.volume import render_rays
 
 
@@ -98,3 +98,13 @@ def test_config_is_validated():
         OccupancyConfig(resolution=1)
     with pytest.raises(ValueError, match="early_stop_T"):
         OccupancyConfig(early_stop_T=1.0)
+
+
+def test_eval_masked_with_nothing_active_keeps_a_gradient_path():
+    w = mi.Float(2.0)
+    dr.enable_grad(w)
+    f = lambda p, d: (mi.Array3f(w * p.x), w * p.x)  # noqa: E731
+    rgb, sigma = eval_masked(f, mi.Array3f([1.0, 2.0], 0, 0), mi.Array3f(0, 0, 1), mi.Bool([False, False]))
+    assert np.all(np.asarray(sigma) == 0.0)
+    dr.backward(dr.sum(sigma) + dr.sum(rgb.x))  # must not raise "does not depend on the input"
+    assert dr.grad(w)[0] == 0.0
