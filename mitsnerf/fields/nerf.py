@@ -37,8 +37,8 @@ class NeRFConfig:
     depth: int = 4
     """Number of hidden layers D of the trunk (NeRF: 8)."""
     skip: int | None = 2
-    """Trunk layer index at which the encoded input is concatenated again (NeRF: 4, of 8); None, or
-    an index >= depth (a trunk too shallow for it): no skip."""
+    """Trunk layer index at which the encoded input is concatenated again (NeRF: 4, of 8); None or 0
+    (TOML has no null), or an index >= depth (a trunk too shallow for it): no skip."""
     features: int = 15
     """Position features passed from the trunk to the colour head."""
     head_width: int = 32
@@ -57,8 +57,8 @@ class NeRFConfig:
         for name in ("width", "depth", "features", "head_width"):
             if getattr(self, name) < 1:
                 raise ValueError(f"{name}: must be >= 1, got {getattr(self, name)}")
-        if self.skip is not None and self.skip < 1:
-            raise ValueError(f"skip: must be None or >= 1, got {self.skip}")
+        if self.skip is not None and self.skip < 0:
+            raise ValueError(f"skip: must be None, 0 (no skip) or a layer index >= 1, got {self.skip}")
         if not (self.sigma_scale > 0 and self.c_max > 0):
             raise ValueError("sigma_scale, c_max: must be > 0")
 
@@ -102,7 +102,7 @@ def build_network(config: NeRFConfig, TensorXf, seed: int = 0) -> NeRFNetwork:
     trunk = []
     size = in_pos
     for i in range(config.depth):
-        if config.skip is not None and i == config.skip:
+        if config.skip and i == config.skip:
             size += in_pos
         layer, size = nn.Linear(size, config.width)._alloc(TensorXf, size, rng)
         trunk.append(layer)
@@ -147,7 +147,7 @@ class NeRFField:
         enc = _encode(self._tensor(p, dr.width(x)), self.config.pos_octaves)
         h = enc
         for i, layer in enumerate(self.net.trunk):
-            if self.config.skip is not None and i == self.config.skip:
+            if self.config.skip and i == self.config.skip:
                 h = dr.concat([h, enc], axis=0)
             h = dr.maximum(layer(h), 0.0)
         return self.net.out(h)

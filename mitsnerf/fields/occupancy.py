@@ -287,3 +287,31 @@ def eval_masked(field: Callable[[Any, Any], tuple[Any, Any]], x, d, mask, pad: b
     dr.scatter(sigma, sigma_k, idx, valid)
     dr.scatter(rgb, rgb_k, idx, valid)
     return rgb, sigma
+
+
+class OccupancyMaskedField:
+    """``field`` with its density set to 0 outside the grid's occupied cells.
+
+    What a model trained with skipping actually renders (up to early stopping): the
+    network is free to leave haze in skipped cells, which an export of the bare field
+    would show. Callable as a field, with ``density(x)``.
+
+    >>> import mitsuba as mi
+    >>> from mitsnerf.env import set_variant; _ = set_variant("llvm_ad_rgb")
+    >>> grid = OccupancyGrid(OccupancyConfig(resolution=4, dilate=0), mi.Float)
+    >>> grid.update(lambda x: dr.select(x.x > 0.0, 5.0, 0.0) + 0.0 * x.y, seed=0, step=0)
+    >>> haze = lambda x, d: (mi.Array3f(1.0) + 0.0 * x.x, mi.Float(0.1) + 0.0 * x.x)
+    >>> OccupancyMaskedField(haze, grid)(mi.Array3f([-0.4, 0.4], 0.0, 0.0), mi.Array3f(0, 0, 1))[1]
+    [0, 0.1]
+    """
+
+    def __init__(self, field, grid: OccupancyGrid) -> None:
+        self.field = field
+        self.grid = grid
+
+    def density(self, x):
+        return dr.select(self.grid.is_occupied(x), self.field.density(x), 0.0)
+
+    def __call__(self, x, d):
+        rgb, sigma = self.field(x, d)
+        return rgb, dr.select(self.grid.is_occupied(x), sigma, 0.0)

@@ -18,7 +18,7 @@ import drjit as dr
 import mitsuba as mi
 
 from mitsnerf.fields.ngp import NGPConfig, NGPField
-from mitsnerf.fields.occupancy import OccupancyConfig, OccupancyGrid
+from mitsnerf.fields.occupancy import OccupancyConfig, OccupancyGrid, OccupancyMaskedField
 from mitsnerf.methods.base import Model, RenderOutput, SceneInfo
 from mitsnerf.render.skipping import render_rays_skipping
 
@@ -74,7 +74,8 @@ class NGPModel(Model):
         return self.config.n_samples
 
     def field(self):
-        return self._field
+        """The field as trained: density 0 in cells the occupancy grid skips."""
+        return self._field if self.grid is None else OccupancyMaskedField(self._field, self.grid)
 
     def render_rays(self, o, d, *, u=None, training: bool = False) -> RenderOutput:
         comp, mask = render_rays_skipping(

@@ -33,7 +33,7 @@ from typing import Any, Mapping
 import drjit as dr
 import mitsuba as mi
 
-from mitsnerf.fields.occupancy import OccupancyConfig, OccupancyGrid
+from mitsnerf.fields.occupancy import OccupancyConfig, OccupancyGrid, OccupancyMaskedField
 from mitsnerf.fields.voxel import VoxelField, VoxelFieldConfig, total_variation, upsample
 from mitsnerf.methods.base import Model, RenderOutput, SceneInfo
 from mitsnerf.render.skipping import render_rays_skipping
@@ -137,7 +137,8 @@ class VoxelModel(Model):
         return self.config.n_samples
 
     def field(self):
-        return self._field
+        """The field as trained: density 0 in cells the occupancy grid skips."""
+        return self._field if self.grid is None else OccupancyMaskedField(self._field, self.grid)
 
     @property
     def resolution(self) -> int:

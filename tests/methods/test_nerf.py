@@ -112,4 +112,4 @@ def test_config_is_validated():
     with pytest.raises(ValueError, match="n_importance"):
         NeRFMethodConfig(n_importance=-1)
     with pytest.raises(ValueError, match="skip"):
-        NeRFConfig(skip=0)
+        NeRFConfig(skip=-1)
