@@ -26,7 +26,7 @@ class MethodEntry:
 
 METHODS = MappingProxyType(
     {
-        "nerf": MethodEntry("nerf", NeRFMethodConfig, NeRFModel, "positional-encoding MLP, stratified samples"),
+        "nerf": MethodEntry("nerf", NeRFMethodConfig, NeRFModel, "positional-encoding MLPs, coarse + importance samples"),
         "mitsuba-inverse": MethodEntry("mitsuba-inverse", MitsubaInverseConfig, MitsubaInverseModel,
                                        "sigma_t/albedo grids through Mitsuba's prbvolpath, coarse to fine"),
         "ngp": MethodEntry("ngp", NGPMethodConfig, NGPModel, "hash-grid encoding, tiny MLPs, occupancy-grid skipping"),
