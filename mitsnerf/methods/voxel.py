@@ -3,9 +3,15 @@
 The field (:class:`mitsnerf.fields.voxel.VoxelField`) is rendered by the shared
 emission-absorption renderer (:func:`mitsnerf.render.volume.render_rays`), like the
 ground truth, or, with ``use_occupancy``, by the same samples and compositing with
-empty space skipped (:func:`mitsnerf.render.skipping.render_rays_skipping`): the backward
-pass scatters every evaluated sample into 8 voxels x channels, the largest cost of a step. The loss adds ``tv_sigma * TV(s) + tv_sh * TV(k)`` (as ``extra_losses``)
-to the photometric MSE. Training starts at ``initial_resolution`` and doubles the grids
+empty space skipped (:func:`mitsnerf.render.skipping.render_rays_skipping`): the
+backward pass scatters every evaluated sample into 8 voxels x 13 channels, the largest
+cost of a step (at 64^3, 4096 rays: 386 ms per step without skipping, 159 ms with it,
+on the loaded 2-core machine). The loss adds ``tv_sigma * TV(s) + tv_sh * TV(k)`` (as
+``extra_losses``) to the photometric MSE.
+
+On the default cloud (64 spp training views), 60 s of 4096-ray steps reached 45.0 dB
+test PSNR (36.5 dB on medium pixels; 1002 steps); SH degree 0 ran 1.8x more steps and
+reached 44.4 dB (35.9). Training starts at ``initial_resolution`` and doubles the grids
 (trilinearly, :func:`mitsnerf.fields.voxel.upsample`) after each step listed in
 ``upsample_steps`` until ``resolution``; the upsampled grids replace the optimiser's
 entries (their Adam state restarts).
