@@ -5,7 +5,9 @@ Each step draws ``batch_rays`` pixels uniformly from every training view, render
 them with the model (jittered stratified samples), and minimises the mean squared
 error on linear RGB (plus the model's own regularisers) with ``drjit.opt.Adam``.
 Random numbers of step ``k`` come from a generator seeded with ``(seed, k)`` alone,
-so a run resumed at step ``k`` draws exactly what an uninterrupted run would.
+so a run resumed at step ``k`` draws exactly what an uninterrupted run would. Whether it
+then also computes the same bits depends on the method summing its gradients in a fixed
+order (``nerf`` does; the grid methods only single-threaded): see :mod:`mitsnerf.checkpoint`.
 """
 
 from __future__ import annotations

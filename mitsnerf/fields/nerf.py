@@ -9,8 +9,10 @@ encodings and skip connection on a CPU-sized trunk of 4 x 64 instead of 8 x 256)
     sigma  = softplus(h_0 + sigma_bias) * sigma_scale              (position only)
     c      = c_max * sigmoid(MLP_head([h_1.., gamma(d)]))           (position features + direction)
 
-Tensor mode (a (C, M) tensor through ``nn.Linear``) is used: on the LLVM backend it
-measured about 3x faster than cooperative vectors (../shared/DRJIT_NOTES.md).
+Tensor mode (a (C, M) tensor through ``nn.Linear``'s weights and biases) is used: on the
+LLVM backend it measured about 3x faster than cooperative vectors (../shared/DRJIT_NOTES.md).
+The layers are evaluated by :func:`linear`, not ``nn.Linear.__call__``, so that their bias
+gradients are summed in a fixed order (training runs are reproducible bit for bit).
 """
 
 from __future__ import annotations
@@ -70,6 +72,58 @@ def softplus(x):
 
 def sigmoid(x):
     return 1.0 / (1.0 + dr.exp(-x))
+
+
+class _BroadcastColumns(dr.CustomOp):
+    """A (C,) vector repeated along M columns -> (C, M); its adjoint sums each row by ``dr.block_sum``.
+
+    ``drjit.nn.Linear`` adds its bias as ``y + dr.reshape(b, (C, 1))``: a broadcast whose
+    adjoint is a scatter-add of the C x M output gradients into the C biases. On the LLVM
+    backend that scatter runs in ``ReduceMode.Expand`` (one copy of the target per worker
+    thread, summed at the end), and which thread accumulates which block of points depends
+    on scheduling, so the bias gradients change in the last bit from run to run. A block
+    reduction sums each row in a fixed order.
+    """
+
+    def eval(self, b, m):
+        self.c, self.m = b.shape[0], m
+        return self._repeat(b)
+
+    def _repeat(self, b):
+        TensorXf = type(b)
+        Float = dr.leaf_t(TensorXf)
+        row = dr.arange(dr.uint32_array_t(Float), self.c * self.m) // self.m
+        return TensorXf(dr.gather(Float, b.array, row), shape=(self.c, self.m))
+
+    def forward(self):
+        self.set_grad_out(self._repeat(self.grad_in("b")))
+
+    def backward(self):
+        g = self.grad_out()
+        self.set_grad_in("b", type(g)(dr.block_sum(g.array, self.m), shape=(self.c,)))
+
+    def name(self):
+        return "broadcast_columns"
+
+
+def linear(layer, x):
+    """``W x + b`` of an ``nn.Linear`` ``layer`` on a (C_in, M) tensor -> (C_out, M).
+
+    The same values as ``layer(x)``, but the bias gradient is a per-row block sum (fixed
+    order) instead of Dr.Jit's broadcast adjoint, a multi-threaded scatter-add whose
+    rounding depends on thread scheduling (:class:`_BroadcastColumns`).
+
+    >>> import mitsuba as mi
+    >>> from mitsnerf.env import set_variant; _ = set_variant("llvm_ad_rgb")
+    >>> layer, _ = nn.Linear(2, 3)._alloc(mi.TensorXf, 2, dr.rng(seed=0))
+    >>> x = dr.ones(mi.TensorXf, (2, 4))
+    >>> bool(dr.all(linear(layer, x) == layer(x), axis=None))
+    True
+    """
+    y = layer.weights @ x
+    if layer.bias is None:
+        return y
+    return y + dr.custom(_BroadcastColumns, layer.bias, x.shape[1])
 
 
 def _encode(values, octaves: int):
@@ -149,8 +203,8 @@ class NeRFField:
         for i, layer in enumerate(self.net.trunk):
             if self.config.skip and i == self.config.skip:
                 h = dr.concat([h, enc], axis=0)
-            h = dr.maximum(layer(h), 0.0)
-        return self.net.out(h)
+            h = dr.maximum(linear(layer, h), 0.0)
+        return linear(self.net.out, h)
 
     def density(self, x):
         """``sigma(x)``, Float (M,)."""
@@ -162,7 +216,7 @@ class NeRFField:
         sigma = softplus(out[0].array) * self.config.sigma_scale
         feat = out[1:]
         enc_d = _encode(self._tensor(d, dr.width(x)), self.config.dir_octaves)
-        h = dr.maximum(self.net.head[0](dr.concat([feat, enc_d], axis=0)), 0.0)
-        c = sigmoid(self.net.head[1](h)) * self.config.c_max
+        h = dr.maximum(linear(self.net.head[0], dr.concat([feat, enc_d], axis=0)), 0.0)
+        c = sigmoid(linear(self.net.head[1], h)) * self.config.c_max
         Array3f = type(x)
         return Array3f(c[0].array, c[1].array, c[2].array), sigma
