@@ -20,7 +20,7 @@ Files written to ``OUT`` (atomically)::
     albedo.vol    (R, R, R, 3) the colour clipped to [0, 1]
     sigma_t.npy   (R, R, R) float32, indexed [z, y, x]
     color.npy     (R, R, R, 3) float32, unclipped
-    export.json   resolution, directions, box, source run and method
+    export.json   resolution, directions, box, source run and method, variant/versions/commit
 
 The density carries over exactly: ``sigma_t`` means extinction per unit length in both
 worlds. The colour does not in general: a NeRF's colour is radiance leaving the medium
@@ -55,6 +55,7 @@ from typing import Any, Sequence
 
 import numpy as np
 
+from mitsnerf import env
 from mitsnerf.data.atomic import atomic_write_bytes, atomic_write_json
 from mitsnerf.data.vol import write_vol
 from mitsnerf.render.rays import BOX_MAX, BOX_MIN
@@ -186,4 +187,4 @@ def export_run(run_dir: Path, out_dir: Path | None = None, resolution: int = 64,
     except NotImplementedError:
         raise ValueError(f"{run_dir}: method {config.get('method')!r} has no queryable field to export") from None
     return export_field(field, out_dir, resolution, direction, n_directions,
-                        info={"run": str(run_dir), "method": config.get("method")})
+                        info={"run": str(run_dir), "method": config.get("method"), "provenance": env.provenance()})

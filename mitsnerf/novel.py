@@ -23,8 +23,9 @@ Files written for a view named ``STEM`` (orbit frames are ``orbit/frame_000`` ..
     STEM_opacity.exr    1 - T_N in R, G, B
     STEM_opacity.png    the same, grey, linear (not sRGB-encoded)
 
-and for an orbit also ``orbit.gif`` (pillow) and, only if ``imageio-ffmpeg`` is installed,
-``orbit.mp4``. All files are written atomically.
+plus ``render.json`` (every view's camera, the run, the variant, versions and commit), and for an
+orbit also ``orbit.gif`` (pillow) and, only if ``imageio-ffmpeg`` is installed, ``orbit.mp4``.
+All files are written atomically.
 """
 
 from __future__ import annotations
@@ -38,7 +39,8 @@ from typing import Sequence
 
 import numpy as np
 
-from mitsnerf.data.atomic import atomic_path, atomic_write_bytes
+from mitsnerf import env
+from mitsnerf.data.atomic import atomic_path, atomic_write_bytes, atomic_write_json
 from mitsnerf.data.images import write_exr, write_png
 from mitsnerf.math.camera import Camera, look_at as look_at_matrix
 
@@ -234,6 +236,14 @@ def render_run(run_dir: Path, out_dir: Path, request: ViewRequest = ViewRequest(
         rendered = render_camera(model, cam, pixel_center=pixel_center)
         written += write_views(out_dir, stem, rendered)
         frames.append(linear_to_srgb(np.clip(rendered.rgb, 0.0, 1.0)))
+    atomic_write_json(out_dir / "render.json", {
+        "run": str(run_dir),
+        "views": [{"name": stem, "transform_matrix": cam.c2w.tolist(), "w": cam.width, "h": cam.height,
+                   "fl_x": cam.fl_x, "fl_y": cam.fl_y, "cx": cam.cx, "cy": cam.cy} for cam, stem in zip(cams, stems)],
+        "pixel_center": pixel_center,
+        "provenance": env.provenance(),
+    })
+    written.append(out_dir / "render.json")
     if request.orbit:
         write_gif(out_dir / "orbit.gif", frames, request.fps)
         written.append(out_dir / "orbit.gif")

@@ -180,8 +180,11 @@ def train(
     n_jitter = model.jitter_size()
     history = list(history or [])
     start = time.perf_counter() - elapsed
-    bar = tqdm(total=config.steps, initial=start_step, disable=not progress, desc=f"train {model.name}",
-               unit="step", dynamic_ncols=True, leave=False)
+    # A time budget shows seconds done out of the budget (steps may never reach their limit).
+    timed = config.seconds > 0
+    bar = tqdm(total=config.seconds if timed else config.steps, initial=min(elapsed, config.seconds) if timed else start_step,
+               disable=not progress, desc=f"train {model.name}", unit="s" if timed else "step", dynamic_ncols=True,
+               leave=False, bar_format="{l_bar}{bar}| {n:.0f}/{total:.0f} s [{postfix}]" if timed else None)
     step = start_step
     loss_value = float("nan")
     rays_done = 0
@@ -237,7 +240,7 @@ def train(
             step += 1
             snap, snap_step = optimizer_snapshot(opt), step
             rays_done += B
-            bar.update(1)
+            bar.update(min(time.perf_counter() - start, config.seconds) - bar.n if timed else 1)
             interval_sum, interval_n = interval_sum + loss_value, interval_n + 1
             if step % config.log_every == 0 or step == config.steps:
                 mse_value = float(mse[0])
@@ -251,7 +254,7 @@ def train(
                     "psnr": -10.0 * math.log10(max(mse_value, 1e-12)),
                 }
                 history.append(entry)
-                bar.set_postfix(loss=f"{loss_value:.2e}", psnr=f"{entry['psnr']:.2f}")
+                bar.set_postfix(step=step, loss=f"{loss_value:.2e}", psnr=f"{entry['psnr']:.2f}")
                 if factor:
                     bad = bad + 1 if mean > factor * best else 0
                     best = min(best, mean)
