@@ -56,7 +56,9 @@ def test_render_a_dataset_view_writes_rgb_depth_and_opacity(run_dir, tmp_path, c
     rgba = read_exr(tmp_path / "test_000.exr")
     opacity = read_exr(tmp_path / "test_000_opacity.exr")[..., 0]
     np.testing.assert_array_equal(rgba[..., 3], opacity)
-    assert "6 files" in capsys.readouterr().out
+    assert "7 files" in capsys.readouterr().out
+    info = json.loads((tmp_path / "render.json").read_text())
+    assert info["views"][0]["name"] == "test_000" and info["provenance"]["variant"]
 
 
 def test_render_look_from_with_size_and_an_orbit_gif(run_dir, tmp_path):
