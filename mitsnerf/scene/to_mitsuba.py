@@ -35,7 +35,12 @@ def volume_grids(spec: SceneSpec) -> tuple[np.ndarray, np.ndarray]:
     return np.ascontiguousarray(sigma_t), np.ascontiguousarray(grids.albedo, dtype=np.float32)
 
 
-def _grid(data: np.ndarray) -> dict[str, Any]:
+def grid_volume(data: np.ndarray) -> dict[str, Any]:
+    """A ``gridvolume`` over the box for a ``[z, y, x]`` (1 channel) or ``[z, y, x, 3]`` array.
+
+    ``to_world`` maps its [0, 1]^3 onto the box [-0.5, 0.5]^3; ``accel=False`` keeps CUDA from
+    using reduced-precision hardware interpolation.
+    """
     import mitsuba as mi
 
     return {
@@ -46,28 +51,38 @@ def _grid(data: np.ndarray) -> dict[str, Any]:
     }
 
 
-def scene_dict(spec: SceneSpec, sigma_t: np.ndarray, albedo: np.ndarray) -> dict[str, Any]:
-    """The ``mi.load_dict`` dictionary of the scene (no sensor), for the current Mitsuba variant."""
+def medium_box(sigma_t: np.ndarray, albedo) -> dict[str, Any]:
+    """The box: a ``cube`` with a ``null`` BSDF around a heterogeneous medium, isotropic phase.
+
+    ``sigma_t`` (R, R, R) holds the true extinction (``scale = 1``); ``albedo`` is an (R, R, R, 3)
+    grid or one float.
+    """
     import mitsuba as mi
 
+    albedo_entry: Any = float(albedo) if np.ndim(albedo) == 0 else grid_volume(np.asarray(albedo, dtype=np.float32))
+    return {
+        "type": "cube",
+        "to_world": mi.ScalarTransform4f().scale(0.5),
+        "bsdf": {"type": "null"},
+        "interior": {
+            "type": "heterogeneous",
+            "scale": 1.0,
+            "phase": {"type": "isotropic"},
+            "sigma_t": grid_volume(sigma_t),
+            "albedo": albedo_entry,
+        },
+    }
+
+
+def scene_dict(spec: SceneSpec, sigma_t: np.ndarray, albedo: np.ndarray) -> dict[str, Any]:
+    """The ``mi.load_dict`` dictionary of the scene (no sensor), for the current Mitsuba variant."""
     r = sigma_t.shape[0]
     if sigma_t.shape != (r, r, r) or albedo.shape != (r, r, r, 3):
         raise ValueError(f"grids must be (R, R, R) and (R, R, R, 3), got {sigma_t.shape} and {albedo.shape}")
     d: dict[str, Any] = {
         "type": "scene",
         "integrator": {"type": "volpath", "max_depth": int(spec.render.max_depth)},
-        "medium_box": {
-            "type": "cube",
-            "to_world": mi.ScalarTransform4f().scale(0.5),
-            "bsdf": {"type": "null"},
-            "interior": {
-                "type": "heterogeneous",
-                "scale": 1.0,
-                "phase": {"type": "isotropic"},
-                "sigma_t": _grid(sigma_t),
-                "albedo": _grid(albedo),
-            },
-        },
+        "medium_box": medium_box(sigma_t, albedo),
     }
     for i, light in enumerate(spec.lights):
         d[f"light_{i}_{light.type}"] = emitter_dict(light)

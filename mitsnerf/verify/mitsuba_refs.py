@@ -30,41 +30,7 @@ from typing import Any
 import numpy as np
 
 from mitsnerf.math.camera import Camera
-
-
-def grid_volume(data: np.ndarray) -> dict[str, Any]:
-    """A ``gridvolume`` over the box for a ``[z, y, x]`` (1 channel) or ``[z, y, x, 3]`` array."""
-    import mitsuba as mi
-
-    return {
-        "type": "gridvolume",
-        "grid": mi.VolumeGrid(np.ascontiguousarray(data, dtype=np.float32)),
-        "to_world": mi.ScalarTransform4f().translate(-0.5),
-        "accel": False,
-    }
-
-
-def medium_box(sigma_t: np.ndarray, albedo: np.ndarray) -> dict[str, Any]:
-    """The box with a heterogeneous medium: ``sigma_t`` (R, R, R), ``albedo`` (R, R, R, 3) or a float."""
-    import mitsuba as mi
-
-    albedo_entry: Any
-    if np.ndim(albedo) == 0:
-        albedo_entry = float(albedo)
-    else:
-        albedo_entry = grid_volume(np.asarray(albedo, dtype=np.float32))
-    return {
-        "type": "cube",
-        "to_world": mi.ScalarTransform4f().scale(0.5),
-        "bsdf": {"type": "null"},
-        "interior": {
-            "type": "heterogeneous",
-            "scale": 1.0,
-            "phase": {"type": "isotropic"},
-            "sigma_t": grid_volume(sigma_t),
-            "albedo": albedo_entry,
-        },
-    }
+from mitsnerf.scene.to_mitsuba import medium_box
 
 
 def constant_environment(radiance) -> dict[str, Any]:
