@@ -16,7 +16,7 @@ scales the scheduled learning rate per parameter (e.g. halved after each upsampl
 from __future__ import annotations
 
 from abc import ABC, abstractmethod
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Any, Callable, ClassVar, Mapping
 
 import drjit as dr
@@ -136,3 +136,11 @@ class Model(ABC):
 def num_parameters(params: Mapping[str, Any]) -> int:
     """Total number of scalar parameters."""
     return int(sum(dr.prod(v.shape) if hasattr(v, "shape") and v.shape else dr.width(v) for v in params.values()))
+
+
+def cover_radiance(field_config, scene: SceneInfo):
+    """``field_config`` with ``c_max`` (the largest colour its head can output) raised to
+    ``max(1, 1.25 x scene.radiance_max)`` when the training images are brighter than it."""
+    if field_config.c_max < scene.radiance_max:
+        return replace(field_config, c_max=max(1.0, 1.25 * scene.radiance_max))
+    return field_config

@@ -33,7 +33,7 @@ importance samples, and 0.43 s for the former single-pass default (3 x 64, 8 oct
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field
 from typing import Any, Mapping
 
 import drjit as dr
@@ -42,7 +42,7 @@ import mitsuba as mi
 from mitsnerf.fields.nerf import NeRFConfig, NeRFField
 from mitsnerf.math.composite import composite, weights
 from mitsnerf.math.sampling import deltas_from_sorted_t, merge_sorted_t, sample_pdf
-from mitsnerf.methods.base import Model, RenderOutput, SceneInfo
+from mitsnerf.methods.base import Model, RenderOutput, SceneInfo, cover_radiance
 from mitsnerf.render.rays import intersect_box
 from mitsnerf.render.volume import render_rays, sample_rays
 
@@ -129,18 +129,12 @@ class NeRFModel(Model):
     def __init__(self, config: NeRFMethodConfig, scene: SceneInfo, seed: int = 0) -> None:
         self.config = config
         self.scene = scene
-        fine = self._scaled(config.network, scene)
+        fine = cover_radiance(config.network, scene)
         self._field = NeRFField.create(fine, mi.TensorXf, seed, scene.box_min, scene.box_max)
         self._coarse = None
         if config.n_importance > 0:
-            coarse = self._scaled(config.coarse_network or config.network, scene)
+            coarse = cover_radiance(config.coarse_network or config.network, scene)
             self._coarse = NeRFField.create(coarse, mi.TensorXf, seed + 1, scene.box_min, scene.box_max)
-
-    @staticmethod
-    def _scaled(net_config: NeRFConfig, scene: SceneInfo) -> NeRFConfig:
-        if net_config.c_max < scene.radiance_max:
-            return replace(net_config, c_max=max(1.0, 1.25 * scene.radiance_max))
-        return net_config
 
     @property
     def hierarchical(self) -> bool:

@@ -11,7 +11,7 @@ every ``occupancy.update_every`` steps.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field
 from typing import Any, Mapping
 
 import drjit as dr
@@ -19,7 +19,7 @@ import mitsuba as mi
 
 from mitsnerf.fields.ngp import NGPConfig, NGPField
 from mitsnerf.fields.occupancy import OccupancyConfig, OccupancyGrid, OccupancyMaskedField
-from mitsnerf.methods.base import Model, RenderOutput, SceneInfo
+from mitsnerf.methods.base import Model, RenderOutput, SceneInfo, cover_radiance
 from mitsnerf.render.skipping import render_rays_skipping
 
 
@@ -53,9 +53,7 @@ class NGPModel(Model):
     name = "ngp"
 
     def __init__(self, config: NGPMethodConfig, scene: SceneInfo, seed: int = 0) -> None:
-        field_config = config.network
-        if field_config.c_max < scene.radiance_max:
-            field_config = replace(field_config, c_max=max(1.0, 1.25 * scene.radiance_max))
+        field_config = cover_radiance(config.network, scene)
         self.config = config
         self.scene = scene
         self.seed = seed

@@ -33,7 +33,7 @@ entries (their Adam state restarts).
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field
 from typing import Any, Mapping
 
 import drjit as dr
@@ -41,7 +41,7 @@ import mitsuba as mi
 
 from mitsnerf.fields.occupancy import OccupancyConfig, OccupancyGrid, OccupancyMaskedField
 from mitsnerf.fields.voxel import VoxelField, VoxelFieldConfig, total_variation, upsample
-from mitsnerf.methods.base import Model, RenderOutput, SceneInfo
+from mitsnerf.methods.base import Model, RenderOutput, SceneInfo, cover_radiance
 from mitsnerf.render.skipping import render_rays_skipping
 from mitsnerf.render.volume import render_rays
 
@@ -118,9 +118,7 @@ class VoxelModel(Model):
     name = "voxel"
 
     def __init__(self, config: VoxelMethodConfig, scene: SceneInfo, seed: int = 0) -> None:
-        field_config = config.grid
-        if field_config.c_max < scene.radiance_max:
-            field_config = replace(field_config, c_max=max(1.0, 1.25 * scene.radiance_max))
+        field_config = cover_radiance(config.grid, scene)
         self.config = config
         self.scene = scene
         self._field = VoxelField.create(field_config, config.initial_resolution, mi.TensorXf, scene.box_min, scene.box_max)
