@@ -144,3 +144,34 @@ def cover_radiance(field_config, scene: SceneInfo):
     if field_config.c_max < scene.radiance_max:
         return replace(field_config, c_max=max(1.0, 1.25 * scene.radiance_max))
     return field_config
+
+
+class OccupancyModel(Model):
+    """A model of a field ``self._field`` that skips empty space with ``self.grid`` (an
+    :class:`mitsnerf.fields.occupancy.OccupancyGrid`, or None).
+
+    Updates the grid from the field's density every ``update_every`` steps (seeded by
+    ``self.seed`` and the step), checkpoints it with the parameters, and exposes the field as
+    trained (density 0 in skipped cells). Subclasses that override :meth:`on_step` call this one.
+    """
+
+    _field: Any = None
+    grid: Any = None
+    seed: int = 0
+
+    def field(self):
+        """The field as trained: density 0 in cells the occupancy grid skips."""
+        from mitsnerf.fields.occupancy import OccupancyMaskedField
+
+        return self._field if self.grid is None else OccupancyMaskedField(self._field, self.grid)
+
+    def on_step(self, step: int, opt) -> None:
+        if self.grid is not None and (step + 1) % self.grid.config.update_every == 0:
+            self.grid.update(self._field.density, self.seed, step)
+
+    def extra_state(self) -> dict:
+        return self.grid.state() if self.grid is not None else {}
+
+    def load_extra_state(self, state: Mapping) -> None:
+        if self.grid is not None and "occupancy.rho" in state:
+            self.grid.load_state(state)

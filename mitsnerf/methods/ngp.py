@@ -18,8 +18,8 @@ import drjit as dr
 import mitsuba as mi
 
 from mitsnerf.fields.ngp import NGPConfig, NGPField
-from mitsnerf.fields.occupancy import OccupancyConfig, OccupancyGrid, OccupancyMaskedField
-from mitsnerf.methods.base import Model, RenderOutput, SceneInfo, cover_radiance
+from mitsnerf.fields.occupancy import OccupancyConfig, OccupancyGrid
+from mitsnerf.methods.base import OccupancyModel, RenderOutput, SceneInfo, cover_radiance
 from mitsnerf.render.skipping import render_rays_skipping
 
 
@@ -49,7 +49,7 @@ class NGPMethodConfig:
             raise ValueError(f"lr: must be > 0, got {self.lr}")
 
 
-class NGPModel(Model):
+class NGPModel(OccupancyModel):
     name = "ngp"
 
     def __init__(self, config: NGPMethodConfig, scene: SceneInfo, seed: int = 0) -> None:
@@ -71,10 +71,6 @@ class NGPModel(Model):
     def samples_per_ray(self) -> int:
         return self.config.n_samples
 
-    def field(self):
-        """The field as trained: density 0 in cells the occupancy grid skips."""
-        return self._field if self.grid is None else OccupancyMaskedField(self._field, self.grid)
-
     def render_rays(self, o, d, *, u=None, training: bool = False) -> RenderOutput:
         comp, mask = render_rays_skipping(
             self._field, self.grid, o, d, self.config.n_samples, u=u, background=self.scene.background,
@@ -83,14 +79,3 @@ class NGPModel(Model):
         if training:
             self.active_fraction = int(dr.count(mask)[0]) / max(dr.width(mask), 1)
         return RenderOutput(comp, {})
-
-    def on_step(self, step: int, opt) -> None:
-        if self.grid is not None and (step + 1) % self.config.occupancy.update_every == 0:
-            self.grid.update(self._field.density, self.seed, step)
-
-    def extra_state(self) -> dict:
-        return self.grid.state() if self.grid is not None else {}
-
-    def load_extra_state(self, state: Mapping) -> None:
-        if self.grid is not None and "occupancy.rho" in state:
-            self.grid.load_state(state)

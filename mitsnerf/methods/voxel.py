@@ -39,9 +39,9 @@ from typing import Any, Mapping
 import drjit as dr
 import mitsuba as mi
 
-from mitsnerf.fields.occupancy import OccupancyConfig, OccupancyGrid, OccupancyMaskedField
+from mitsnerf.fields.occupancy import OccupancyConfig, OccupancyGrid
 from mitsnerf.fields.voxel import VoxelField, VoxelFieldConfig, total_variation, upsample
-from mitsnerf.methods.base import Model, RenderOutput, SceneInfo, cover_radiance
+from mitsnerf.methods.base import OccupancyModel, RenderOutput, SceneInfo, cover_radiance
 from mitsnerf.render.skipping import render_rays_skipping
 from mitsnerf.render.volume import render_rays
 
@@ -114,7 +114,7 @@ class VoxelMethodConfig:
         return self.initial_resolution * 2 ** sum(1 for s in self.upsample_steps if step > s)
 
 
-class VoxelModel(Model):
+class VoxelModel(OccupancyModel):
     name = "voxel"
 
     def __init__(self, config: VoxelMethodConfig, scene: SceneInfo, seed: int = 0) -> None:
@@ -139,10 +139,6 @@ class VoxelModel(Model):
 
     def samples_per_ray(self) -> int:
         return self.config.n_samples
-
-    def field(self):
-        """The field as trained: density 0 in cells the occupancy grid skips."""
-        return self._field if self.grid is None else OccupancyMaskedField(self._field, self.grid)
 
     @property
     def resolution(self) -> int:
@@ -180,12 +176,4 @@ class VoxelModel(Model):
             for key in (SIGMA_KEY, SH_KEY):
                 opt[key] = upsample(opt[key], r)  # a new shape: the optimiser resets its state
             self.set_parameters(opt)
-        if self.grid is not None and (step + 1) % self.config.occupancy.update_every == 0:
-            self.grid.update(self._field.density, self.seed, step)
-
-    def extra_state(self) -> dict:
-        return self.grid.state() if self.grid is not None else {}
-
-    def load_extra_state(self, state: Mapping) -> None:
-        if self.grid is not None and "occupancy.rho" in state:
-            self.grid.load_state(state)
+        super().on_step(step, opt)

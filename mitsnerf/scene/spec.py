@@ -44,6 +44,7 @@ else:  # pragma: no cover - Python 3.10
     import tomli as tomllib
 
 from mitsnerf.errors import SpecError
+from mitsnerf.volumes.params import range_text
 
 #: The world's up axis (Z-up). Rigs' "upper half" and the sky's zenith are +Z.
 UP = (0.0, 0.0, 1.0)
@@ -104,7 +105,7 @@ class _Table:
         return default
 
     def int(self, key: str, default: Any = _MISSING, lo: int | None = None, hi: int | None = None) -> int:
-        what = "an integer" + _range(lo, hi)
+        what = "an integer" + range_text(lo, hi)
         v = self.get(key, default, what)
         if not _is_int(v) or (lo is not None and v < lo) or (hi is not None and v > hi):
             raise self.error(key, f"must be {what}, got {v!r}")
@@ -114,7 +115,7 @@ class _Table:
         self, key: str, default: Any = _MISSING, lo: float | None = None, hi: float | None = None,
         lo_open: bool = False, hi_open: bool = False,
     ) -> float:
-        what = "a number" + _range(lo, hi, lo_open, hi_open)
+        what = "a number" + range_text(lo, hi, lo_open, hi_open)
         v = self.get(key, default, what)
         bad = not _is_number(v) or not math.isfinite(v)
         if not bad:
@@ -160,16 +161,6 @@ class _Table:
         if not isinstance(v, Mapping):
             raise self.error(key, f"must be a table, got {_type_name(v)}")
         return v
-
-
-def _range(lo, hi, lo_open: bool = False, hi_open: bool = False) -> str:
-    if lo is not None and hi is not None:
-        return f" in {'(' if lo_open else '['}{lo:g}, {hi:g}{')' if hi_open else ']'}"
-    if lo is not None:
-        return f" {'>' if lo_open else '>='} {lo:g}"
-    if hi is not None:
-        return f" {'<' if hi_open else '<='} {hi:g}"
-    return ""
 
 
 def _freeze(obj: Any) -> Any:

@@ -33,7 +33,8 @@ def _is_number(value: Any) -> bool:
     return isinstance(value, Real) and not isinstance(value, bool)
 
 
-def _range_text(lo, hi, lo_open: bool = False, hi_open: bool = False) -> str:
+def range_text(lo, hi, lo_open: bool = False, hi_open: bool = False) -> str:
+    """How an allowed range reads in an error message: `` in [0, 1)``, `` >= 1``, ``""``."""
     if lo is not None and hi is not None:
         return f" in {'(' if lo_open else '['}{lo:g}, {hi:g}{')' if hi_open else ']'}"
     if lo is not None:
@@ -45,7 +46,7 @@ def _range_text(lo, hi, lo_open: bool = False, hi_open: bool = False) -> str:
 
 def check_int(name: str, value: Any, lo: int | None = None, hi: int | None = None) -> int:
     """An integer (not bool, not float) in ``[lo, hi]``."""
-    text = f"{name}: must be an integer{_range_text(lo, hi)}, got {value!r}"
+    text = f"{name}: must be an integer{range_text(lo, hi)}, got {value!r}"
     if not _is_int(value):
         raise ValueError(text)
     value = int(value)
@@ -64,7 +65,7 @@ def check_float(
     hi_open: bool = False,
 ) -> float:
     """A finite real number (int accepted) in the given interval, returned as float."""
-    text = f"{name}: must be a number{_range_text(lo, hi, lo_open, hi_open)}, got {value!r}"
+    text = f"{name}: must be a number{range_text(lo, hi, lo_open, hi_open)}, got {value!r}"
     if not _is_number(value) or not math.isfinite(value):
         raise ValueError(text)
     value = float(value)
