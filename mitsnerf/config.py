@@ -81,10 +81,15 @@ def from_dict(cls, values: Mapping[str, Any] | None, prefix: str = ""):
     """
     values = dict(values or {})
     hints = typing.get_type_hints(cls)
-    names = [f.name for f in dataclasses.fields(cls) if f.init]
-    unknown = [k for k in values if k not in names]
+    fields = {f.name: f for f in dataclasses.fields(cls) if f.init}
+    unknown = [k for k in values if k not in fields]
     if unknown:
-        raise ValueError(f"{prefix}{unknown[0]}: unknown key (known: {', '.join(names)})")
+        raise ValueError(f"{prefix}{unknown[0]}: unknown key (known: {', '.join(fields)})")
+    for key, value in values.items():
+        # A table for a nested config overrides that field's own default, key by key.
+        default = _field_default(fields[key])
+        if dataclasses.is_dataclass(default) and isinstance(value, Mapping):
+            values[key] = _merge(to_dict(default), value)
     kwargs = {k: _convert(hints[k], v, f"{prefix}{k}") for k, v in values.items()}
     try:
         return cls(**kwargs)
@@ -92,6 +97,25 @@ def from_dict(cls, values: Mapping[str, Any] | None, prefix: str = ""):
         raise ValueError(f"{prefix}{exc}") from None
     except TypeError as exc:
         raise ValueError(f"{prefix.rstrip('.') or cls.__name__}: {exc}") from None
+
+
+def _field_default(f: dataclasses.Field):
+    if f.default is not dataclasses.MISSING:
+        return f.default
+    if f.default_factory is not dataclasses.MISSING:  # type: ignore[misc]
+        return f.default_factory()  # type: ignore[misc]
+    return None
+
+
+def _merge(base: dict, override: Mapping[str, Any]) -> dict:
+    """``base`` with ``override`` applied, recursing into tables present in both."""
+    out = dict(base)
+    for key, value in override.items():
+        if isinstance(value, Mapping) and isinstance(out.get(key), dict):
+            out[key] = _merge(out[key], value)
+        else:
+            out[key] = value
+    return out
 
 
 def to_dict(obj) -> dict:
