@@ -89,7 +89,7 @@ def from_dict(cls, values: Mapping[str, Any] | None, prefix: str = ""):
         # A table for a nested config overrides that field's own default, key by key.
         default = _field_default(fields[key])
         if dataclasses.is_dataclass(default) and isinstance(value, Mapping):
-            values[key] = _merge(to_dict(default), value)
+            values[key] = deep_merge(to_dict(default), value)
     kwargs = {k: _convert(hints[k], v, f"{prefix}{k}") for k, v in values.items()}
     try:
         return cls(**kwargs)
@@ -107,12 +107,16 @@ def _field_default(f: dataclasses.Field):
     return None
 
 
-def _merge(base: dict, override: Mapping[str, Any]) -> dict:
-    """``base`` with ``override`` applied, recursing into tables present in both."""
+def deep_merge(base: Mapping[str, Any], over: Mapping[str, Any]) -> dict:
+    """``over`` merged into a copy of ``base``; nested tables merge key by key.
+
+    >>> deep_merge({"a": 1, "n": {"x": 1, "y": 2}}, {"n": {"y": 3}, "b": 2})
+    {'a': 1, 'n': {'x': 1, 'y': 3}, 'b': 2}
+    """
     out = dict(base)
-    for key, value in override.items():
-        if isinstance(value, Mapping) and isinstance(out.get(key), dict):
-            out[key] = _merge(out[key], value)
+    for key, value in over.items():
+        if isinstance(value, Mapping) and isinstance(out.get(key), Mapping):
+            out[key] = deep_merge(out[key], value)
         else:
             out[key] = value
     return out

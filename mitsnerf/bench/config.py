@@ -35,7 +35,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Mapping
 
-from mitsnerf.config import from_dict
+from mitsnerf.config import deep_merge, from_dict
 from mitsnerf.errors import SpecError
 from mitsnerf.methods import METHODS
 
@@ -45,21 +45,6 @@ else:  # pragma: no cover
     import tomli as tomllib
 
 BENCHMARKS_ENV = "MITSNERF_BENCHMARKS"
-
-
-def deep_merge(base: Mapping[str, Any], over: Mapping[str, Any]) -> dict:
-    """``over`` merged into a copy of ``base``; nested tables merge key by key.
-
-    >>> deep_merge({"a": 1, "n": {"x": 1, "y": 2}}, {"n": {"y": 3}, "b": 2})
-    {'a': 1, 'n': {'x': 1, 'y': 3}, 'b': 2}
-    """
-    out = dict(base)
-    for key, value in over.items():
-        if isinstance(value, Mapping) and isinstance(out.get(key), Mapping):
-            out[key] = deep_merge(out[key], value)
-        else:
-            out[key] = value
-    return out
 
 
 @dataclass(frozen=True)
