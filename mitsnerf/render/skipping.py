@@ -15,7 +15,7 @@ import drjit as dr
 from mitsnerf.fields.occupancy import OccupancyGrid, eval_masked
 from mitsnerf.math.composite import Composite, composite
 from mitsnerf.render.rays import BOX_MAX, BOX_MIN
-from mitsnerf.render.volume import sample_rays
+from mitsnerf.render.volume import background_radiance, sample_rays
 
 
 def render_rays_skipping(
@@ -54,10 +54,4 @@ def render_rays_skipping(
     else:
         mask = grid.sample_mask(s.x, s.delta, n_samples)
     rgb, sigma = eval_masked(field, s.x, s.d, mask)
-    if background is None:
-        bg = 0.0
-    elif callable(background):
-        bg = background(d)
-    else:
-        bg = background
-    return composite(sigma, s.delta, rgb, n_samples, background=bg, t=s.t), mask
+    return composite(sigma, s.delta, rgb, n_samples, background=background_radiance(background, d), t=s.t), mask

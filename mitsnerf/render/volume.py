@@ -91,10 +91,12 @@ def render_rays(
     """
     s, _ = sample_rays(o, d, n_samples, u, box_min, box_max)
     rgb, sigma = field(s.x, s.d)
+    return composite_fn(sigma, s.delta, rgb, n_samples, background=background_radiance(background, d), t=s.t)
+
+
+def background_radiance(background, d):
+    """What rays of direction ``d`` see behind the medium: ``background(d)`` for a callable, the
+    value itself for a constant, 0 for None."""
     if background is None:
-        bg = 0.0
-    elif callable(background):
-        bg = background(d)
-    else:
-        bg = background
-    return composite_fn(sigma, s.delta, rgb, n_samples, background=bg, t=s.t)
+        return 0.0
+    return background(d) if callable(background) else background
