@@ -44,7 +44,7 @@ from mitsnerf.math.composite import composite, weights
 from mitsnerf.math.sampling import deltas_from_sorted_t, merge_sorted_t, sample_pdf
 from mitsnerf.methods.base import Model, RenderOutput, SceneInfo, cover_radiance
 from mitsnerf.render.rays import intersect_box
-from mitsnerf.render.volume import render_rays, sample_rays
+from mitsnerf.render.volume import background_radiance, render_rays, sample_rays
 
 COARSE_PREFIX = "coarse."
 """Parameter names of the coarse network; the fine network's keep the single-pass names."""
@@ -169,10 +169,6 @@ class NeRFModel(Model):
         """The coarse network's field (None when single-pass)."""
         return self._coarse
 
-    def _background(self, d):
-        bg = self.scene.background
-        return bg(d) if callable(bg) else (0.0 if bg is None else bg)
-
     def render_rays(self, o, d, *, u=None, training: bool = False) -> RenderOutput:
         cfg, scene = self.config, self.scene
         if not self.hierarchical:
@@ -185,7 +181,7 @@ class NeRFModel(Model):
         n_c, n_f = cfg.n_samples, cfg.n_importance
         n_rays = dr.width(o)
         u_c, u_f = _split_jitter(u, n_rays, n_c, n_f)
-        bg = self._background(d)
+        bg = background_radiance(self.scene.background, d)
         Float = type(o.x)
 
         # Coarse pass: stratified samples through the coarse network.
