@@ -1,7 +1,7 @@
 #!/usr/bin/env python3
 """Ground-truth rendering throughput: mitsnerf's dataset generator against raw Mitsuba, same scene.
 
-The harness path is ``mitsnerf.scene.generate.generate_dataset`` (volume synthesis, scene
+The harness path is ``mitsnerf.generate.generate_dataset`` (volume synthesis, scene
 load, one ``mi.render`` per view, EXR + PNG writing, hashing, manifest). The raw path is what a
 Mitsuba user would write by hand for the same scene: a ``mi.load_dict`` of a cube with a
 heterogeneous medium whose grids are the dataset's own ``volume/*.vol`` files, the same emitters,
@@ -78,7 +78,7 @@ def main() -> int:
     import mitsuba as mi
 
     from mitsnerf.data.images import read_image
-    from mitsnerf.scene.generate import generate_dataset
+    from mitsnerf.generate import generate_dataset
     from mitsnerf.scene.spec import load_scene
 
     variant = env.set_variant()

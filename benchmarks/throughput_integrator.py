@@ -25,6 +25,7 @@ import numpy as np
 
 import mitsnerf  # noqa: F401  (libLLVM before drjit)
 from mitsnerf import env
+from mitsnerf.math.box import UNIT_BOX
 
 
 def main() -> int:
@@ -42,7 +43,7 @@ def main() -> int:
 
     from mitsnerf.fields.grid import GridField
     from mitsnerf.render.background import make_background
-    from mitsnerf.render.rays import camera_rays
+    from mitsnerf.math.rays import camera_rays
     from mitsnerf.render.volume import render_rays
     from mitsnerf.scene.rigs import camera_rig
     from mitsnerf.scene.spec import load_scene
@@ -56,12 +57,12 @@ def main() -> int:
     rays = camera_rays(mi.Array3f, camera_rig(spec.cameras, "test"))
     n_rays = rays.size
 
-    field_np = GridField.from_arrays(sigma_np, albedo_np)
+    field_np = GridField.from_arrays(sigma_np, UNIT_BOX, albedo_np)
 
     def forward(n: int) -> None:
         field = field_np
         with dr.suspend_grad():
-            comp = render_rays(field, rays.o, rays.d, n, background=background)
+            comp = render_rays(field, rays.o, rays.d, n, background=background, box=UNIT_BOX)
             dr.eval(comp.rgb, comp.opacity)
         dr.sync_thread()
 
@@ -69,8 +70,8 @@ def main() -> int:
     dr.enable_grad(sigma)
 
     def backward(n: int) -> None:
-        field = GridField.from_arrays(sigma, albedo_np)
-        comp = render_rays(field, rays.o, rays.d, n, background=background)
+        field = GridField.from_arrays(sigma, UNIT_BOX, albedo_np)
+        comp = render_rays(field, rays.o, rays.d, n, background=background, box=UNIT_BOX)
         loss = dr.mean(dr.square(comp.rgb), axis=None)
         dr.backward(loss)
         grad = dr.grad(sigma)

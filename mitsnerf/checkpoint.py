@@ -11,18 +11,18 @@ loadable file. It is a numpy ``.npz`` (read with ``allow_pickle=False``)::
     adam/<name>/v_max      AMSGrad maximum (only when amsgrad is on)
     extra/<name>           the model's ``extra_state()`` arrays
 
-    meta.json = {"format": 1, "step": k, "elapsed": seconds, "config": run config,
-                 "history": [...], "optimizer": {"type": "Adam", "lr": ..., "beta_1": ...,
-                 "params": {name: {"t": Adam step count, "lr": per-parameter lr or null,
-                                   "promoted": bool}}}, "rng": "..."}
+    meta.json = {"format": 2, "step": k, "elapsed": seconds, "config": run config,
+                 "history": [...], "monitor": loss-monitor state, "optimizer": {"type": "Adam",
+                 "lr": ..., "beta_1": ..., "params": {name: {"t": Adam step count,
+                 "lr": per-parameter lr or null, "promoted": bool}}}, "rng": "..."}
 
 What makes a resume bit-for-bit: the trainer draws step ``k``'s random numbers from a
 generator seeded by ``(seed, k)`` alone (:func:`mitsnerf.train.step_rng`), so the RNG state
 *is* the step; the parameters and every Adam moment are stored as the exact float32 bits;
 Adam's step count ``t`` is restored as an evaluated (opaque) UInt32 exactly as
 ``drjit.opt.Adam.step`` leaves it; the learning rate is recomputed from the step by the
-schedule. (A ``seconds`` budget makes the schedule depend on wall time: such a run resumes
-correctly but not bit-for-bit.)
+schedule; the loss monitor's interval sums are stored, so the resumed history is the
+uninterrupted one's.
 
 The gradients must also be summed in the same order every run. ``nerf``'s are, with any
 thread count: its layers add their biases through :func:`mitsnerf.fields.nerf.linear`, whose
@@ -59,7 +59,7 @@ from mitsnerf.data.atomic import atomic_write_bytes
 from mitsnerf.errors import DatasetError
 
 CHECKPOINT_FILE = "checkpoint.npz"
-FORMAT_VERSION = 1
+FORMAT_VERSION = 2
 _ADAM_HYPER = ("beta_1", "beta_2", "epsilon", "mask_updates", "promote_fp16", "uniform", "amsgrad")
 
 
@@ -81,6 +81,8 @@ class Checkpoint:
     optimizer: dict
     """Type, hyperparameters, per-parameter ``t``/``lr``/``promoted``; moments under ``moments``."""
     history: list = field(default_factory=list)
+    monitor: dict = field(default_factory=dict)
+    """The trainer's loss-monitor state (:class:`mitsnerf.train.monitor.LossMonitor`)."""
     extra_state: dict[str, np.ndarray] = field(default_factory=dict)
     moments: dict[str, dict[str, np.ndarray]] = field(default_factory=dict)
     """Per parameter ``{"m": ..., "v": ...[, "v_max": ...]}``."""
@@ -103,6 +105,7 @@ def capture(
     config: Mapping[str, Any] | None = None,
     elapsed: float = 0.0,
     history: list | None = None,
+    monitor: Mapping[str, Any] | None = None,
     extra_state: Mapping[str, Any] | None = None,
 ) -> Checkpoint:
     """The numpy :class:`Checkpoint` of an Adam optimiser (or an :func:`optimizer_snapshot` of one)."""
@@ -140,6 +143,7 @@ def capture(
         params=params,
         optimizer=optim,
         history=list(history or []),
+        monitor=dict(monitor or {}),
         extra_state={k: np.asarray(_numpy(v)) for k, v in (extra_state or {}).items()},
         moments=moments,
     )
@@ -153,6 +157,7 @@ def save_checkpoint(path: str | os.PathLike, ckpt: Checkpoint) -> None:
         "elapsed": ckpt.elapsed,
         "config": ckpt.config,
         "history": ckpt.history,
+        "monitor": ckpt.monitor,
         "optimizer": ckpt.optimizer,
         "rng": "step k draws from mitsnerf.train.step_rng(train.seed, k): the generator state is the step",
     }
@@ -202,6 +207,7 @@ def load_checkpoint(path: str | os.PathLike) -> Checkpoint:
         params=params,
         optimizer=meta["optimizer"],
         history=meta.get("history") or [],
+        monitor=meta.get("monitor") or {},
         extra_state=extra,
         moments=moments,
     )
@@ -248,32 +254,28 @@ def restore_optimizer(opt, ckpt: Checkpoint, where: str | os.PathLike | None = N
 
 class Checkpointer:
     """Writes a run's checkpoint where the trainer says (:func:`mitsnerf.train.train`: every
-    ``checkpoint_every`` steps, at the end, on Ctrl-C).
+    ``checkpoint_every`` steps, at the end, when interrupted).
 
-    ``config`` is stored with each checkpoint (what ``train --resume`` rebuilds the run
-    from); ``model`` supplies ``extra_state()``, read when the checkpoint is written. (After
-    a Ctrl-C that lands inside ``Model.on_step``, that state may already include the
-    interrupted step's update while the parameters are those of the step before.)
+    ``config`` is stored with each checkpoint (what ``train --resume`` rebuilds the run from).
     """
 
-    def __init__(self, path: str | os.PathLike, config: Mapping[str, Any] | None = None, model=None) -> None:
+    def __init__(self, path: str | os.PathLike, config: Mapping[str, Any] | None = None) -> None:
         self.path = Path(path)
         self.config = dict(config or {})
-        self.model = model
         self.last_step: int | None = None
 
-    def save(self, step: int, opt_or_snapshot, elapsed: float = 0.0, history: list | None = None) -> None:
-        history = [h for h in (history or []) if h.get("step", 0) <= step]
-        extra = self.model.extra_state() if self.model is not None else {}
-        ckpt = capture(step, opt_or_snapshot, config=self.config, elapsed=elapsed, history=history, extra_state=extra)
+    def save(self, state) -> None:
+        """Write a :class:`mitsnerf.train.TrainState` (its optimiser may be a snapshot)."""
+        history = [h for h in state.history if h.get("step", 0) <= state.step]
+        ckpt = capture(state.step, state.opt, config=self.config, elapsed=state.elapsed, history=history,
+                       monitor=state.monitor, extra_state=state.extra)
         save_checkpoint(self.path, ckpt)
-        self.last_step = int(step)
+        self.last_step = int(state.step)
 
     def describe(self) -> str:
-        """``"last checkpoint: PATH (step k)"`` for messages, or what exists on disk."""
+        """``"last good checkpoint: PATH (step k)"`` for messages, or what exists on disk."""
         if self.last_step is not None:
             return f"last good checkpoint: {self.path} (step {self.last_step})"
         if self.path.is_file():
             return f"last good checkpoint: {self.path} (from before this session)"
         return "no checkpoint written"
-

@@ -59,7 +59,7 @@ def cmd_scenes(args) -> int:
 
 
 def cmd_generate(args) -> int:
-    from mitsnerf.scene.generate import generate_all, generate_dataset
+    from mitsnerf.generate import generate_all, generate_dataset
     from mitsnerf.scene.spec import load_scene
 
     if args.all:
@@ -75,38 +75,63 @@ def cmd_generate(args) -> int:
     return 0
 
 
+DEFAULT_METHOD = "ngp"
+"""What ``mitsnerf train DIR`` fits with no ``--method``: a few minutes on a 2-core CPU."""
+
+
+def _train_values(args) -> dict:
+    values = {"steps": args.steps, "seconds": args.seconds, "batch_rays": args.batch_rays, "seed": args.seed,
+              "checkpoint_every": args.checkpoint_every}
+    if args.no_pixel_jitter:
+        values["pixel_jitter"] = False
+    return {k: v for k, v in values.items() if v is not None}
+
+
+def _load(args, path):
+    from mitsnerf.data.dataset import load_dataset
+    from mitsnerf.math.box import Box
+
+    box = None
+    if args.box:
+        try:
+            box = Box(tuple(args.box[:3]), tuple(args.box[3:]))
+        except ValueError as exc:
+            raise ValueError(f"--box: {str(exc).removeprefix('box: ')}") from None
+    return load_dataset(Path(path), box=box, pixel_center=args.pixel_center, background=args.background)
+
+
 def cmd_train(args) -> int:
     from mitsnerf.config import from_dict
-    from mitsnerf.data.dataset import load_dataset
+    from mitsnerf.evaluate import EvalConfig
     from mitsnerf.run import fit, resume_run
     from mitsnerf.train import TrainConfig
 
-    train_values = {k: v for k, v in {"steps": args.steps, "seconds": args.seconds,
-                                      "batch_rays": args.batch_rays, "lr": args.lr,
-                                      "seed": args.seed, "checkpoint_every": args.checkpoint_every}.items()
-                    if v is not None}
+    train_values = _train_values(args)
     if args.resume:
         fixed = [flag for flag, value in (("--method", args.method), ("--set", args.set), ("--batch-rays", args.batch_rays),
-                                           ("--lr", args.lr), ("--seed", args.seed)) if value]
+                                           ("--lr", args.lr), ("--seed", args.seed), ("--box", args.box),
+                                           ("--footprint", args.footprint), ("--no-pixel-jitter", args.no_pixel_jitter))
+                 if value]
         if fixed:
             raise ValueError(f"train --resume: {', '.join(fixed)} come from the checkpoint; "
                              "only --steps, --seconds and --checkpoint-every may change")
-        dataset = None
-        if args.dataset:
-            dataset = load_dataset(Path(args.dataset), pixel_center=args.pixel_center, background=args.background)
-        run = resume_run(Path(args.out), train_values, dataset=dataset)
+        run = resume_run(Path(args.out), train_values, dataset=_load(args, args.dataset) if args.dataset else None)
     else:
         if not args.dataset:
             raise ValueError("train: name a DATASET directory (or pass --resume to continue the run in --out)")
-        dataset = load_dataset(Path(args.dataset), pixel_center=args.pixel_center,
-                               background=args.background)
-        train_config = from_dict(TrainConfig, train_values)
-        run = fit(dataset, args.method or "nerf", _nest(_overrides(args.set)), train_config, Path(args.out))
-    metrics = run.metrics()
-    print(f"{run.method}: test PSNR {metrics['psnr_test']:.2f} dB (per view: "
-          + ", ".join(f"{p:.2f}" for p in metrics["psnr_test_per_view"])
-          + f"), train PSNR {metrics['psnr_train']:.2f} dB, {metrics['train_seconds']:.1f} s, "
-          f"{metrics['rays_per_s']:.0f} rays/s -> {args.out}")
+        dataset = _load(args, args.dataset)
+        print(f"mitsnerf: scene box {dataset.box.to_list()} ({dataset.box_source})", flush=True)
+        overrides = _nest(_overrides(args.set))
+        if args.lr is not None:
+            overrides["lr"] = args.lr
+        eval_config = from_dict(EvalConfig, {} if args.footprint is None else {"footprint": args.footprint})
+        run = fit(dataset, args.method or DEFAULT_METHOD, overrides, from_dict(TrainConfig, train_values),
+                  Path(args.out), eval_config=eval_config)
+    m = run.metrics()
+    medium = "" if m.get("psnr_test_medium") is None else f" ({m['psnr_test_medium']:.2f} dB on medium pixels)"
+    print(f"{run.method}: test PSNR {m['psnr_test']:.2f} dB{medium}, footprint {m['footprint']}x{m['footprint']}, "
+          f"train PSNR {m['psnr_train']:.2f} dB, {m['steps']} steps in {m['train_seconds']:.1f} s, "
+          f"{m['rays_per_s']:.0f} rays/s -> {args.out}")
     return 0
 
 
@@ -138,12 +163,12 @@ def cmd_export(args) -> int:
 
 
 EXPORT_EPILOG = """\
-Sampled at the voxel centres of an R^3 grid over the box [-0.5, 0.5]^3; colour averaged over
---directions view directions spread over the sphere (default), or seen along --direction.
-sigma_t transfers exactly; a NeRF's colour is radiance, not albedo, so albedo.vol is only
-an approximation (for mitsuba-inverse it is the learned albedo itself).
+Sampled at the voxel centres of an R^3 grid over the run's scene box (export.json: box_min,
+box_max); colour averaged over --directions view directions spread over the sphere (default),
+or seen along --direction. sigma_t transfers exactly; a NeRF's colour is radiance, not albedo,
+so albedo.vol is only an approximation (for mitsuba-inverse it is the learned albedo itself).
 
-Use it in Mitsuba (gridvolume maps [0, 1]^3, hence translate(-0.5)):
+Use it in Mitsuba (gridvolume maps [0, 1]^3 onto the box; here mitsnerf's unit box [-0.5, 0.5]^3):
 
   grid = lambda f: {"type": "gridvolume", "filename": "OUT/" + f,
                     "to_world": mi.ScalarTransform4f().translate(-0.5)}
@@ -223,15 +248,22 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("dataset", nargs="?", help="dataset directory (mitsnerf generate output or NeRF-synthetic); "
                                               "with --resume, default: the one the checkpoint names")
     p.add_argument("--out", required=True, help="run directory to write (checkpoints go there while training)")
-    p.add_argument("--method", help="default: nerf")
+    p.add_argument("--method", help=f"default: {DEFAULT_METHOD}")
     p.add_argument("--resume", action="store_true",
                    help="continue the run in --out from its checkpoint.npz, bit-for-bit (settings come from it)")
     p.add_argument("--checkpoint-every", type=int, metavar="N",
                    help="write a checkpoint every N steps (default 0: only at the end and on Ctrl-C)")
-    p.add_argument("--steps", type=int)
-    p.add_argument("--seconds", type=float)
+    p.add_argument("--steps", type=int, help="the budget: optimiser steps (default 3000); schedules follow the step")
+    p.add_argument("--seconds", type=float, help="also stop after this many seconds of training (not reproducible)")
     p.add_argument("--batch-rays", type=int)
-    p.add_argument("--lr", type=float)
+    p.add_argument("--lr", type=float, help="the method's learning rate (its config's lr)")
+    p.add_argument("--box", type=float, nargs=6, metavar=("X0", "Y0", "Z0", "X1", "Y1", "Z1"),
+                   help="the scene box (default: from the data: an aabb key, mitsnerf's manifest, instant-ngp's "
+                        "aabb_scale, else [-1.5, 1.5]^3)")
+    p.add_argument("--footprint", type=int, metavar="K",
+                   help="evaluate each test pixel as the mean of K x K rays over its area (default 3; 1: the centre)")
+    p.add_argument("--no-pixel-jitter", action="store_true",
+                   help="train on rays through pixel centres instead of random points of each pixel")
     p.add_argument("--seed", type=int)
     p.add_argument("--set", action="append", metavar="KEY=VALUE", help="method config override, e.g. network.width=128")
     p.add_argument("--pixel-center", type=float, help="0.5 (Mitsuba, mitsnerf) or 0 (original NeRF loader); default from the data")

@@ -32,3 +32,19 @@ class DatasetError(MitsnerfError):
 
 class TrainingError(MitsnerfError):
     """Training cannot go on (NaN or diverging loss; the last good checkpoint is kept)."""
+
+
+class Interrupted(KeyboardInterrupt):
+    """Work stopped by a signal: SIGINT (Ctrl-C), or SIGTERM/SIGHUP (``timeout``, systemd, Slurm, Ray).
+
+    A :class:`KeyboardInterrupt`, so code that cleans up after Ctrl-C does the same here;
+    ``exit_status`` is the shell's ``128 + signal number`` (130, 143, 129).
+    """
+
+    def __init__(self, signum: int, message: str = "") -> None:
+        super().__init__(message)
+        self.signum = int(signum)
+
+    @property
+    def exit_status(self) -> int:
+        return 128 + self.signum

@@ -1,103 +1,68 @@
-"""Render a trained model from dataset cameras and score it against the images."""
+"""Evaluation of a trained model: what is rendered after (and during) training, and how.
+
+Test views are rendered with the pixel footprint ``footprint`` (``K x K`` rays per pixel,
+:func:`mitsnerf.render.camera.render_view`), so a model is measured as Mitsuba's box-filtered
+film measured the ground truth; ``footprint = 1`` renders one ray through each pixel's sample
+point (for foreign data made by point sampling). Every result records its ``footprint``.
+"""
 
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass, field
-from typing import Any, Callable, Sequence
+from dataclasses import dataclass
+from typing import Sequence
 
-import drjit as dr
-import mitsuba as mi
 import numpy as np
 
 from mitsnerf.math.camera import Camera
-from mitsnerf.math.composite import Composite
-from mitsnerf.math.metrics import psnr, ssim
 from mitsnerf.methods.base import Model
-from mitsnerf.render.rays import camera_rays_numpy, to_array3f
+from mitsnerf.render.camera import Rendered
 
 
 @dataclass(frozen=True)
-class Rendered:
-    """A rendered view: linear RGB (H, W, 3), opacity (H, W), depth (H, W; expected distance)."""
+class EvalConfig:
+    """What is measured besides training: after it, and (``curve_points``) during it."""
 
-    rgb: np.ndarray
-    opacity: np.ndarray
-    depth: np.ndarray
+    footprint: int = 3
+    """Rays per pixel side K: each test pixel is the mean of K x K stratified rays over its area
+    (1: one ray through the pixel's sample point)."""
+    curve_points: int = 8
+    """Held-out evaluations during training at steps k / curve_points of the budget (0: none);
+    their time is kept off the training clock."""
+    curve_views: int = 0
+    """Test views rendered at each curve point: the first N (0: all)."""
+    psnr_targets: tuple[float, ...] = (30.0, 35.0, 40.0)
+    """Medium-pixel PSNRs whose first crossing on the held-out curve is reported as seconds and steps."""
+    density_resolution: int = 0
+    """Density error on an R^3 grid of voxel centres (0: the true grid's resolution)."""
+    od_samples: int = 0
+    """Midpoint samples per test ray for the optical-depth error (0: twice the true grid's resolution)."""
+    report_view: int = 0
+    """The test view shown in the image grid of the report."""
+    train_eval_views: int = 4
+    """Training views scored after training (train PSNR, an overfitting check)."""
 
-
-RenderFn = Callable[[Any, Any], Composite]
-"""``(o, d) -> Composite``: anything that renders a batch of rays."""
-
-
-def model_renderer(model: Model) -> RenderFn:
-    """The deterministic (midpoint-sample) renderer of a trained model."""
-    return lambda o, d: model.render_rays(o, d, u=None, training=False).composite
-
-
-def render_camera(render: RenderFn | Model, camera: Camera, chunk_rays: int = 1 << 14, pixel_center: float = 0.5) -> Rendered:
-    """Render every pixel of ``camera`` with ``render`` (a :data:`RenderFn` or a model).
-
-    A model that renders whole cameras itself (:meth:`Model.render_view` not None) does so.
-    """
-    if isinstance(render, Model):
-        own = render.render_view(camera, pixel_center=pixel_center)
-        if own is not None:
-            return own
-        render = model_renderer(render)
-    o_np, d_np = camera_rays_numpy([camera], pixel_center)
-    rgb, opacity, depth = [], [], []
-    with dr.suspend_grad():
-        for start in range(0, len(o_np), chunk_rays):
-            o = to_array3f(mi.Array3f, o_np[start:start + chunk_rays])
-            d = to_array3f(mi.Array3f, d_np[start:start + chunk_rays])
-            comp = render(o, d)
-            rgb.append(np.stack([np.asarray(c, dtype=np.float32) for c in comp.rgb], axis=-1))
-            opacity.append(np.asarray(comp.opacity, dtype=np.float32))
-            depth.append(np.asarray(comp.depth, dtype=np.float32))
-    shape = (camera.height, camera.width)
-    return Rendered(
-        np.concatenate(rgb).reshape(*shape, 3),
-        np.concatenate(opacity).reshape(shape),
-        np.concatenate(depth).reshape(shape),
-    )
+    def __post_init__(self) -> None:
+        if not 1 <= self.footprint <= 16:
+            raise ValueError(f"footprint: must be an integer in [1, 16], got {self.footprint}")
+        for name in ("curve_points", "curve_views", "density_resolution", "od_samples", "report_view",
+                     "train_eval_views"):
+            if getattr(self, name) < 0:
+                raise ValueError(f"{name}: must be >= 0, got {getattr(self, name)}")
+        if self.density_resolution and self.density_resolution < 2:
+            raise ValueError(f"density_resolution: must be 0 (the true grid's) or >= 2, got {self.density_resolution}")
+        object.__setattr__(self, "psnr_targets", tuple(float(t) for t in self.psnr_targets))
 
 
-@dataclass
-class EvalResult:
-    """Per-view and mean scores of one split (linear RGB, clipped to [0, 1])."""
-
-    psnr: list[float]
-    ssim: list[float]
-    seconds: float
-    renders: list[Rendered] = field(default_factory=list, repr=False)
-
-    @property
-    def psnr_mean(self) -> float:
-        return float(np.mean(self.psnr))
-
-    @property
-    def ssim_mean(self) -> float:
-        return float(np.mean(self.ssim))
-
-
-def evaluate_views(
-    model: Model,
-    images: np.ndarray,
-    cameras: Sequence[Camera],
-    *,
-    pixel_center: float = 0.5,
-    keep_renders: bool = True,
-) -> EvalResult:
-    """Render each camera and compare with its image (V, H, W, 3): PSNR and SSIM per view."""
+def render_views(model: Model, cameras: Sequence[Camera], *, pixel_center: float = 0.5,
+                 footprint: int = 1) -> tuple[list[Rendered], float]:
+    """Every camera rendered by ``model`` (its own :meth:`~mitsnerf.methods.base.Model.render_view`);
+    returns the renders and the seconds they took."""
     start = time.perf_counter()
-    scores_psnr, scores_ssim, renders = [], [], []
-    for image, camera in zip(images, cameras):
-        out = render_camera(model, camera, pixel_center=pixel_center)
-        pred = np.clip(out.rgb, 0.0, 1.0)
-        ref = np.clip(image, 0.0, 1.0)
-        scores_psnr.append(float(psnr(pred, ref)))
-        scores_ssim.append(float(ssim(pred, ref)))
-        if keep_renders:
-            renders.append(out)
-    return EvalResult(scores_psnr, scores_ssim, time.perf_counter() - start, renders)
+    renders = [model.render_view(cam, pixel_center=pixel_center, footprint=footprint) for cam in cameras]
+    return renders, time.perf_counter() - start
+
+
+def stack_rgb(renders: Sequence[Rendered]) -> np.ndarray:
+    """(V, H, W, 3) float32 linear RGB of renders."""
+    return np.stack([r.rgb for r in renders]).astype(np.float32)

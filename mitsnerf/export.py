@@ -1,8 +1,8 @@
 """Export a learned field as a Mitsuba heterogeneous medium (``mitsnerf export RUN``).
 
 The run's field ``(x, d) -> (c, sigma)`` is sampled at the voxel centres of an ``R^3`` grid
-over the scene box (docs/conventions.md: voxel ``[k, j, i]`` is centred at
-``x = ((i + 0.5)/R - 0.5, (j + 0.5)/R - 0.5, (k + 0.5)/R - 0.5)``)::
+over the dataset's scene box ``[lo, hi]`` (:meth:`mitsnerf.math.box.Box.voxel_centres`: voxel
+``[k, j, i]`` is centred at ``x = lo + ((i, j, k) + 0.5) / R * (hi - lo)``)::
 
     sigma_t[k, j, i] = (1/M) sum_m sigma(x, d_m)
     color[k, j, i]   = (1/M) sum_m c(x, d_m)
@@ -28,18 +28,22 @@ toward the camera, not a single-scattering albedo, so a medium built from it has
 shape but only roughly the right shading. For ``mitsuba-inverse`` the field's colour *is*
 the medium's albedo and the export is that medium (resampled to ``R``).
 
-Putting it into a Mitsuba scene (the box ``[-0.5, 0.5]^3``; ``gridvolume`` maps ``[0, 1]^3``,
-hence ``translate(-0.5)``)::
+Putting it into a Mitsuba scene (``gridvolume`` maps ``[0, 1]^3``, so its ``to_world`` is
+``translate(lo) scale(hi - lo)``; the ``cube`` is ``[-1, 1]^3``; ``export.json`` has ``lo``
+and ``hi``; below the unit box ``[-0.5, 0.5]^3`` of mitsnerf's own scenes)::
 
     import mitsuba as mi
     mi.set_variant("llvm_ad_rgb")
+    lo, hi = [-0.5] * 3, [0.5] * 3
     grid = lambda name: {"type": "gridvolume", "filename": f"OUT/{name}",
-                         "to_world": mi.ScalarTransform4f().translate(-0.5)}
+                         "to_world": mi.ScalarTransform4f().translate(lo).scale([b - a for a, b in zip(lo, hi)])}
     scene = mi.load_dict({
         "type": "scene",
         "integrator": {"type": "volpath", "max_depth": -1},
         "medium_box": {
-            "type": "cube", "to_world": mi.ScalarTransform4f().scale(0.5), "bsdf": {"type": "null"},
+            "type": "cube", "bsdf": {"type": "null"},
+            "to_world": mi.ScalarTransform4f().translate([(a + b) / 2 for a, b in zip(lo, hi)])
+                                              .scale([(b - a) / 2 for a, b in zip(lo, hi)]),
             "interior": {"type": "heterogeneous", "scale": 1.0,
                          "sigma_t": grid("sigma_t.vol"), "albedo": grid("albedo.vol")},
         },
@@ -58,7 +62,7 @@ import numpy as np
 from mitsnerf import env
 from mitsnerf.data.atomic import atomic_write_bytes, atomic_write_json
 from mitsnerf.data.vol import write_vol
-from mitsnerf.render.rays import BOX_MAX, BOX_MIN
+from mitsnerf.math.box import Box
 
 DEFAULT_DIRECTIONS = 16
 
@@ -79,23 +83,11 @@ def fibonacci_directions(m: int) -> np.ndarray:
     return np.stack([r * np.cos(phi), r * np.sin(phi), z], axis=-1)
 
 
-def voxel_centres(resolution: int, box_min=BOX_MIN, box_max=BOX_MAX) -> np.ndarray:
-    """World positions (R, R, R, 3) of the voxel centres, indexed ``[z, y, x]``, last axis (x, y, z).
-
-    >>> voxel_centres(2)[0, 0, 1].tolist()   # voxel k=0, j=0, i=1
-    [0.25, -0.25, -0.25]
-    """
-    c = [lo + (np.arange(resolution) + 0.5) / resolution * (hi - lo) for lo, hi in zip(box_min, box_max)]
-    z, y, x = np.meshgrid(c[2], c[1], c[0], indexing="ij")
-    return np.stack([x, y, z], axis=-1)
-
-
 def sample_field(
     field,
     resolution: int,
-    directions: np.ndarray | Sequence[float] | None = None,
-    box_min=BOX_MIN,
-    box_max=BOX_MAX,
+    directions: np.ndarray | Sequence[float] | None,
+    box: Box,
     chunk_points: int = 1 << 17,
 ) -> tuple[np.ndarray, np.ndarray]:
     """``(sigma_t (R, R, R), color (R, R, R, 3))`` float32: the field averaged over ``directions``.
@@ -114,7 +106,7 @@ def sample_field(
     if not np.all(norms > 0) or not np.all(np.isfinite(dirs)):
         raise ValueError(f"direction: must be finite and non-zero, got {dirs.tolist()}")
     dirs = dirs / norms
-    points = voxel_centres(resolution, box_min, box_max).reshape(-1, 3).astype(np.float32)
+    points = box.voxel_centres(resolution).reshape(-1, 3).astype(np.float32)
     sigma = np.zeros(len(points), dtype=np.float64)
     color = np.zeros((len(points), 3), dtype=np.float64)
     with dr.suspend_grad():
@@ -146,27 +138,28 @@ def export_field(
     resolution: int = 64,
     direction: Sequence[float] | None = None,
     n_directions: int = DEFAULT_DIRECTIONS,
-    box_min=BOX_MIN,
-    box_max=BOX_MAX,
+    box: Box | None = None,
     info: dict[str, Any] | None = None,
 ) -> dict[str, Path]:
-    """Sample ``field`` and write the files of the module docstring to ``out_dir``; returns them by name."""
+    """Sample ``field`` over ``box`` and write the files of the module docstring to ``out_dir``; returns them by name."""
+    if box is None:
+        raise ValueError("export_field: the scene box the field lives in is needed")
     dirs = np.asarray(direction, dtype=np.float64) if direction is not None else fibonacci_directions(n_directions)
-    sigma, color = sample_field(field, resolution, dirs, box_min, box_max)
+    sigma, color = sample_field(field, resolution, dirs, box)
     if not (np.isfinite(sigma).all() and np.isfinite(color).all()):
         raise ValueError("the field returned non-finite values; nothing exported")
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     paths = {name: out_dir / name for name in ("sigma_t.vol", "albedo.vol", "sigma_t.npy", "color.npy", "export.json")}
-    write_vol(paths["sigma_t.vol"], np.maximum(sigma, 0.0), box_min, box_max)
-    write_vol(paths["albedo.vol"], np.clip(color, 0.0, 1.0), box_min, box_max)
+    write_vol(paths["sigma_t.vol"], np.maximum(sigma, 0.0), box.lo, box.hi)
+    write_vol(paths["albedo.vol"], np.clip(color, 0.0, 1.0), box.lo, box.hi)
     _save_npy(paths["sigma_t.npy"], sigma)
     _save_npy(paths["color.npy"], color)
     atomic_write_json(paths["export.json"], {
         **(info or {}),
         "resolution": resolution,
-        "box_min": list(box_min),
-        "box_max": list(box_max),
+        "box_min": list(box.lo),
+        "box_max": list(box.hi),
         "colour": (f"seen looking along {np.asarray(direction, dtype=float).tolist()}" if direction is not None
                    else f"averaged over {n_directions} Fibonacci directions"),
         "sigma_t_max": float(sigma.max()),
@@ -180,11 +173,11 @@ def export_run(run_dir: Path, out_dir: Path | None = None, resolution: int = 64,
     """Export the field of the run in ``run_dir`` (default ``OUT = RUN/export``)."""
     from mitsnerf.run import load_run
 
-    model, _, config = load_run(Path(run_dir))
+    model, dataset, config = load_run(Path(run_dir))
     out_dir = Path(out_dir) if out_dir is not None else Path(run_dir) / "export"
     try:
         field = model.field()
     except NotImplementedError:
         raise ValueError(f"{run_dir}: method {config.get('method')!r} has no queryable field to export") from None
-    return export_field(field, out_dir, resolution, direction, n_directions,
+    return export_field(field, out_dir, resolution, direction, n_directions, box=dataset.box,
                         info={"run": str(run_dir), "method": config.get("method"), "provenance": env.provenance()})

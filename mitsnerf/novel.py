@@ -185,6 +185,8 @@ class ViewRequest:
     elevation: float | None = None
     radius: float | None = None
     fps: float = 12.0
+    footprint: int | None = None
+    """Rays per pixel side (None: the run's evaluation footprint)."""
 
 
 def _reference(dataset, split: str | None, index: int):
@@ -223,17 +225,17 @@ def render_run(run_dir: Path, out_dir: Path, request: ViewRequest = ViewRequest(
     """Render the views of ``request`` from the run in ``run_dir`` into ``out_dir``; returns the files."""
     from tqdm.auto import tqdm
 
-    from mitsnerf.evaluate import render_camera
     from mitsnerf.math.color import linear_to_srgb
     from mitsnerf.run import load_run
 
-    model, dataset, _ = load_run(Path(run_dir))
+    model, dataset, config = load_run(Path(run_dir))
     cams, stems, pixel_center = cameras_for(request, dataset)
+    footprint = request.footprint or int((config.get("eval") or {}).get("footprint", 1))
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     written, frames = [], []
     for cam, stem in tqdm(list(zip(cams, stems)), desc="render", unit="view", disable=not progress or len(cams) < 2, leave=False):
-        rendered = render_camera(model, cam, pixel_center=pixel_center)
+        rendered = model.render_view(cam, pixel_center=pixel_center, footprint=footprint)
         written += write_views(out_dir, stem, rendered)
         frames.append(linear_to_srgb(np.clip(rendered.rgb, 0.0, 1.0)))
     atomic_write_json(out_dir / "render.json", {
@@ -241,6 +243,7 @@ def render_run(run_dir: Path, out_dir: Path, request: ViewRequest = ViewRequest(
         "views": [{"name": stem, "transform_matrix": cam.c2w.tolist(), "w": cam.width, "h": cam.height,
                    "fl_x": cam.fl_x, "fl_y": cam.fl_y, "cx": cam.cx, "cy": cam.cy} for cam, stem in zip(cams, stems)],
         "pixel_center": pixel_center,
+        "footprint": footprint,
         "provenance": env.provenance(),
     })
     written.append(out_dir / "render.json")

@@ -1,17 +1,18 @@
 """One training run end to end: dataset -> method -> training -> evaluation -> files.
 
-``fit`` is what ``mitsnerf train`` and every benchmark cell call. A run directory
-holds ``config.json``, ``params.npz``, ``history.json``, ``metrics.json``, the
-rendered test views (``test/r_*.exr`` linear, ``.png`` sRGB previews) and
-``checkpoint.npz`` (:mod:`mitsnerf.checkpoint`); it is written inside a temporary
-directory and renamed when complete. While training, the directory holds only the
-latest checkpoint (every ``checkpoint_every`` steps, on Ctrl-C, and the last good one
-after a NaN or diverging loss), which ``fit(..., resume=True)`` / :func:`resume_run`
-continue from and :func:`load_run` reads back.
+``fit`` is what ``mitsnerf train`` and every benchmark cell call. A run directory holds
+``config.json``, ``params.npz``, ``history.json``, ``metrics.json``, the rendered test views
+(``test/r_*.exr`` linear with opacity, ``.png`` sRGB previews) and ``checkpoint.npz``
+(:mod:`mitsnerf.checkpoint`); it is written inside a temporary directory and renamed when
+complete. While training, the directory holds only the latest checkpoint (every
+``checkpoint_every`` steps, when interrupted, and the last good one after a NaN or diverging
+loss), which ``fit(..., resume=True)`` / :func:`resume_run` continue from and :func:`load_run`
+reads back.
 """
 
 from __future__ import annotations
 
+import json
 import shutil
 from dataclasses import dataclass
 from pathlib import Path
@@ -19,57 +20,57 @@ from typing import Any, Callable, Mapping
 
 import numpy as np
 
-from mitsnerf import env
+from mitsnerf import env, scoring
 from mitsnerf.checkpoint import CHECKPOINT_FILE, Checkpointer, load_checkpoint, restore_optimizer
 from mitsnerf.config import from_dict, to_dict
 from mitsnerf.data.atomic import atomic_dir, atomic_write_json
 from mitsnerf.data.dataset import Dataset, load_dataset
 from mitsnerf.data.images import write_exr, write_png
 from mitsnerf.errors import DatasetError
-from mitsnerf.evaluate import EvalResult, evaluate_views
-from mitsnerf.math.metrics import psnr
+from mitsnerf.evaluate import EvalConfig, render_views, stack_rgb
+from mitsnerf.math.box import Box
 from mitsnerf.methods import get_method
 from mitsnerf.methods.base import Model, SceneInfo, num_parameters
 from mitsnerf.render.background import make_background
-from mitsnerf.render.rays import BOX_MAX, BOX_MIN
-from mitsnerf.scene.generate import MEDIUM_OPACITY as MEDIUM_OPACITY_THRESHOLD
-from mitsnerf.scene.generate import medium_mask
-from mitsnerf.train import PixelData, TrainConfig, TrainResult, make_optimizer, train
+from mitsnerf.render.camera import Rendered
+from mitsnerf.train import PixelData, TrainConfig, TrainResult, TrainState, make_optimizer, train
 
 
 @dataclass
 class RunResult:
     method: str
     config: dict
+    """The run config: method, method_config, train, eval, dataset (what ``config.json`` holds)."""
     train: TrainResult
-    test: EvalResult
-    train_eval: EvalResult
-    test_psnr_medium: float | None
+    scores: dict
+    """:func:`mitsnerf.scoring.score_views` of the test views, plus ``psnr_train``."""
+    renders: list[Rendered]
+    slices: dict
+    """Central slices of the true and learned density (for the report)."""
     num_parameters: int
+    eval_seconds: float
     model: Model
 
     def metrics(self) -> dict:
+        """Everything ``metrics.json`` records: scores, budget, timings."""
         return {
             "method": self.method,
-            "psnr_test": self.test.psnr_mean,
-            "psnr_test_per_view": self.test.psnr,
-            "psnr_test_medium": self.test_psnr_medium,
-            "ssim_test": self.test.ssim_mean,
-            "ssim_test_per_view": self.test.ssim,
-            "psnr_train": self.train_eval.psnr_mean,
-            "train_seconds": self.train.seconds,
+            "footprint": self.config["eval"]["footprint"],
+            "budget": from_dict(TrainConfig, self.config["train"]).budget,
             "steps": self.train.steps,
+            "stopped_by": self.train.stopped_by,
+            "train_seconds": self.train.seconds,
             "rays_per_s": self.train.rays_per_s,
             "samples_per_s": self.train.samples_per_s,
             "num_parameters": self.num_parameters,
-            "eval_seconds": self.test.seconds,
+            "eval_seconds": self.eval_seconds,
+            **self.scores,
         }
 
 
 def scene_info(dataset: Dataset, train_images: np.ndarray) -> SceneInfo:
     return SceneInfo(
-        box_min=BOX_MIN,
-        box_max=BOX_MAX,
+        box=dataset.box,
         background=make_background(dataset.background, dataset.root),
         radiance_max=float(np.percentile(train_images, 99.9)),
         manifest=dataset.manifest or None,
@@ -77,23 +78,26 @@ def scene_info(dataset: Dataset, train_images: np.ndarray) -> SceneInfo:
 
 
 def dataset_config(dataset: Dataset) -> dict:
-    """How to open ``dataset`` again (path and load options), for run configs and checkpoints."""
+    """How to open ``dataset`` again (path, box and load options), for run configs and checkpoints."""
     return {
         "dataset": str(Path(dataset.root).resolve()),
         "dataset_options": {
             "pixel_center": dataset.pixel_center,
             "background": list(dataset.png_background),
             "color_space": dataset.color_space,
+            "box": dataset.box.to_list(),
+            "box_source": dataset.box_source,
         },
     }
 
 
 def open_dataset(config: Mapping[str, Any], where: Path | None = None) -> Dataset:
-    """The dataset a run config names (see :func:`dataset_config`)."""
+    """The dataset a run config names (see :func:`dataset_config`), with the box the run used."""
     if "dataset" not in config:
         raise DatasetError(where, "dataset", "the run config does not name its dataset")
     options = config.get("dataset_options") or {}
-    return load_dataset(config["dataset"], pixel_center=options.get("pixel_center"),
+    box = Box.from_list(options["box"]) if options.get("box") else None
+    return load_dataset(config["dataset"], box=box, pixel_center=options.get("pixel_center"),
                         background=options.get("background"), color_space=options.get("color_space"))
 
 
@@ -102,46 +106,43 @@ RESUMABLE_CHANGES = ("steps", "seconds", "log_every", "checkpoint_every", "diver
 
 
 def _check_resumable(saved: Mapping[str, Any], current: Mapping[str, Any], where: Path) -> None:
-    import json
-
     saved, current = (json.loads(json.dumps(c)) for c in (saved, current))  # tuples vs JSON lists
     if saved.get("method") != current["method"]:
         raise DatasetError(where, "method", f"the checkpoint is of {saved.get('method')!r}, not {current['method']!r}")
-    if saved.get("method_config") != current["method_config"]:
-        diff = sorted(k for k in set(saved.get("method_config") or {}) | set(current["method_config"])
-                      if (saved.get("method_config") or {}).get(k) != current["method_config"].get(k))
+    old = saved.get("method_config") or {}
+    if old != current["method_config"]:
+        diff = sorted(k for k in set(old) | set(current["method_config"]) if old.get(k) != current["method_config"].get(k))
         raise DatasetError(where, "method_config", f"differs from the checkpoint's in {', '.join(diff)}; resume with the same settings")
     for key, value in current["train"].items():
-        if key not in RESUMABLE_CHANGES and (saved.get("train") or {}).get(key) != value:
-            raise DatasetError(where, f"train.{key}", f"the checkpoint was trained with {(saved.get('train') or {}).get(key)!r}, "
-                                                      f"not {value!r}; only {', '.join(RESUMABLE_CHANGES)} may change on resume")
-
-
-def true_sigma_t(dataset: Dataset) -> np.ndarray | None:
-    """The ground-truth ``sigma_t`` grid of a generated dataset (None for foreign data)."""
-    path = dataset.root / "volume" / "sigma_t.npy"
-    if not path.exists():
-        return None
-    try:
-        return np.load(path)
-    except (OSError, ValueError) as exc:
-        raise DatasetError(path, None, f"cannot read the density grid: {exc}") from None
-
-
-def medium_masks(sigma_t: np.ndarray, cameras, pixel_center: float = 0.5) -> np.ndarray:
-    """(V, H, W) bool: pixels whose centre ray crosses the true medium.
-
-    The rule of :func:`mitsnerf.scene.generate.medium_mask` (opacity ``1 - exp(-tau)`` above
-    ``MEDIUM_OPACITY_THRESHOLD``), the one the dataset's noise floor is measured with, so a
-    method's medium PSNR and the floor next to it are taken over the same pixels.
-    """
-    return np.stack([medium_mask(cam, sigma_t, MEDIUM_OPACITY_THRESHOLD, pixel_center) for cam in cameras])
+        was = (saved.get("train") or {}).get(key)
+        if key not in RESUMABLE_CHANGES and was != value:
+            raise DatasetError(where, f"train.{key}", f"the checkpoint was trained with {was!r}, not {value!r}; "
+                                                      f"only {', '.join(RESUMABLE_CHANGES)} may change on resume")
 
 
 def build_model(method: str, overrides: Mapping[str, Any] | None, info: SceneInfo, seed: int) -> tuple[Model, Any]:
     entry = get_method(method)
     config = from_dict(entry.config_type, overrides or {})
     return entry.model_type(config, info, seed), config
+
+
+def _start(out_dir: Path | None, run_config: dict, model: Model, lr: float, resume: bool):
+    """``(checkpointer, state)``: where checkpoints go, and the state to continue from (None: a fresh run)."""
+    if out_dir is None:
+        if resume:
+            raise ValueError("resume: needs the run directory (out_dir) holding the checkpoint")
+        return None, None
+    path = Path(out_dir) / CHECKPOINT_FILE
+    checkpointer = Checkpointer(path, run_config)
+    if not resume:
+        path.unlink(missing_ok=True)
+        return checkpointer, None
+    ckpt = load_checkpoint(path)
+    _check_resumable(ckpt.config, run_config, path)
+    opt = make_optimizer(model, lr)
+    restore_optimizer(opt, ckpt, path)
+    model.load_extra_state(ckpt.extra_state)
+    return checkpointer, TrainState(opt, ckpt.step, ckpt.elapsed, ckpt.history, ckpt.monitor)
 
 
 def fit(
@@ -151,81 +152,60 @@ def fit(
     train_config: TrainConfig = TrainConfig(),
     out_dir: Path | None = None,
     *,
+    eval_config: EvalConfig = EvalConfig(),
     progress: bool = True,
-    max_train_eval_views: int = 4,
     resume: bool = False,
     on_log: Callable[[dict, Model], None] | None = None,
-    test_masks: np.ndarray | None = None,
+    reference: scoring.Reference | None = None,
+    oracle: dict | None = None,
 ) -> RunResult:
-    """Train ``method`` on ``dataset`` and evaluate it on every test view.
+    """Train ``method`` on ``dataset``, then render and score every test view.
 
-    ``test_masks`` (V, H, W): the test views' medium pixels if the caller has them already
-    (else :func:`medium_masks` of the true grid, for datasets that have one).
-
-    With ``out_dir``, checkpoints go to ``out_dir/checkpoint.npz`` (a fresh run first
-    removes an old one there); ``resume=True`` continues from it instead, which must be
-    of the same method, method settings and training settings (except
-    :data:`RESUMABLE_CHANGES`).
-
-    ``on_log(entry, model)`` is called after each training-history entry (the trainer's hook:
-    its time is kept off the training clock, it may add keys to ``entry``), e.g. to evaluate
-    held-out views during training (:class:`mitsnerf.bench.worker.CurveRecorder`).
+    ``reference``: the test views' :class:`mitsnerf.scoring.Reference` if the caller has it
+    (else built here); ``oracle``: the oracle's test metrics at the same footprint, for the
+    error budget. With ``out_dir``, checkpoints go to ``out_dir/checkpoint.npz`` (a fresh run
+    first removes an old one there); ``resume=True`` continues from it instead, which must be of
+    the same method, method settings and training settings (except :data:`RESUMABLE_CHANGES`).
+    ``on_log(entry, model)`` runs after each history entry, off the training clock (e.g. a
+    held-out curve, :class:`mitsnerf.bench.worker.CurveRecorder`).
     """
     train_views = dataset.views("train")
-    test_views = dataset.views("test")
-    pixel_center = train_views.pixel_center
-    info = scene_info(dataset, train_views.images)
-    model, config = build_model(method, method_overrides, info, train_config.seed)
-    base_lr = train_config.lr or getattr(config, "lr", 1e-2)
-    data = PixelData.from_views(train_views.images, train_views.cameras, pixel_center)
+    ref = reference or scoring.reference(dataset, "test")
+    model, config = build_model(method, method_overrides, scene_info(dataset, train_views.images), train_config.seed)
     run_config = {"method": method, "method_config": to_dict(config), "train": to_dict(train_config),
-                  **dataset_config(dataset)}
-    checkpointer, opt, start_step, elapsed, history = None, None, 0, 0.0, None
-    if out_dir is not None:
-        ckpt_path = Path(out_dir) / CHECKPOINT_FILE
-        checkpointer = Checkpointer(ckpt_path, run_config, model)
-        if resume:
-            ckpt = load_checkpoint(ckpt_path)
-            _check_resumable(ckpt.config, run_config, ckpt_path)
-            opt = make_optimizer(model, base_lr)
-            restore_optimizer(opt, ckpt, ckpt_path)
-            model.load_extra_state(ckpt.extra_state)
-            start_step, elapsed, history = ckpt.step, ckpt.elapsed, ckpt.history
-        elif ckpt_path.exists():
-            ckpt_path.unlink()
-    elif resume:
-        raise ValueError("resume: needs the run directory (out_dir) holding the checkpoint")
-    result, _ = train(model, data, train_config, base_lr, opt=opt, start_step=start_step, elapsed=elapsed,
-                      history=history, progress=progress, checkpointer=checkpointer,
+                  "eval": to_dict(eval_config), **dataset_config(dataset)}
+    checkpointer, state = _start(out_dir, run_config, model, config.lr, resume)
+    data = PixelData.from_views(train_views.images, train_views.cameras, train_views.pixel_center)
+    result, _ = train(model, data, train_config, config.lr, state=state, progress=progress, checkpointer=checkpointer,
                       on_log=None if on_log is None else (lambda entry: on_log(entry, model)))
-
-    test_eval = evaluate_views(model, test_views.images, test_views.cameras, pixel_center=pixel_center)
-    k = min(max_train_eval_views, len(train_views.cameras))
-    train_eval = evaluate_views(model, train_views.images[:k], train_views.cameras[:k], pixel_center=pixel_center, keep_renders=False)
-
-    psnr_medium = None
-    sigma_t = true_sigma_t(dataset) if test_masks is None else None
-    masks = test_masks if test_masks is not None else (
-        medium_masks(sigma_t, test_views.cameras, pixel_center) if sigma_t is not None else None)
-    if masks is not None:
-        preds = np.clip(np.stack([r.rgb for r in test_eval.renders]), 0.0, 1.0)
-        refs = np.clip(test_views.images, 0.0, 1.0)
-        if masks.any():
-            psnr_medium = float(np.mean([psnr(p, r, mask=m) for p, r, m in zip(preds, refs, masks) if m.any()]))
-
-    run = RunResult(
-        method=method,
-        config=run_config,
-        train=result,
-        test=test_eval,
-        train_eval=train_eval,
-        test_psnr_medium=psnr_medium,
-        num_parameters=num_parameters(model.parameters()),
-        model=model,
-    )
+    run = evaluate_run(model, method, run_config, result, dataset, ref, eval_config, oracle)
     if out_dir is not None:
-        write_run(run, dataset, out_dir, test_views.names)
+        write_run(run, dataset, out_dir, dataset.views("test").names)
     return run
+
+
+def evaluate_run(model: Model, method: str, run_config: dict, result: TrainResult, dataset: Dataset,
+                 ref: scoring.Reference, eval_config: EvalConfig, oracle: dict | None) -> RunResult:
+    """Render the test views (and a few training views) with the run's footprint and score them."""
+    k = eval_config.footprint
+    renders, seconds = render_views(model, ref.cameras, pixel_center=ref.pixel_center, footprint=k)
+    density = getattr(_field_or_none(model), "density", None)
+    scores, slices = scoring.score_views(stack_rgb(renders), ref, density, oracle=oracle,
+                                         density_resolution=eval_config.density_resolution,
+                                         od_samples=eval_config.od_samples)
+    train_views = dataset.views("train")
+    n = min(eval_config.train_eval_views, len(train_views.cameras))
+    train_renders, _ = render_views(model, train_views.cameras[:n], pixel_center=train_views.pixel_center, footprint=k)
+    scores["psnr_train"] = scoring.image_scores(stack_rgb(train_renders), train_views.images[:n], with_ssim=False)["psnr_test"]
+    return RunResult(method, run_config, result, scores, renders, slices, num_parameters(model.parameters()),
+                     seconds, model)
+
+
+def _field_or_none(model: Model):
+    try:
+        return model.field()
+    except NotImplementedError:
+        return None
 
 
 def save_parameters(path: Path, params: Mapping[str, Any]) -> None:
@@ -251,7 +231,7 @@ def write_run(run: RunResult, dataset: Dataset, out_dir: Path, test_names) -> No
         atomic_write_json(tmp / "history.json", run.train.history)
         atomic_write_json(tmp / "metrics.json", {**run.metrics(), "provenance": env.provenance()})
         (tmp / "test").mkdir()
-        for name, rendered in zip(test_names, run.test.renders):
+        for name, rendered in zip(test_names, run.renders):
             stem = Path(name).name
             write_exr(tmp / "test" / f"{stem}.exr", np.concatenate([rendered.rgb, rendered.opacity[..., None]], axis=-1))
             write_png(tmp / "test" / f"{stem}.png", rendered.rgb)
@@ -261,19 +241,19 @@ def resume_run(run_dir: Path, train_overrides: Mapping[str, Any] | None = None, 
                dataset: Dataset | None = None) -> RunResult:
     """Continue the run in ``run_dir`` from its checkpoint (``mitsnerf train --resume``).
 
-    Everything comes from the checkpoint's config (method, settings, dataset);
+    Everything comes from the checkpoint's config (method, settings, dataset, box);
     ``train_overrides`` may change only :data:`RESUMABLE_CHANGES`, e.g. ``{"steps": 2000}``
     to train longer (the learning-rate schedule then stretches to the new length).
     """
     run_dir = Path(run_dir)
     path = run_dir / CHECKPOINT_FILE
     ckpt = load_checkpoint(path)
-    train_values = {**(ckpt.config.get("train") or {}), **dict(train_overrides or {})}
-    train_config = from_dict(TrainConfig, train_values)
+    train_config = from_dict(TrainConfig, {**(ckpt.config.get("train") or {}), **dict(train_overrides or {})})
+    eval_config = from_dict(EvalConfig, ckpt.config.get("eval") or {})
     if dataset is None:
         dataset = open_dataset(ckpt.config, path)
     return fit(dataset, ckpt.config["method"], ckpt.config.get("method_config"), train_config, run_dir,
-               progress=progress, resume=True)
+               eval_config=eval_config, progress=progress, resume=True)
 
 
 def load_run(run_dir: Path) -> tuple[Model, Dataset, dict]:
@@ -296,12 +276,14 @@ def load_run(run_dir: Path) -> tuple[Model, Dataset, dict]:
         if not (run_dir / "config.json").is_file() or not where.is_file():
             raise DatasetError(run_dir, None, "neither checkpoint.npz nor config.json + params.npz: not a run directory")
         config = read_json(run_dir / "config.json")
-        with np.load(where, allow_pickle=False) as z:
-            params = {k: z[k] for k in z.files}
+        try:
+            with np.load(where, allow_pickle=False) as z:
+                params = {k: z[k] for k in z.files}
+        except (OSError, ValueError) as exc:
+            raise DatasetError(where, None, f"not a readable parameter file: {exc}") from None
         extra = {}
     dataset = open_dataset(config, where)
-    train_views = dataset.views("train")
-    info = scene_info(dataset, train_views.images)
+    info = scene_info(dataset, dataset.views("train").images)
     seed = int((config.get("train") or {}).get("seed", 0))
     model, _ = build_model(config["method"], config.get("method_config"), info, seed)
     current = model.parameters()

@@ -19,12 +19,13 @@ from mitsnerf.errors import DatasetError, TrainingError
 from mitsnerf.fields.grid import GridField
 from mitsnerf.fields.nerf import NeRFConfig
 from mitsnerf.math.camera import Camera, look_at
-from mitsnerf.methods.base import Model, SceneInfo, StepLoss
+from mitsnerf.methods.base import SceneInfo, StepLoss, ViewModel
 from mitsnerf.methods.nerf import NeRFMethodConfig, NeRFModel
 from mitsnerf.render.background import ConstantBackground
-from mitsnerf.render.rays import camera_rays
+from mitsnerf.math.rays import camera_rays
 from mitsnerf.render.volume import render_rays
-from mitsnerf.train import PixelData, TrainConfig, make_optimizer, train
+from mitsnerf.train import PixelData, TrainConfig, TrainState, make_optimizer, train
+from mitsnerf.math.box import UNIT_BOX
 
 LR = 1e-2
 
@@ -40,10 +41,10 @@ def nerf_setup(blob_grid):
     bg = ConstantBackground((0.05, 0.1, 0.3))
     rays = camera_rays(mi.Array3f, cams)
     with dr.suspend_grad():
-        comp = render_rays(GridField.from_arrays(blob_grid, color=(1.0, 0.9, 0.1)), rays.o, rays.d, 32, background=bg)
+        comp = render_rays(GridField.from_arrays(blob_grid, UNIT_BOX, color=(1.0, 0.9, 0.1)), rays.o, rays.d, 32, background=bg, box=UNIT_BOX)
     images = np.stack([np.asarray(c) for c in comp.rgb], -1).reshape(3, 8, 8, 3)
     data = PixelData.from_views(images, cams)
-    info = SceneInfo((-0.5,) * 3, (0.5,) * 3, bg, float(images.max()))
+    info = SceneInfo(UNIT_BOX, bg, float(images.max()))
 
     def make():
         return NeRFModel(NeRFMethodConfig(network=NeRFConfig(width=8, depth=1, head_width=8, features=4), n_samples=8), info, seed=3)
@@ -68,8 +69,17 @@ def _resume(make, data, config, path):
     opt = make_optimizer(model, LR)
     ckpt = load_checkpoint(path)
     restore_optimizer(opt, ckpt, path)
-    return train(model, data, config, LR, opt=opt, start_step=ckpt.step, elapsed=ckpt.elapsed,
-                 history=ckpt.history, progress=False)
+    model.load_extra_state(ckpt.extra_state)
+    return train(model, data, config, LR, state=TrainState(opt, ckpt.step, ckpt.elapsed, ckpt.history, ckpt.monitor),
+                 progress=False)
+
+
+def _stop_at(step):
+    """An on_log hook that interrupts training (as Ctrl-C would) once ``step`` is logged."""
+    def hook(entry):
+        if entry["step"] == step:
+            raise KeyboardInterrupt
+    return hook
 
 
 def test_resume_is_bit_identical_to_an_uninterrupted_run(nerf_setup, tmp_path):
@@ -78,15 +88,32 @@ def test_resume_is_bit_identical_to_an_uninterrupted_run(nerf_setup, tmp_path):
     straight, opt_straight = train(make(), data, config, LR, progress=False)
 
     path = tmp_path / CHECKPOINT_FILE
-    half, _ = train(make(), data, config, LR, progress=False, should_stop=lambda step: step >= 4,
-                    checkpointer=Checkpointer(path, config={"method": "nerf"}))
-    assert half.steps == 4 and load_checkpoint(path).step == 4
+    with pytest.raises(KeyboardInterrupt):
+        train(make(), data, config, LR, progress=False, on_log=_stop_at(4),
+              checkpointer=Checkpointer(path, config={"method": "nerf"}))
+    assert load_checkpoint(path).step == 4
     resumed, opt_resumed = _resume(make, data, config, path)
 
-    assert resumed.steps == 8
+    assert resumed.steps == 8 and resumed.steps_run == 4
     _assert_same_state(_state(opt_straight), _state(opt_resumed))
     assert [h["step"] for h in resumed.history] == [h["step"] for h in straight.history]
     assert resumed.history[-1]["loss"] == straight.history[-1]["loss"]
+    # the loss monitor's interval sums travel with the checkpoint: the same interval means
+    assert [h["loss_mean"] for h in resumed.history] == [h["loss_mean"] for h in straight.history]
+
+
+def test_a_resume_in_the_middle_of_a_log_interval_keeps_the_interval_means(nerf_setup, tmp_path):
+    data, make = nerf_setup
+    config = TrainConfig(steps=8, batch_rays=64, seed=5, log_every=4, checkpoint_every=2)
+    straight, _ = train(make(), data, config, LR, progress=False)
+    path = tmp_path / CHECKPOINT_FILE
+    with pytest.raises(KeyboardInterrupt):
+        train(make(), data, config, LR, progress=False, on_log=_stop_at(4),
+              checkpointer=Checkpointer(path, config={"method": "nerf"}))
+    ckpt = load_checkpoint(path)
+    assert ckpt.step == 4
+    resumed, _ = _resume(make, data, TrainConfig(steps=8, batch_rays=64, seed=5, log_every=4, checkpoint_every=2), path)
+    assert [h["loss_mean"] for h in resumed.history] == [h["loss_mean"] for h in straight.history]
 
 
 def test_ctrl_c_leaves_a_loadable_checkpoint_of_the_last_completed_step(nerf_setup, tmp_path):
@@ -98,7 +125,7 @@ def test_ctrl_c_leaves_a_loadable_checkpoint_of_the_last_completed_step(nerf_set
         if entry["step"] == 3:
             raise KeyboardInterrupt
 
-    with pytest.raises(KeyboardInterrupt, match="checkpoint of step 3 saved"):
+    with pytest.raises(KeyboardInterrupt, match="stopped by SIGINT; checkpoint of step 3 saved"):
         train(make(), data, config, LR, progress=False, on_log=interrupt,
               checkpointer=Checkpointer(path, config={"method": "nerf"}))
     ckpt = load_checkpoint(path)
@@ -110,7 +137,7 @@ def test_ctrl_c_leaves_a_loadable_checkpoint_of_the_last_completed_step(nerf_set
     _assert_same_state(_state(opt_straight), _state(opt_resumed))
 
 
-class _Quadratic(Model):
+class _Quadratic(ViewModel):
     """One parameter vector ``x`` with loss ``scale(step) * mean((x - 1)^2)`` through the own-step hook."""
 
     name = "quadratic"
@@ -125,7 +152,7 @@ class _Quadratic(Model):
     def set_parameters(self, values):
         self.x = values["x"]
 
-    def render_rays(self, o, d, *, u=None, training=False):
+    def render_view(self, camera, *, pixel_center=0.5, footprint=1):
         raise NotImplementedError
 
     def training_loss(self, data, step, rng):
@@ -136,7 +163,7 @@ class _Quadratic(Model):
 def test_nan_loss_names_the_step_and_keeps_the_previous_checkpoint(tmp_path):
     path = tmp_path / CHECKPOINT_FILE
     model = _Quadratic(scale=lambda step: float("nan") if step == 5 else 1.0)
-    checkpointer = Checkpointer(path, config={"method": "quadratic"}, model=model)
+    checkpointer = Checkpointer(path, config={"method": "quadratic"})
     params_after = {}
 
     def remember(entry):
@@ -156,7 +183,7 @@ def test_a_diverging_loss_stops_training_and_keeps_the_last_healthy_checkpoint(t
     model = _Quadratic(scale=lambda step: 1.0 if step < 10 else 1e4)
     config = TrainConfig(steps=40, log_every=2, checkpoint_every=1, divergence_factor=10.0, divergence_patience=2)
     with pytest.raises(TrainingError, match=r"step 14: loss diverging.*\(step 10\)"):
-        train(model, None, config, 0.05, progress=False, checkpointer=Checkpointer(path, config={}, model=model))
+        train(model, None, config, 0.05, progress=False, checkpointer=Checkpointer(path, config={}))
     assert load_checkpoint(path).step == 10
 
 

@@ -22,13 +22,13 @@ TINY = {
     "cameras": {"rig": "sphere", "n_train": 3, "n_test": 2, "width": 12, "height": 12, "fov": 40.0, "radius": 2.2, "seed": 0},
     "render": {"spp_train": 4, "spp_test": 4, "max_depth": 8, "seed": 0, "noise_floor": False},
 }
-NERF = ["--set", "network.width=8", "--set", "network.depth=1", "--set", "network.head_width=8",
+NERF = ["--method", "nerf", "--set", "network.width=8", "--set", "network.depth=1", "--set", "network.head_width=8",
         "--set", "network.features=4", "--set", "n_samples=8"]
 
 
 @pytest.fixture(scope="module")
 def run_dir(tmp_path_factory):
-    from mitsnerf.scene.generate import generate_dataset
+    from mitsnerf.generate import generate_dataset
     from mitsnerf.scene.spec import parse_scene
 
     root = tmp_path_factory.mktemp("cli")

@@ -37,6 +37,7 @@ from typing import Any, Mapping
 
 from mitsnerf.config import deep_merge, from_dict
 from mitsnerf.errors import SpecError
+from mitsnerf.evaluate import EvalConfig
 from mitsnerf.methods import METHODS
 
 if sys.version_info >= (3, 11):
@@ -74,32 +75,6 @@ class MethodRun:
             object.__setattr__(self, "label", self.name)
         if "/" in self.label or self.label.startswith("."):
             raise ValueError(f"label: must not contain '/' or start with '.', got {self.label!r}")
-
-
-@dataclass(frozen=True)
-class EvalConfig:
-    """What each cell measures besides the final test-view scores."""
-
-    curve_points: int = 8
-    """Held-out PSNR checkpoints during training, evenly spread over the budget (0: none).
-    Evaluated from the trainer's log hook; their time is kept off the training clock."""
-    curve_views: int = 0
-    """Test views rendered at each curve point: the first N (0: all)."""
-    density_resolution: int = 0
-    """Density error on an R^3 grid of voxel centres (0: the true grid's resolution)."""
-    od_samples: int = 0
-    """Midpoint samples per test ray for the optical-depth error (0: twice the true grid's resolution)."""
-    report_view: int = 0
-    """The test view shown in the image grid of the report."""
-    train_eval_views: int = 4
-    """Training views scored after training (train PSNR, an overfitting check)."""
-
-    def __post_init__(self) -> None:
-        for name in ("curve_points", "curve_views", "density_resolution", "od_samples", "report_view", "train_eval_views"):
-            if getattr(self, name) < 0:
-                raise ValueError(f"{name}: must be >= 0, got {getattr(self, name)}")
-        if self.density_resolution and self.density_resolution < 2:
-            raise ValueError(f"density_resolution: must be 0 (the true grid's) or >= 2, got {self.density_resolution}")
 
 
 @dataclass(frozen=True)

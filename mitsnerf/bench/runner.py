@@ -5,7 +5,7 @@
 2. **Skip** cells whose ``result.json`` has the same config hash and code version
    (:func:`mitsnerf.bench.cells.is_done`) unless ``force``; an interrupted sweep resumes.
 3. **Ground truth**: the datasets of scenes with pending cells are generated once, here
-   (cached by :func:`mitsnerf.scene.generate.generate_dataset`).
+   (cached by :func:`mitsnerf.generate.generate_dataset`).
 4. **Run** the pending cells on an executor (:mod:`mitsnerf.bench.executors`); each finished
    cell is written at once, atomically (a failed one as ``error.json``, retried next time).
 5. **Outputs** from every cell on disk (:func:`write_outputs`), under ``results/<bench>[-quick]/``:
@@ -86,7 +86,7 @@ def out_root_of(config: BenchConfig, options: BenchOptions) -> Path:
 def plan_cells(config: BenchConfig, options: BenchOptions) -> list[Cell]:
     """Every cell of ``config``, resolved and validated (ValueError naming the method or scene)."""
     from mitsnerf.methods import get_method
-    from mitsnerf.scene.generate import dataset_dir
+    from mitsnerf.generate import dataset_dir
     from mitsnerf.scene.spec import load_scene
     from mitsnerf.train import TrainConfig
 
@@ -137,7 +137,7 @@ def plan_cells(config: BenchConfig, options: BenchOptions) -> list[Cell]:
 
 def _generate(cells: list[Cell], options: BenchOptions, log: Callable[[str], None]) -> None:
     """Generate (or find cached) the dataset of every scene among ``cells``, here, once."""
-    from mitsnerf.scene.generate import generate_dataset
+    from mitsnerf.generate import generate_dataset
     from mitsnerf.scene.spec import parse_scene
 
     seen: set[str] = set()

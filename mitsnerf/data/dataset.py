@@ -31,9 +31,11 @@ from typing import Any
 
 import numpy as np
 
+from mitsnerf.data.box import check_cameras_outside, resolve_box
 from mitsnerf.data.images import read_image
 from mitsnerf.data.transforms import read_json, read_transforms
 from mitsnerf.errors import DatasetError
+from mitsnerf.math.box import Box
 from mitsnerf.math.camera import Camera
 from mitsnerf.math.color import srgb_to_linear
 
@@ -110,11 +112,15 @@ class Dataset:
     ``pixel_center``: overrides the transforms files' (``None``: their rule).
     ``color_space``: how PNG values are read, ``"srgb"`` or ``"linear"``.
     ``png_background``: linear RGB that PNG alpha is composited over.
+    ``box``: the scene box every field and score maps, and ``box_source`` where it came from
+    (:mod:`mitsnerf.data.box`).
     """
 
     root: Path
     manifest: dict
     background: dict
+    box: Box
+    box_source: str
     pixel_center: float | None = None
     color_space: str = "srgb"
     png_background: tuple[float, float, float] = (1.0, 1.0, 1.0)
@@ -123,9 +129,7 @@ class Dataset:
     @property
     def splits(self) -> tuple[str, ...]:
         """Names of the available splits (``transforms_<split>.json`` files), sorted."""
-        prefix, suffix = "transforms_", ".json"
-        return tuple(sorted(p.name[len(prefix) : -len(suffix)] for p in self.root.glob(f"{prefix}*{suffix}")
-                            if p.is_file() and len(p.name) > len(prefix) + len(suffix)))
+        return _split_names(self.root)
 
     def transforms_path(self, split: str) -> Path:
         return self.root / f"transforms_{split}.json"
@@ -188,6 +192,7 @@ class Dataset:
                 alpha[i] = a
         images.setflags(write=False)
         alpha.setflags(write=False)
+        check_cameras_outside(self.box, [c.origin for c in cameras], tpath, self.box_source)
         return Views(images, alpha if all_alpha else None, tuple(cameras), _view_names(file_paths),
                      float(meta["pixel_center"]))
 
@@ -203,6 +208,12 @@ class Dataset:
             bg = np.asarray(self.png_background, dtype=np.float32)
             rgb = rgb * a[..., None] + bg * (1.0 - a[..., None])
         return rgb, a
+
+
+def _split_names(root: Path) -> tuple[str, ...]:
+    prefix, suffix = "transforms_", ".json"
+    return tuple(sorted(p.name[len(prefix):-len(suffix)] for p in root.glob(f"{prefix}*{suffix}")
+                        if p.is_file() and len(p.name) > len(prefix) + len(suffix)))
 
 
 def _background_rgb(background: Any) -> tuple[float, float, float]:
@@ -221,12 +232,14 @@ def _background_rgb(background: Any) -> tuple[float, float, float]:
 def load_dataset(
     root: str | os.PathLike,
     *,
+    box: Box | None = None,
     background: float | Sequence[float] | None = None,
     pixel_center: float | None = None,
     color_space: str | None = None,
 ) -> Dataset:
     """Open a dataset directory; images load lazily, per split, with :meth:`Dataset.views`.
 
+    ``box``: the scene box, overriding what the data says (:mod:`mitsnerf.data.box`).
     ``background``: linear colour (a number or RGB) that PNG alpha is composited
     over; default white. It does not change EXR images, which are used as
     rendered. ``pixel_center``: overrides the transforms files (``None``: the rule
@@ -259,7 +272,12 @@ def load_dataset(
     elif not isinstance(bg_desc, dict):
         raise DatasetError(manifest_path, "background", f"must be an object, got {type(bg_desc).__name__}")
 
-    ds = Dataset(root, manifest, bg_desc, pixel_center, space, png_bg)
-    if not ds.splits:
+    splits = _split_names(root)
+    if not splits:
         raise DatasetError(root, None, "no transforms_*.json files: not a NeRF-synthetic style dataset")
-    return ds
+    tpath = root / f"transforms_{'train' if 'train' in splits else splits[0]}.json"
+    top = read_json(tpath)
+    if not isinstance(top, dict):
+        raise DatasetError(tpath, None, f"must hold a JSON object, got {type(top).__name__}")
+    resolved = resolve_box(box, top, tpath, manifest, manifest_path)
+    return Dataset(root, manifest, bg_desc, resolved.box, resolved.source, pixel_center, space, png_bg)

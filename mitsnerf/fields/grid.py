@@ -1,8 +1,8 @@
 """A field backed by voxel grids, looked up trilinearly exactly as Mitsuba's ``gridvolume``.
 
 Grids are indexed ``[z, y, x]`` and cover the scene box (docs/conventions.md); the
-lookup position of a world point ``x`` is ``(x - box_min) / (box_max - box_min)`` in
-``[0, 1]^3`` with voxel centres at ``(i + 0.5) / R``, clamped at the borders. The
+lookup position of a world point ``x`` is ``box.to_unit(x)`` in ``[0, 1]^3`` with voxel
+centres at ``(i + 0.5) / R`` (:mod:`mitsnerf.math.box`), clamped at the borders. The
 textures are built with ``use_accel=False`` so the lookups are full precision and
 differentiable with respect to the grid values on every backend.
 """
@@ -15,7 +15,7 @@ from typing import Any
 import drjit as dr
 import numpy as np
 
-from mitsnerf.render.rays import BOX_MAX, BOX_MIN
+from mitsnerf.math.box import Box
 
 
 def _texture(Texture3f, TensorXf, data, channels: int):
@@ -46,7 +46,8 @@ class GridField:
 
     >>> import numpy as np, mitsuba as mi
     >>> from mitsnerf.env import set_variant; _ = set_variant("llvm_ad_rgb")
-    >>> f = GridField.from_arrays(np.full((2, 2, 2), 3.0), color=(0.5, 0.5, 0.5))
+    >>> from mitsnerf.math.box import UNIT_BOX
+    >>> f = GridField.from_arrays(np.full((2, 2, 2), 3.0), UNIT_BOX, color=(0.5, 0.5, 0.5))
     >>> rgb, sigma = f(mi.Array3f(0.1, 0.2, 0.3), mi.Array3f(0, 0, 1))
     >>> sigma, rgb
     ([3], [[0.5, 0.5, 0.5]])
@@ -54,11 +55,10 @@ class GridField:
 
     sigma_t: Any  # Texture3f, 1 channel
     color: Any  # Texture3f, 3 channels, or an RGB tuple
-    box_min: tuple[float, float, float] = BOX_MIN
-    box_max: tuple[float, float, float] = BOX_MAX
+    box: Box
 
     @classmethod
-    def from_arrays(cls, sigma_t, color=(0.0, 0.0, 0.0), box_min=BOX_MIN, box_max=BOX_MAX) -> "GridField":
+    def from_arrays(cls, sigma_t, box: Box, color=(0.0, 0.0, 0.0)) -> "GridField":
         import mitsuba as mi
 
         sigma_tex = _texture(mi.Texture3f, mi.TensorXf, sigma_t, 1)
@@ -66,19 +66,14 @@ class GridField:
             color_tex = tuple(float(c) for c in color)
         else:
             color_tex = _texture(mi.Texture3f, mi.TensorXf, color, 3)
-        return cls(sigma_tex, color_tex, tuple(box_min), tuple(box_max))
-
-    def lookup_position(self, x):
-        lo = dr.scalar.Array3f(self.box_min)
-        size = dr.scalar.Array3f(self.box_max) - lo
-        return (x - lo) / size
+        return cls(sigma_tex, color_tex, box)
 
     def density(self, x):
         """``sigma(x)``, Float (M,)."""
-        return self.sigma_t.eval(self.lookup_position(x))[0]
+        return self.sigma_t.eval(self.box.to_unit(x))[0]
 
     def __call__(self, x, d):
-        p = self.lookup_position(x)
+        p = self.box.to_unit(x)
         sigma = self.sigma_t.eval(p)[0]
         Array3f = type(x)
         if isinstance(self.color, tuple):

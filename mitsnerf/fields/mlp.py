@@ -15,61 +15,49 @@ import sys
 import drjit as dr
 
 
-class DenseStack:
-    """Layers ``h <- act(h W_l + b_l)``, the last one without activation; a mapping of parameters.
+def dense_init(sizes, TensorXf, rng, prefix: str = "") -> dict:
+    """Parameters of layers ``sizes[0] -> sizes[1] -> ...`` as a plain dict of tensors.
 
-    Keys are ``{prefix}{l}.weights`` and ``{prefix}{l}.bias``.
+    Keys ``{prefix}{l}.weights`` ((C_in, C_out), uniform Xavier from ``rng``) and
+    ``{prefix}{l}.bias`` ((C_out,), zeros): a mapping ``drjit.opt`` optimisers take as is.
 
     >>> import mitsuba as mi
     >>> from mitsnerf.env import set_variant; _ = set_variant("llvm_ad_rgb")
-    >>> net = DenseStack([3, 8, 2], mi.TensorXf, dr.rng(seed=0), prefix="mlp.")
-    >>> sorted(net.parameters())
+    >>> sorted(dense_init([3, 8, 2], mi.TensorXf, dr.rng(seed=0), prefix="mlp."))
     ['mlp.0.bias', 'mlp.0.weights', 'mlp.1.bias', 'mlp.1.weights']
-    >>> net(dr.zeros(mi.TensorXf, (5, 3))).shape
+    """
+    sizes = tuple(int(s) for s in sizes)
+    if len(sizes) < 2:
+        raise ValueError(f"dense_init: needs at least input and output sizes, got {sizes}")
+    Float32 = dr.float32_array_t(dr.leaf_t(TensorXf))
+    params = {}
+    for i, (c_in, c_out) in enumerate(zip(sizes[:-1], sizes[1:])):
+        k = 1.0 / c_out**0.5
+        w = rng.random(Float32, c_in * c_out)
+        params[f"{prefix}{i}.weights"] = TensorXf(dr.fma(w, 2.0, -1.0) * k, shape=(c_in, c_out))
+        params[f"{prefix}{i}.bias"] = dr.zeros(TensorXf, (c_out,))
+    return params
+
+
+def dense_apply(params, prefix: str, n_layers: int, x, activation=None):
+    """``h <- act(h W_l + b_l)`` for ``l < n_layers``, the last layer without activation.
+
+    ``params``: a mapping as :func:`dense_init` makes; ``x``: (M, C_in) tensor -> (M, C_out);
+    ``activation`` defaults to ReLU.
+
+    >>> import mitsuba as mi
+    >>> from mitsnerf.env import set_variant; _ = set_variant("llvm_ad_rgb")
+    >>> p = dense_init([3, 8, 2], mi.TensorXf, dr.rng(seed=0))
+    >>> dense_apply(p, "", 2, dr.zeros(mi.TensorXf, (5, 3))).shape
     (5, 2)
     """
-
-    def __init__(self, sizes, TensorXf, rng, prefix: str = "") -> None:
-        if len(sizes) < 2:
-            raise ValueError(f"DenseStack: needs at least input and output sizes, got {sizes}")
-        self.sizes = tuple(int(s) for s in sizes)
-        self.TensorXf = TensorXf
-        self.prefix = prefix
-        Float32 = dr.float32_array_t(dr.leaf_t(TensorXf))
-        self.weights = []
-        self.biases = []
-        for c_in, c_out in zip(self.sizes[:-1], self.sizes[1:]):
-            k = 1.0 / c_out**0.5
-            w = rng.random(Float32, c_in * c_out)
-            self.weights.append(TensorXf(dr.fma(w, 2.0, -1.0) * k, shape=(c_in, c_out)))
-            self.biases.append(dr.zeros(TensorXf, (c_out,)))
-
-    def parameters(self) -> dict:
-        out = {}
-        for i, (w, b) in enumerate(zip(self.weights, self.biases)):
-            out[f"{self.prefix}{i}.weights"] = w
-            out[f"{self.prefix}{i}.bias"] = b
-        return out
-
-    def set_parameter(self, key: str, value) -> bool:
-        """Take ``value`` for ``key`` if it is one of this stack's; returns whether it was."""
-        if not key.startswith(self.prefix):
-            return False
-        index, _, kind = key[len(self.prefix):].partition(".")
-        if not index.isdigit() or kind not in ("weights", "bias"):
-            return False
-        (self.weights if kind == "weights" else self.biases)[int(index)] = value
-        return True
-
-    def __call__(self, x, activation=None):
-        """``x``: (M, C_in) tensor -> (M, C_out); ``activation`` defaults to ReLU."""
-        act = activation or (lambda h: dr.maximum(h, 0.0))
-        n = len(self.weights)
-        for i, (w, b) in enumerate(zip(self.weights, self.biases)):
-            x = x @ w + dr.reshape(self.TensorXf, b, (1, b.shape[0]))
-            if i + 1 < n:
-                x = act(x)
-        return x
+    act = activation or (lambda h: dr.maximum(h, 0.0))
+    for i in range(n_layers):
+        w, b = params[f"{prefix}{i}.weights"], params[f"{prefix}{i}.bias"]
+        x = x @ w + dr.reshape(type(b), b, (1, b.shape[0]))
+        if i + 1 < n_layers:
+            x = act(x)
+    return x
 
 
 def rows_tensor(TensorXf, rows, width: int):

@@ -2,7 +2,7 @@
 
 Architecture (Mueller et al. 2022, sizes configurable)::
 
-    p       = (x - box_min) / (box_max - box_min)                         in [0, 1]^3
+    p       = box.to_unit(x)                                              in [0, 1]^3
     h(p)    = [trilinear lookup of level l's table at p * N_l]_{l < L}    (drjit.nn.HashGridEncoding)
               N_l = N_min * b^l,  b = (N_max / N_min)^(1 / (L - 1)); a level is a dense grid
               while it fits in 2^T entries, a hash table of 2^T entries beyond
@@ -40,10 +40,10 @@ from typing import Any
 import drjit as dr
 import drjit.nn as nn
 
-from mitsnerf.fields.mlp import DenseStack, column, rows_tensor
-from mitsnerf.fields.nerf import sigmoid
+from mitsnerf.fields.mlp import column, dense_apply, dense_init, rows_tensor
 from mitsnerf.fields.sh import MAX_DEGREE, num_coefficients, sh_basis
-from mitsnerf.render.rays import BOX_MAX, BOX_MIN
+from mitsnerf.math.activations import sigmoid
+from mitsnerf.math.box import Box
 
 SIGMA_RAW_MAX = 15.0
 """Largest density pre-activation: ``exp(15)`` is far beyond any medium here and keeps float32 finite."""
@@ -116,40 +116,22 @@ class NGPConfig:
         return math.exp(math.log(self.max_resolution / self.base_resolution) / (self.n_levels - 1))
 
 
-class NGPNetwork:
-    """The two MLPs: ``density.{l}.weights|bias`` and ``color.{l}.weights|bias`` (point-major layers)."""
-
-    def __init__(self, config: NGPConfig, TensorXf, rng) -> None:
-        n_in = config.n_levels * config.features_per_level
-        self.density = DenseStack([n_in, config.hidden, 1 + config.geo_features], TensorXf, rng, "density.")
-        n_dir = num_coefficients(config.sh_degree)
-        sizes = [config.geo_features + n_dir] + [config.color_hidden] * config.color_layers + [3]
-        self.color = DenseStack(sizes, TensorXf, rng, "color.")
-
-    def items(self):
-        return {**self.density.parameters(), **self.color.parameters()}.items()
-
-    def __setitem__(self, key: str, value) -> None:
-        if not (self.density.set_parameter(key, value) or self.color.set_parameter(key, value)):
-            raise KeyError(f"ngp network: unknown parameter {key!r}")
-
-
 class NGPField:
     """The field callable ``(x, d) -> (rgb, sigma)``; also ``density(x)``.
 
     >>> import mitsuba as mi
     >>> from mitsnerf.env import set_variant; _ = set_variant("llvm_ad_rgb")
-    >>> f = NGPField(NGPConfig(n_levels=4, max_resolution=32, hidden=16, color_hidden=16), mi.TensorXf)
+    >>> from mitsnerf.math.box import UNIT_BOX
+    >>> f = NGPField(NGPConfig(n_levels=4, max_resolution=32, hidden=16, color_hidden=16), mi.TensorXf, UNIT_BOX)
     >>> rgb, sigma = f(mi.Array3f([0.0, 0.1], 0.0, 0.0), mi.Array3f(0, 0, 1))
     >>> dr.width(sigma), bool(dr.all((sigma > 0.9) & (sigma < 1.1)))
     (2, True)
     """
 
-    def __init__(self, config: NGPConfig, TensorXf, seed: int = 0, box_min=BOX_MIN, box_max=BOX_MAX) -> None:
+    def __init__(self, config: NGPConfig, TensorXf, box: Box, seed: int = 0) -> None:
         self.config = config
         self.TensorXf = TensorXf
-        self.box_min = tuple(float(v) for v in box_min)
-        self.box_max = tuple(float(v) for v in box_max)
+        self.box = box
         rng = dr.rng(seed=seed)
         self.encoding = nn.HashGridEncoding(
             dr.leaf_t(TensorXf),
@@ -162,28 +144,31 @@ class NGPField:
             init_scale=config.init_scale,
             rng=rng,
         )
-        self.net = NGPNetwork(config, TensorXf, rng)
-
-    # -- parameters ----------------------------------------------------------------
-
-    def parameters(self) -> dict:
-        """``encoding.data`` (the hash tables, Float (n_params,)) and every MLP weight/bias."""
-        return {"encoding.data": self.encoding.data, **dict(self.net.items())}
+        n_in = config.n_levels * config.features_per_level
+        n_dir = num_coefficients(config.sh_degree)
+        self.params = {
+            "encoding.data": self.encoding.data,
+            **dense_init([n_in, config.hidden, 1 + config.geo_features], TensorXf, rng, "density."),
+            **dense_init([config.geo_features + n_dir] + [config.color_hidden] * config.color_layers + [3],
+                         TensorXf, rng, "color."),
+        }
+        """Every trainable value by dotted key: ``encoding.data`` (the hash tables, Float (n,)),
+        ``density.{l}.weights|bias`` and ``color.{l}.weights|bias`` (point-major layers)."""
 
     def set_parameters(self, values) -> None:
-        for key, value in values.items():
-            if key == "encoding.data":
-                self.encoding.data = value
-            else:
-                self.net[key] = value
+        """Take new values for (a subset of) :attr:`params` (unknown keys are an error)."""
+        unknown = sorted(set(values) - set(self.params))
+        if unknown:
+            raise KeyError(f"ngp field: unknown parameters {unknown}")
+        self.params.update(values)
+        self.encoding.data = self.params["encoding.data"]
 
     # -- evaluation ----------------------------------------------------------------
 
     def _density_mlp(self, x):
         """(M, 1 + geo_features): the density pre-activation and the geometry features."""
-        lo = dr.scalar.Array3f(self.box_min)
-        p = dr.clip((x - lo) / (dr.scalar.Array3f(self.box_max) - lo), 0.0, 1.0)
-        return self.net.density(rows_tensor(self.TensorXf, self.encoding(p), dr.width(x)))
+        p = dr.clip(self.box.to_unit(x), 0.0, 1.0)
+        return dense_apply(self.params, "density.", 2, rows_tensor(self.TensorXf, self.encoding(p), dr.width(x)))
 
     def _sigma(self, raw):
         return dr.exp(dr.minimum(raw + self.config.sigma_bias, SIGMA_RAW_MAX))
@@ -199,6 +184,7 @@ class NGPField:
         if dr.width(d) != width:
             d = d + dr.zeros(type(d), width)
         sh = rows_tensor(self.TensorXf, sh_basis(d, self.config.sh_degree), width)
-        c = sigmoid(self.net.color(dr.concat([out[:, 1:], sh], axis=1))) * self.config.c_max
+        n_color = self.config.color_layers + 1
+        c = sigmoid(dense_apply(self.params, "color.", n_color, dr.concat([out[:, 1:], sh], axis=1))) * self.config.c_max
         Array3f = type(x)
         return Array3f(column(c, 0), column(c, 1), column(c, 2)), sigma

@@ -49,7 +49,7 @@ from typing import Any, Callable
 import drjit as dr
 import numpy as np
 
-from mitsnerf.render.rays import BOX_MAX, BOX_MIN
+from mitsnerf.math.box import Box
 
 
 _STREAM = 0x9E3779B97F4A7C15
@@ -96,7 +96,8 @@ class OccupancyGrid:
 
     >>> import mitsuba as mi
     >>> from mitsnerf.env import set_variant; _ = set_variant("llvm_ad_rgb")
-    >>> grid = OccupancyGrid(OccupancyConfig(resolution=4), mi.Float)
+    >>> from mitsnerf.math.box import UNIT_BOX
+    >>> grid = OccupancyGrid(OccupancyConfig(resolution=4), mi.Float, UNIT_BOX)
     >>> grid.update(lambda x: dr.select(x.x > 0.0, 5.0, 0.0) + 0.0 * x.y, seed=0, step=0)
     >>> grid.occupied_fraction()  # half the box holds medium, dilated by one cell
     0.75
@@ -104,14 +105,13 @@ class OccupancyGrid:
     [False, True]
     """
 
-    def __init__(self, config: OccupancyConfig, Float, box_min=BOX_MIN, box_max=BOX_MAX) -> None:
+    def __init__(self, config: OccupancyConfig, Float, box: Box) -> None:
         self.config = config
         self.Float = Float
         self.UInt32 = dr.uint32_array_t(Float)
         self.Bool = dr.mask_t(Float)
         self.Array3f = sys.modules[Float.__module__].Array3f
-        self.box_min = tuple(float(v) for v in box_min)
-        self.box_max = tuple(float(v) for v in box_max)
+        self.box = box
         n = config.resolution**3
         self.rho = dr.zeros(Float, n)
         self.occupied = dr.full(self.Bool, True, n)
@@ -122,8 +122,7 @@ class OccupancyGrid:
     def cell_index(self, x):
         """Flat index ``(k R + j) R + i`` of the cell holding each point (clamped to the grid)."""
         R = self.config.resolution
-        lo = dr.scalar.Array3f(self.box_min)
-        p = (dr.detach(x) - lo) / (dr.scalar.Array3f(self.box_max) - lo)
+        p = self.box.to_unit(dr.detach(x))
         i = dr.clip(self.UInt32(dr.clip(p.x * R, 0.0, R - 1)), 0, R - 1)
         j = dr.clip(self.UInt32(dr.clip(p.y * R, 0.0, R - 1)), 0, R - 1)
         k = dr.clip(self.UInt32(dr.clip(p.z * R, 0.0, R - 1)), 0, R - 1)
@@ -169,10 +168,7 @@ class OccupancyGrid:
             u = [rng.random(Float, R**3) for _ in range(3)]
         else:
             u = [dr.full(Float, 0.5, R**3)] * 3
-        lo = self.box_min
-        size = [self.box_max[a] - self.box_min[a] for a in range(3)]
-        coords = [lo[a] + (Float(c) + u[a]) / R * size[a] for a, c in enumerate((i, j, k))]
-        return self.Array3f(*coords)
+        return self.box.from_unit(self.Array3f(*((Float(c) + u[a]) / R for a, c in enumerate((i, j, k)))))
 
     def update(self, density: Callable[[Any], Any], seed: int, step: int, chunk: int = 1 << 18) -> None:
         """Refresh the grid from ``density(x) -> Float`` (evaluated without gradients, in chunks)."""
@@ -215,11 +211,10 @@ class OccupancyGrid:
     # -- checkpoints -------------------------------------------------------------
 
     def state(self) -> dict:
-        return {
-            "occupancy.rho": np.asarray(self.rho, dtype=np.float32),
-            "occupancy.occupied": np.asarray(self.occupied, dtype=bool),
-            "occupancy.updates": np.asarray(self.updates, dtype=np.int64),
-        }
+        """The grid's state for a checkpoint: the current arrays themselves (no copy; :meth:`update`
+        replaces them rather than writing into them, so the values stay those of this moment)."""
+        return {"occupancy.rho": self.rho, "occupancy.occupied": self.occupied,
+                "occupancy.updates": np.asarray(self.updates, dtype=np.int64)}
 
     def load_state(self, state) -> None:
         n = self.config.resolution**3
@@ -298,7 +293,8 @@ class OccupancyMaskedField:
 
     >>> import mitsuba as mi
     >>> from mitsnerf.env import set_variant; _ = set_variant("llvm_ad_rgb")
-    >>> grid = OccupancyGrid(OccupancyConfig(resolution=4, dilate=0), mi.Float)
+    >>> from mitsnerf.math.box import UNIT_BOX
+    >>> grid = OccupancyGrid(OccupancyConfig(resolution=4, dilate=0), mi.Float, UNIT_BOX)
     >>> grid.update(lambda x: dr.select(x.x > 0.0, 5.0, 0.0) + 0.0 * x.y, seed=0, step=0)
     >>> haze = lambda x, d: (mi.Array3f(1.0) + 0.0 * x.x, mi.Float(0.1) + 0.0 * x.x)
     >>> OccupancyMaskedField(haze, grid)(mi.Array3f([-0.4, 0.4], 0.0, 0.0), mi.Array3f(0, 0, 1))[1]

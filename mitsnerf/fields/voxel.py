@@ -25,9 +25,9 @@ from dataclasses import dataclass
 import drjit as dr
 import numpy as np
 
-from mitsnerf.fields.nerf import sigmoid, softplus
 from mitsnerf.fields.sh import MAX_DEGREE, num_coefficients, sh_basis
-from mitsnerf.render.rays import BOX_MAX, BOX_MIN
+from mitsnerf.math.activations import sigmoid, softplus
+from mitsnerf.math.box import Box
 
 
 @dataclass(frozen=True)
@@ -77,18 +77,18 @@ class VoxelField:
 
     >>> import mitsuba as mi
     >>> from mitsnerf.env import set_variant; _ = set_variant("llvm_ad_rgb")
-    >>> f = VoxelField.create(VoxelFieldConfig(sigma_init=2.0), 4, mi.TensorXf)
+    >>> from mitsnerf.math.box import UNIT_BOX
+    >>> f = VoxelField.create(VoxelFieldConfig(sigma_init=2.0), 4, mi.TensorXf, UNIT_BOX)
     >>> rgb, sigma = f(mi.Array3f(0.1, 0.2, 0.3), mi.Array3f(0, 0, 1))
     >>> round(sigma[0], 4), rgb  # sigma_init, and sigmoid(0) = 1/2
     (2.0, [[0.5, 0.5, 0.5]])
     """
 
-    def __init__(self, config: VoxelFieldConfig, sigma_raw, sh, box_min=BOX_MIN, box_max=BOX_MAX) -> None:
+    def __init__(self, config: VoxelFieldConfig, sigma_raw, sh, box: Box) -> None:
         import mitsuba as mi
 
         self.config = config
-        self.box_min = tuple(float(v) for v in box_min)
-        self.box_max = tuple(float(v) for v in box_max)
+        self.box = box
         self.n_coeffs = num_coefficients(config.sh_degree)
         if sh.shape[-1] != 3 * self.n_coeffs:
             raise ValueError(f"sh grid has {sh.shape[-1]} channels, expected 3 x {self.n_coeffs} for degree {config.sh_degree}")
@@ -98,12 +98,12 @@ class VoxelField:
         self._sh_tex = _texture(mi.Texture3f, sh)
 
     @classmethod
-    def create(cls, config: VoxelFieldConfig, resolution: int, TensorXf, box_min=BOX_MIN, box_max=BOX_MAX) -> "VoxelField":
+    def create(cls, config: VoxelFieldConfig, resolution: int, TensorXf, box: Box) -> "VoxelField":
         """Uniform grids: density ``sigma_init`` everywhere, SH coefficients 0 (grey ``c_max / 2``)."""
         r = int(resolution)
         sigma_raw = dr.full(TensorXf, config.raw_sigma_init, (r, r, r, 1))
         sh = dr.zeros(TensorXf, (r, r, r, 3 * num_coefficients(config.sh_degree)))
-        return cls(config, sigma_raw, sh, box_min, box_max)
+        return cls(config, sigma_raw, sh, box)
 
     @property
     def resolution(self) -> int:
@@ -115,20 +115,15 @@ class VoxelField:
             self.config,
             self.sigma_raw if sigma_raw is None else sigma_raw,
             self.sh if sh is None else sh,
-            self.box_min,
-            self.box_max,
+            self.box,
         )
-
-    def _p(self, x):
-        lo = dr.scalar.Array3f(self.box_min)
-        return (x - lo) / (dr.scalar.Array3f(self.box_max) - lo)
 
     def density(self, x):
         """``sigma(x)``, Float (M,)."""
-        return self.config.sigma_scale * softplus(self._sigma_tex.eval(self._p(x))[0])
+        return self.config.sigma_scale * softplus(self._sigma_tex.eval(self.box.to_unit(x))[0])
 
     def __call__(self, x, d):
-        p = self._p(x)
+        p = self.box.to_unit(x)
         sigma = self.config.sigma_scale * softplus(self._sigma_tex.eval(p)[0])
         coeffs = self._sh_tex.eval(p)
         Y = sh_basis(d, self.config.sh_degree)

@@ -1,35 +1,39 @@
-"""The interface every method implements, and the data a method trains on.
+"""What a method is: a :class:`Model` with named parameters, behind one of two narrow protocols.
 
-A method is a frozen config dataclass plus a :class:`Model`: something with named
-parameters that ``drjit.opt`` optimises and a differentiable ``render_rays``. The
-trainer (:mod:`mitsnerf.train`) owns batching, the optimiser, checkpoints and
-evaluation; a method only says how its scene representation renders a ray batch.
+- :class:`RayModel`, a per-ray model: it writes :meth:`RayModel.render_rays` (and says how much
+  jitter its sampler draws). The trainer's step is a random batch of training pixels rendered
+  through it; whole views are rendered ray by ray by the base class.
+- :class:`ViewModel`, a whole-view model: it writes its own step's loss
+  (:meth:`ViewModel.training_loss`) and :meth:`ViewModel.render_view` (``mitsuba-inverse``
+  renders whole images through Mitsuba's path tracer).
 
-Methods that do not fit per-ray rendering (``mitsuba-inverse`` renders whole images
-through Mitsuba's path tracer) override two optional hooks instead:
-:meth:`Model.training_loss` (their own step's loss; the trainer still owns the
-optimiser, NaN/divergence checks and checkpoints) and :meth:`Model.render_view` (a whole
-camera, used by :func:`mitsnerf.evaluate.render_camera`). :meth:`Model.lr_scales`
-scales the scheduled learning rate per parameter (e.g. halved after each upsampling).
+The trainer (:mod:`mitsnerf.train`) picks the step by protocol and owns the optimiser,
+checkpoints and the schedules. Parameters are a mapping (a ``drjit.nn`` module or a plain dict)
+that ``drjit.opt`` optimisers take as is; after every step the trainer hands the optimiser's
+values back through :meth:`Model.set_parameters`. A model changes its parameters only by
+returning new values from :meth:`Model.after_step`, which the trainer writes into the optimiser
+(coarse to fine, clamping): schedules return values, they never rewrite the optimiser.
 """
 
 from __future__ import annotations
 
 from abc import ABC, abstractmethod
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 from typing import Any, Callable, ClassVar, Mapping
 
 import drjit as dr
 
+from mitsnerf.math.box import Box
 from mitsnerf.math.composite import Composite
+from mitsnerf.render.camera import Rendered, render_view
 
 
 @dataclass(frozen=True)
 class SceneInfo:
     """What a method may know about the scene before training (never the test images)."""
 
-    box_min: tuple[float, float, float]
-    box_max: tuple[float, float, float]
+    box: Box
+    """The dataset's scene box: every field and grid maps it."""
     background: Callable[[Any], Any]
     """``d -> Array3f`` radiance behind the medium."""
     radiance_max: float
@@ -41,7 +45,7 @@ class SceneInfo:
 
 @dataclass(frozen=True)
 class StepLoss:
-    """A model's own training objective for one step (see :meth:`Model.training_loss`)."""
+    """One training step's objective (what :meth:`ViewModel.training_loss` returns)."""
 
     loss: Any
     """Float of width 1, differentiable with respect to the optimised parameters."""
@@ -56,8 +60,9 @@ class RenderOutput:
     """A method's rendering of R rays: the composite plus regularisation losses (scalars)."""
 
     composite: Composite
-    extra_losses: Mapping[str, Any] = None  # name -> Float of width 1, added to the loss
-    aux_rgb: Mapping[str, Any] = None
+    extra_losses: Mapping[str, Any] = field(default_factory=dict)
+    """name -> Float of width 1, added to the loss."""
+    aux_rgb: Mapping[str, Any] | None = None
     """name -> Array3f (R,): further colour predictions of the same rays, each supervised by
     the same photometric MSE as ``rgb`` and added to the loss (NeRF's coarse pass)."""
 
@@ -67,62 +72,39 @@ class RenderOutput:
 
 
 class Model(ABC):
-    """A trainable scene representation.
-
-    ``parameters()`` maps names to Dr.Jit tensors/arrays; the trainer registers them
-    with an optimiser once and, after each step, hands the optimiser back through
-    ``set_parameters`` (the optimiser is the source of truth during training).
-    """
+    """A trainable scene representation (see the module docstring). Subclass one of the protocols."""
 
     name: ClassVar[str]
 
     @abstractmethod
     def parameters(self) -> Mapping[str, Any]:
-        """Every trainable value, by dotted name."""
+        """Every trainable value by dotted name: a ``drjit.nn`` module or a plain dict."""
 
     @abstractmethod
     def set_parameters(self, values: Mapping[str, Any]) -> None:
         """Take new values for (a subset of) the parameters, e.g. from the optimiser."""
 
     @abstractmethod
-    def render_rays(self, o, d, *, u=None, training: bool = False) -> RenderOutput:
-        """Render rays ``o + t d`` (Array3f (R,)); ``u`` is Float jitter (training) or None."""
+    def render_view(self, camera, *, pixel_center: float = 0.5, footprint: int = 1) -> Rendered:
+        """A whole camera (without gradients); ``footprint``: K x K rays per pixel (1: its sample point)."""
 
     def samples_per_ray(self) -> int:
         """Field evaluations per ray (for samples/s figures)."""
         return 0
 
-    def jitter_size(self) -> int:
-        """Uniform numbers per ray the model's sampler wants in ``u`` (0: none)."""
-        return self.samples_per_ray()
-
-    def on_step(self, step: int, opt) -> None:
-        """Hook after each optimiser step (coarse-to-fine, occupancy updates, ...)."""
-
-    def training_loss(self, data, step: int, rng) -> StepLoss | None:
-        """This step's objective, for methods that do not train on random ray batches.
-
-        ``data`` is the :class:`mitsnerf.train.PixelData` (``data.images`` (V, H, W, 3),
-        ``data.cameras``), ``rng`` the step's generator (a pure function of seed and step,
-        so resumed runs draw the same). Return None (the default) for the trainer's own
-        ray-batch step through :meth:`render_rays`.
-        """
-        return None
-
-    def render_view(self, camera, pixel_center: float = 0.5):
-        """A whole camera as a :class:`mitsnerf.evaluate.Rendered`, or None (the default)
-        to render it ray by ray through :meth:`render_rays`."""
-        return None
-
     def lr_scales(self, step: int) -> Mapping[str, float]:
-        """Per-parameter factors on the scheduled learning rate at ``step`` (missing: 1).
+        """Per-parameter factors on the scheduled learning rate at ``step`` (missing: 1); a
+        function of the step alone, so a resumed run schedules exactly as an uninterrupted one."""
+        return {}
 
-        A pure function of the step, so a resumed run schedules exactly as an uninterrupted one.
-        """
+    def after_step(self, step: int, params: Mapping[str, Any]) -> Mapping[str, Any]:
+        """Called after optimiser step ``step`` (0-based) with the optimiser's values; returns new
+        values for some parameters (upsampled, clamped), which the trainer writes into the
+        optimiser. May update the model's non-parameter state (an occupancy grid). Default: none."""
         return {}
 
     def field(self):
-        """The field callable ``(x, d) -> (rgb, sigma)`` (for export and the plugin)."""
+        """The field callable ``(x, d) -> (rgb, sigma)`` with ``density(x)``, as trained."""
         raise NotImplementedError(f"{type(self).__name__} has no queryable field")
 
     def extra_state(self) -> dict:
@@ -131,6 +113,33 @@ class Model(ABC):
 
     def load_extra_state(self, state: Mapping) -> None:
         """Restore what :meth:`extra_state` returned."""
+
+
+class RayModel(Model):
+    """A per-ray model: it renders batches of rays; whole views are rendered ray by ray."""
+
+    @abstractmethod
+    def render_rays(self, o, d, *, u=None, training: bool = False) -> RenderOutput:
+        """Render rays ``o + t d`` (Array3f (R,)); ``u``: Float (R * jitter_size()) jitter, or
+        None for the deterministic (stratum midpoint) evaluation samples."""
+
+    def jitter_size(self) -> int:
+        """Uniform numbers per ray the model's sampler draws in ``u``."""
+        return self.samples_per_ray()
+
+    def render_view(self, camera, *, pixel_center: float = 0.5, footprint: int = 1) -> Rendered:
+        return render_view(lambda o, d: self.render_rays(o, d).composite, camera,
+                           pixel_center=pixel_center, footprint=footprint)
+
+
+class ViewModel(Model):
+    """A whole-view model: its own step's loss, its own view renderer."""
+
+    @abstractmethod
+    def training_loss(self, data, step: int, rng) -> StepLoss:
+        """This step's objective. ``data``: the trainer's :class:`mitsnerf.train.PixelData`
+        (``images`` (V, H, W, 3), ``cameras``); ``rng``: the step's generator, a pure function of
+        seed and step, so a resumed run draws the same."""
 
 
 def num_parameters(params: Mapping[str, Any]) -> int:
@@ -144,34 +153,3 @@ def cover_radiance(field_config, scene: SceneInfo):
     if field_config.c_max < scene.radiance_max:
         return replace(field_config, c_max=max(1.0, 1.25 * scene.radiance_max))
     return field_config
-
-
-class OccupancyModel(Model):
-    """A model of a field ``self._field`` that skips empty space with ``self.grid`` (an
-    :class:`mitsnerf.fields.occupancy.OccupancyGrid`, or None).
-
-    Updates the grid from the field's density every ``update_every`` steps (seeded by
-    ``self.seed`` and the step), checkpoints it with the parameters, and exposes the field as
-    trained (density 0 in skipped cells). Subclasses that override :meth:`on_step` call this one.
-    """
-
-    _field: Any = None
-    grid: Any = None
-    seed: int = 0
-
-    def field(self):
-        """The field as trained: density 0 in cells the occupancy grid skips."""
-        from mitsnerf.fields.occupancy import OccupancyMaskedField
-
-        return self._field if self.grid is None else OccupancyMaskedField(self._field, self.grid)
-
-    def on_step(self, step: int, opt) -> None:
-        if self.grid is not None and (step + 1) % self.grid.config.update_every == 0:
-            self.grid.update(self._field.density, self.seed, step)
-
-    def extra_state(self) -> dict:
-        return self.grid.state() if self.grid is not None else {}
-
-    def load_extra_state(self, state: Mapping) -> None:
-        if self.grid is not None and "occupancy.rho" in state:
-            self.grid.load_state(state)

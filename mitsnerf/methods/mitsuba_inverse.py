@@ -42,9 +42,10 @@ eval_spp               128         samples per pixel of evaluation renders
 =====================  ==========  =====================================================
 
 Not supported: foreign datasets (no manifest spec: the lights are unknown), pixel centres
-other than Mitsuba's ``+0.5``, per-ray rendering (``render_rays``): evaluation renders
-whole cameras through :meth:`MitsubaInverseModel.render_view`, whose opacity and depth
-maps come from emission-absorption quadrature of the current ``sigma_t`` grid.
+other than Mitsuba's ``+0.5``, per-ray rendering: it is a whole-view model
+(:class:`mitsnerf.methods.base.ViewModel`). Evaluation renders whole cameras through Mitsuba's
+film, which box-filters each pixel whatever footprint is asked for; the opacity and depth maps
+come from emission-absorption quadrature of the current ``sigma_t`` grid over the same footprint.
 """
 
 from __future__ import annotations
@@ -58,7 +59,9 @@ import numpy as np
 
 from mitsnerf.errors import DatasetError
 from mitsnerf.fields.grid import GridField
-from mitsnerf.methods.base import Model, SceneInfo, StepLoss
+from mitsnerf.render.camera import Rendered, render_view
+from mitsnerf.render.volume import render_rays
+from mitsnerf.methods.base import SceneInfo, StepLoss, ViewModel
 
 SIGMA_T_SUFFIX = "interior_medium.sigma_t.data"
 ALBEDO_SUFFIX = "interior_medium.albedo.data"
@@ -126,7 +129,7 @@ def _rgb_sensor(camera, spp: int):
     return mi.load_dict(d)
 
 
-class MitsubaInverseModel(Model):
+class MitsubaInverseModel(ViewModel):
     name = "mitsuba-inverse"
 
     def __init__(self, config: MitsubaInverseConfig, scene: SceneInfo, seed: int = 0) -> None:
@@ -138,6 +141,7 @@ class MitsubaInverseModel(Model):
             raise DatasetError(None, "manifest.json: spec", "mitsuba-inverse needs a dataset made by 'mitsnerf generate' "
                                                              "(its spec gives the lights and the medium's placement)")
         self.config = config
+        self.box = scene.box
         self.spec = parse_scene(spec_data, "manifest.json: spec")
         self.max_depth = config.max_depth or self.spec.render.max_depth
         r = config.resolutions[0]
@@ -192,26 +196,24 @@ class MitsubaInverseModel(Model):
             scales["albedo"] = factor * self.config.albedo_lr_factor
         return scales
 
-    def on_step(self, step: int, opt) -> None:
-        """Upsample after ``upsample_at`` steps; clamp sigma_t to [0, sigma_t_max], albedo to [0, 1]."""
+    def after_step(self, step: int, params: Mapping[str, Any]) -> Mapping[str, Any]:
+        """The grids resampled after ``upsample_at`` steps; sigma_t clamped to [0, sigma_t_max], albedo to [0, 1]."""
         done = step + 1
+        new = {key: params[key] for key in ("sigma_t", "albedo") if key in params}
         if done in self.config.upsample_at:
             r = self.config.resolutions[self.config.upsample_at.index(done) + 1]
-            for key, channels in (("sigma_t", 1), ("albedo", 3)):
-                if key in opt:
-                    opt[key] = dr.resample(opt[key], (r, r, r, channels), filter="linear", boundary="nearest")
-        opt["sigma_t"] = dr.clip(opt["sigma_t"], 0.0, self.config.sigma_t_max)
-        if "albedo" in opt:
-            opt["albedo"] = dr.clip(opt["albedo"], 0.0, 1.0)
-        self.set_parameters(opt)
+            new = {key: dr.resample(v, (r, r, r, v.shape[-1]), filter="linear", boundary="nearest")
+                   for key, v in new.items()}
+        new["sigma_t"] = dr.clip(new["sigma_t"], 0.0, self.config.sigma_t_max)
+        if "albedo" in new:
+            new["albedo"] = dr.clip(new["albedo"], 0.0, 1.0)
+        self.set_parameters(new)
+        return new
 
     # ------------------------------------------------------------------ training
 
     def samples_per_ray(self) -> int:
         return self.config.spp
-
-    def jitter_size(self) -> int:
-        return 0
 
     def training_loss(self, data, step: int, rng) -> StepLoss:
         """Render ``views_per_step`` random training views; the mean squared error against their images."""
@@ -238,25 +240,21 @@ class MitsubaInverseModel(Model):
 
     # ------------------------------------------------------------------ rendering
 
-    def render_rays(self, o, d, *, u=None, training: bool = False):
-        raise NotImplementedError("mitsuba-inverse renders whole cameras through Mitsuba (render_view), not ray batches")
-
     def field(self) -> GridField:
         """The medium as a field: ``sigma_t`` and, as its colour, the albedo."""
-        return GridField.from_arrays(dr.detach(self.sigma_t), dr.detach(self.albedo))
+        return GridField.from_arrays(dr.detach(self.sigma_t), self.box, dr.detach(self.albedo))
 
-    def render_view(self, camera, pixel_center: float = 0.5):
-        """``prbvolpath`` at ``eval_spp`` for the colour; opacity and depth by quadrature of ``sigma_t``."""
-        from mitsnerf.evaluate import Rendered, render_camera
-        from mitsnerf.render.volume import render_rays
-
+    def render_view(self, camera, *, pixel_center: float = 0.5, footprint: int = 1) -> Rendered:
+        """``prbvolpath`` at ``eval_spp`` through Mitsuba's box-filtered film for the colour; opacity
+        and depth by quadrature of ``sigma_t`` with ``max(footprint, 2)`` rays per pixel side."""
         if abs(pixel_center - 0.5) > 1e-9:
             raise ValueError(f"mitsuba-inverse renders with Mitsuba's pixel centres (+0.5), asked for {pixel_center}")
         with dr.suspend_grad():
             img = mi.render(self.scene, sensor=_rgb_sensor(camera, self.config.eval_spp),
                             spp=self.config.eval_spp, seed=EVAL_SEED)
             rgb = np.array(img, dtype=np.float32)
-            density = GridField.from_arrays(dr.detach(self.sigma_t))
+            density = GridField.from_arrays(dr.detach(self.sigma_t), self.box)
             n = 2 * self.resolution
-            quad = render_camera(lambda o, d: render_rays(density, o, d, n), camera, pixel_center=pixel_center)
+            quad = render_view(lambda o, d: render_rays(density, o, d, n, box=self.box), camera,
+                               pixel_center=pixel_center, footprint=max(footprint, 2))
         return Rendered(rgb, quad.opacity, quad.depth)

@@ -21,6 +21,7 @@ samples (what ``nerf`` was before the fine pass; ``NeRFMethodConfig.single_pass(
 | coarse_network | NeRFConfig / None | 2 x 32       | the coarse network's sizes (None: as network)    |
 | n_samples      | int               | 32           | stratified coarse samples per ray N_c            |
 | n_importance   | int               | 32           | importance samples per ray N_f (0: single pass)  |
+| lr             | float             | 5e-3         | Adam learning rate (2e-2: +1.2 dB at 250 steps, -1.2 dB at 800) |
 
 NeRF used 64 + 128 samples and two 8 x 256 networks; on this CPU the defaults keep the
 design at about 1.6 M multiply-adds per ray (a 2 x 32 coarse network on 32 samples, the
@@ -28,7 +29,6 @@ design at about 1.6 M multiply-adds per ray (a 2 x 32 coarse network on 32 sampl
 machine, against 1.35 s with the coarse network as large as the fine one and 64
 importance samples, and 0.43 s for the former single-pass default (3 x 64, 8 octaves,
 64 samples; ``single_pass()`` with those sizes).
-| lr             | float             | 5e-3         | Adam learning rate (2e-2: +1.2 dB at 250 steps, -1.2 dB at 800) |
 """
 
 from __future__ import annotations
@@ -37,17 +37,14 @@ from dataclasses import dataclass, field
 from typing import Any, Mapping
 
 import drjit as dr
+import drjit.nn as nn
 import mitsuba as mi
 
-from mitsnerf.fields.nerf import NeRFConfig, NeRFField
+from mitsnerf.fields.nerf import NeRFConfig, NeRFField, NeRFNetwork
 from mitsnerf.math.composite import composite, weights
 from mitsnerf.math.sampling import deltas_from_sorted_t, merge_sorted_t, sample_pdf
-from mitsnerf.methods.base import Model, RenderOutput, SceneInfo, cover_radiance
-from mitsnerf.render.rays import intersect_box
+from mitsnerf.methods.base import RayModel, RenderOutput, SceneInfo, cover_radiance
 from mitsnerf.render.volume import background_radiance, render_rays, sample_rays
-
-COARSE_PREFIX = "coarse."
-"""Parameter names of the coarse network; the fine network's keep the single-pass names."""
 
 
 @dataclass(frozen=True)
@@ -123,36 +120,43 @@ def importance_strata(n_rays: int, n: int, u, Float):
     return (Float(j) + xi) / n
 
 
-class NeRFModel(Model):
+class NeRFNetworks(nn.Module):
+    """The method's parameters: the ``fine`` network and, when hierarchical, the ``coarse`` one.
+
+    A ``drjit.nn`` module, so its mapping interface (``fine.trunk.0.weights``, ...,
+    ``coarse.head.1.bias``) is what ``drjit.opt`` optimisers take.
+    """
+
+    DRJIT_STRUCT = {"fine": NeRFNetwork, "coarse": NeRFNetwork}
+
+    def __init__(self, fine: NeRFNetwork, coarse: NeRFNetwork | None) -> None:
+        self.fine = fine
+        self.coarse = coarse
+
+
+class NeRFModel(RayModel):
     name = "nerf"
 
     def __init__(self, config: NeRFMethodConfig, scene: SceneInfo, seed: int = 0) -> None:
         self.config = config
         self.scene = scene
         fine = cover_radiance(config.network, scene)
-        self._field = NeRFField.create(fine, mi.TensorXf, seed, scene.box_min, scene.box_max)
+        self._fine = NeRFField.create(fine, mi.TensorXf, scene.box, seed)
         self._coarse = None
         if config.n_importance > 0:
             coarse = cover_radiance(config.coarse_network or config.network, scene)
-            self._coarse = NeRFField.create(coarse, mi.TensorXf, seed + 1, scene.box_min, scene.box_max)
+            self._coarse = NeRFField.create(coarse, mi.TensorXf, scene.box, seed + 1)
+        self.networks = NeRFNetworks(self._fine.net, self._coarse.net if self._coarse is not None else None)
 
     @property
     def hierarchical(self) -> bool:
         return self._coarse is not None
 
     def parameters(self) -> Mapping[str, Any]:
-        params = dict(self._field.net.items())
-        if self._coarse is not None:
-            params.update({COARSE_PREFIX + k: v for k, v in self._coarse.net.items()})
-        return params
+        return self.networks
 
     def set_parameters(self, values: Mapping[str, Any]) -> None:
-        for key, value in values.items():
-            if key.startswith(COARSE_PREFIX):
-                if self._coarse is not None:
-                    self._coarse.net[key[len(COARSE_PREFIX):]] = value
-            else:
-                self._field.net[key] = value
+        self.networks.update(values)
 
     def samples_per_ray(self) -> int:
         """Network evaluations per ray: N_c (+ N_c + N_f for the fine pass)."""
@@ -163,29 +167,22 @@ class NeRFModel(Model):
         return self.config.n_samples + (self.config.n_importance if self.hierarchical else 0)
 
     def field(self):
-        return self._field
-
-    def coarse_field(self):
-        """The coarse network's field (None when single-pass)."""
-        return self._coarse
+        return self._fine
 
     def render_rays(self, o, d, *, u=None, training: bool = False) -> RenderOutput:
         cfg, scene = self.config, self.scene
         if not self.hierarchical:
-            comp = render_rays(
-                self._field, o, d, cfg.n_samples, u=u, background=scene.background,
-                box_min=scene.box_min, box_max=scene.box_max,
-            )
-            return RenderOutput(comp, {})
-
+            return RenderOutput(render_rays(self._fine, o, d, cfg.n_samples, box=scene.box, u=u,
+                                            background=scene.background))
         n_c, n_f = cfg.n_samples, cfg.n_importance
         n_rays = dr.width(o)
         u_c, u_f = _split_jitter(u, n_rays, n_c, n_f)
-        bg = background_radiance(self.scene.background, d)
+        bg = background_radiance(scene.background, d)
         Float = type(o.x)
 
         # Coarse pass: stratified samples through the coarse network.
-        s, _ = sample_rays(o, d, n_c, u_c, scene.box_min, scene.box_max)
+        s, _ = sample_rays(o, d, n_c, scene.box, u_c)
+        comp_c = None
         if training:
             rgb_c, sigma_c = self._coarse(s.x, s.d)
             comp_c = composite(sigma_c, s.delta, rgb_c, n_c, background=bg, t=s.t)
@@ -194,17 +191,15 @@ class NeRFModel(Model):
         w_c, _ = weights(dr.detach(sigma_c), s.delta, n_c)
 
         # Fine pass: importance samples from the coarse weights, merged with the coarse ones.
-        _, t_f, _ = intersect_box(o, d, scene.box_min, scene.box_max)
+        _, t_f, _ = scene.box.intersect(o, d)
         edges = coarse_edges(s.t, t_f, n_c)
         t_imp = sample_pdf(edges, w_c, n_c, n_f, importance_strata(n_rays, n_f, u_f, Float))
         n = n_c + n_f
         t = merge_sorted_t(s.t, n_c, t_imp, n_f)
         delta = deltas_from_sorted_t(t, t_f, n)
-        UInt32 = dr.uint32_array_t(Float)
-        ray = dr.arange(UInt32, n_rays * n) // n
-        Array3f = type(o)
-        d_s = dr.gather(Array3f, d, ray)
-        x = dr.gather(Array3f, o, ray) + t * d_s
-        rgb, sigma = self._field(x, d_s)
+        ray = dr.arange(dr.uint32_array_t(Float), n_rays * n) // n
+        d_s = dr.gather(type(d), d, ray)
+        x = dr.gather(type(o), o, ray) + t * d_s
+        rgb, sigma = self._fine(x, d_s)
         comp = composite(sigma, delta, rgb, n, background=bg, t=t)
-        return RenderOutput(comp, {}, aux_rgb={"coarse": comp_c.rgb} if training else None)
+        return RenderOutput(comp, aux_rgb={"coarse": comp_c.rgb} if training else None)

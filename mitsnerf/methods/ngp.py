@@ -14,13 +14,12 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from typing import Any, Mapping
 
-import drjit as dr
 import mitsuba as mi
 
 from mitsnerf.fields.ngp import NGPConfig, NGPField
-from mitsnerf.fields.occupancy import OccupancyConfig, OccupancyGrid
-from mitsnerf.methods.base import OccupancyModel, RenderOutput, SceneInfo, cover_radiance
-from mitsnerf.render.skipping import render_rays_skipping
+from mitsnerf.fields.occupancy import OccupancyConfig
+from mitsnerf.methods.base import RenderOutput, SceneInfo, cover_radiance
+from mitsnerf.methods.occupancy import OccupancyModel
 
 
 @dataclass(frozen=True)
@@ -53,29 +52,15 @@ class NGPModel(OccupancyModel):
     name = "ngp"
 
     def __init__(self, config: NGPMethodConfig, scene: SceneInfo, seed: int = 0) -> None:
-        field_config = cover_radiance(config.network, scene)
         self.config = config
-        self.scene = scene
-        self.seed = seed
-        self._field = NGPField(field_config, mi.TensorXf, seed, scene.box_min, scene.box_max)
-        self.grid = OccupancyGrid(config.occupancy, mi.Float, scene.box_min, scene.box_max) if config.use_occupancy else None
-        self.active_fraction = 1.0
-        """Share of the last batch's samples that reached the network (a diagnostic)."""
+        ngp = NGPField(cover_radiance(config.network, scene), mi.TensorXf, scene.box, seed)
+        super().__init__(ngp, config.occupancy if config.use_occupancy else None, scene, seed, config.n_samples)
 
     def parameters(self) -> Mapping[str, Any]:
-        return self._field.parameters()
+        return self.base_field.params
 
     def set_parameters(self, values: Mapping[str, Any]) -> None:
-        self._field.set_parameters(values)
-
-    def samples_per_ray(self) -> int:
-        return self.config.n_samples
+        self.base_field.set_parameters(values)
 
     def render_rays(self, o, d, *, u=None, training: bool = False) -> RenderOutput:
-        comp, mask = render_rays_skipping(
-            self._field, self.grid, o, d, self.config.n_samples, u=u, background=self.scene.background,
-            box_min=self.scene.box_min, box_max=self.scene.box_max,
-        )
-        if training:
-            self.active_fraction = int(dr.count(mask)[0]) / max(dr.width(mask), 1)
-        return RenderOutput(comp, {})
+        return RenderOutput(self.composite(o, d, u, training))

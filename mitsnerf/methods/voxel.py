@@ -39,11 +39,10 @@ from typing import Any, Mapping
 import drjit as dr
 import mitsuba as mi
 
-from mitsnerf.fields.occupancy import OccupancyConfig, OccupancyGrid
+from mitsnerf.fields.occupancy import OccupancyConfig
 from mitsnerf.fields.voxel import VoxelField, VoxelFieldConfig, total_variation, upsample
-from mitsnerf.methods.base import OccupancyModel, RenderOutput, SceneInfo, cover_radiance
-from mitsnerf.render.skipping import render_rays_skipping
-from mitsnerf.render.volume import render_rays
+from mitsnerf.methods.base import RenderOutput, SceneInfo, cover_radiance
+from mitsnerf.methods.occupancy import OccupancyModel
 
 SIGMA_KEY = "sigma_raw"
 SH_KEY = "sh"
@@ -118,62 +117,45 @@ class VoxelModel(OccupancyModel):
     name = "voxel"
 
     def __init__(self, config: VoxelMethodConfig, scene: SceneInfo, seed: int = 0) -> None:
-        field_config = cover_radiance(config.grid, scene)
         self.config = config
-        self.scene = scene
-        self._field = VoxelField.create(field_config, config.initial_resolution, mi.TensorXf, scene.box_min, scene.box_max)
-        self.seed = seed
-        self.grid = OccupancyGrid(config.occupancy, mi.Float, scene.box_min, scene.box_max) if config.use_occupancy else None
-        self.active_fraction = 1.0
-        """Share of the last batch's samples that were evaluated (a diagnostic)."""
+        grids = VoxelField.create(cover_radiance(config.grid, scene), config.initial_resolution, mi.TensorXf, scene.box)
+        super().__init__(grids, config.occupancy if config.use_occupancy else None, scene, seed, config.n_samples)
 
     def parameters(self) -> Mapping[str, Any]:
-        return {SIGMA_KEY: self._field.sigma_raw, SH_KEY: self._field.sh}
+        return {SIGMA_KEY: self.base_field.sigma_raw, SH_KEY: self.base_field.sh}
 
     def set_parameters(self, values: Mapping[str, Any]) -> None:
         """Take new grids (any resolution: a resumed run may hold upsampled ones)."""
         sigma = values[SIGMA_KEY] if SIGMA_KEY in values else None
         sh = values[SH_KEY] if SH_KEY in values else None
         if sigma is not None or sh is not None:
-            self._field = self._field.with_grids(sigma, sh)
-
-    def samples_per_ray(self) -> int:
-        return self.config.n_samples
+            self.base_field = self.base_field.with_grids(sigma, sh)
 
     @property
     def resolution(self) -> int:
-        return self._field.resolution
+        return self.base_field.resolution
 
     def lr_scales(self, step: int) -> Mapping[str, float]:
         return {SH_KEY: self.config.lr_sh_factor} if self.config.lr_sh_factor != 1.0 else {}
 
     def render_rays(self, o, d, *, u=None, training: bool = False) -> RenderOutput:
-        if self.grid is None:
-            comp = render_rays(
-                self._field, o, d, self.config.n_samples, u=u, background=self.scene.background,
-                box_min=self.scene.box_min, box_max=self.scene.box_max,
-            )
-        else:
-            comp, mask = render_rays_skipping(
-                self._field, self.grid, o, d, self.config.n_samples, u=u, background=self.scene.background,
-                box_min=self.scene.box_min, box_max=self.scene.box_max,
-            )
-            if training:
-                self.active_fraction = int(dr.count(mask)[0]) / max(dr.width(mask), 1)
+        comp = self.composite(o, d, u, training)
         extra = {}
         if training:
             if self.config.tv_sigma > 0:
-                extra["tv_sigma"] = self.config.tv_sigma * total_variation(self._field.sigma_raw)
+                extra["tv_sigma"] = self.config.tv_sigma * total_variation(self.base_field.sigma_raw)
             if self.config.tv_sh > 0:
-                extra["tv_sh"] = self.config.tv_sh * total_variation(self._field.sh)
+                extra["tv_sh"] = self.config.tv_sh * total_variation(self.base_field.sh)
         return RenderOutput(comp, extra)
 
-    def on_step(self, step: int, opt) -> None:
-        """Double both grids after a step listed in ``upsample_steps`` (re-registered in the
-        optimiser); refresh the occupancy grid every ``occupancy.update_every`` steps."""
+    def after_step(self, step: int, params: Mapping[str, Any]) -> Mapping[str, Any]:
+        """Both grids doubled after a step listed in ``upsample_steps`` (a new shape: the
+        optimiser restarts their Adam state); the occupancy grid refreshed every
+        ``occupancy.update_every`` steps."""
+        new = {}
         if step in self.config.upsample_steps:
             r = 2 * self.resolution
-            for key in (SIGMA_KEY, SH_KEY):
-                opt[key] = upsample(opt[key], r)  # a new shape: the optimiser resets its state
-            self.set_parameters(opt)
-        super().on_step(step, opt)
+            new = {key: upsample(params[key], r) for key in (SIGMA_KEY, SH_KEY)}
+            self.set_parameters(new)
+        super().after_step(step, params)
+        return new

@@ -1,8 +1,8 @@
 """``mitsnerf_ea``: a Mitsuba integrator that renders a field with mitsnerf's own quadrature.
 
 For each camera ray it does exactly what :func:`mitsnerf.render.volume.render_rays` does
-(the same function is called): clip to the scene box, ``N`` samples at the stratum
-midpoints, and::
+(the same function is called): clip to the scene box ``integrator.box``, ``N`` samples at the
+stratum midpoints, and::
 
     C = sum_i T_i (1 - exp(-sigma_i delta_i)) c_i + T_N * bg(d),   T_i = exp(-sum_{j<i} sigma_j delta_j)
 
@@ -28,20 +28,22 @@ Usage::
     register()                                     # after choosing the variant
     scene = mi.load_dict({..., "integrator": {"type": "mitsnerf_ea", "n_samples": 64}})
     scene.integrator().field = field               # any callable (x, d) -> (rgb, sigma)
+    scene.integrator().box = dataset.box           # the scene box the field lives in
     image = mi.render(scene)
 
 Limitations (by design, not yet needed):
 
 - The field cannot go through ``mi.load_dict``: Mitsuba's ``Properties`` only carry types
-  exposed through nanobind, not Python callables. Set ``integrator.field`` after loading;
-  rendering before that raises an error that says so. The field is then part of the
+  exposed through nanobind, not Python callables. Set ``integrator.field`` (and the
+  :class:`mitsnerf.math.box.Box` it lives in, ``integrator.box``) after loading; rendering
+  before that raises an error that says so. The field is then part of the
   integrator object, not of the scene: ``mi.traverse`` does not see the field's parameters.
 - Primal rendering only: this is a plain ``SamplingIntegrator``, without ``render_forward`` /
   ``render_backward``. Differentiate :func:`~mitsnerf.render.volume.render_rays` instead.
 - Deterministic stratum midpoints (the evaluation setting): no per-sample jitter. Extra samples
   per pixel only average over the pixel area (with a box filter) and reduce nothing else.
-- Scene geometry and media are ignored: the field is the whole content of the box
-  ``[-0.5, 0.5]^3``; only the environment emitter is used (as the background).
+- Scene geometry and media are ignored: the field is the whole content of ``integrator.box``;
+  only the environment emitter is used (as the background).
 """
 
 from __future__ import annotations
@@ -76,23 +78,26 @@ def _make_class():
             self.n_samples = n
             self.field: Any = None
             """``(x, d) -> (rgb, sigma)``; set after ``mi.load_dict``."""
+            self.box: Any = None
+            """The :class:`mitsnerf.math.box.Box` the field lives in; set after ``mi.load_dict``."""
             self.background: Any = None
             """``d -> Array3f``, a constant, or None: the scene's environment emitter."""
             self.composite_fn = composite
             """The compositing step (replaced only by the verification's mutation tests)."""
 
         def sample(self, scene, sampler, ray, medium=None, active=True):
-            if self.field is None:
+            if self.field is None or self.box is None:
                 raise RuntimeError(
-                    f"{NAME}: no field to render; set scene.integrator().field = your field callable "
-                    "after mi.load_dict (Mitsuba properties cannot carry Python callables)"
+                    f"{NAME}: no field to render; set scene.integrator().field = your field callable and "
+                    "scene.integrator().box = its scene box after mi.load_dict (Mitsuba properties cannot "
+                    "carry Python objects)"
                 )
             background = self.background
             if background is None and scene.environment() is not None:
                 background = EnvmapBackground(scene.environment())
             o = mi.Array3f(ray.o)
             d = mi.Array3f(ray.d)
-            out = render_rays(self.field, o, d, self.n_samples, background=background,
+            out = render_rays(self.field, o, d, self.n_samples, box=self.box, background=background,
                               composite_fn=self.composite_fn)
             valid = dr.full(mi.Bool, True, dr.width(out.T_final))
             return mi.Spectrum(out.rgb), valid, []

@@ -13,8 +13,8 @@ from typing import Any
 import drjit as dr
 
 from mitsnerf.fields.occupancy import OccupancyGrid, eval_masked
+from mitsnerf.math.box import Box
 from mitsnerf.math.composite import Composite, composite
-from mitsnerf.render.rays import BOX_MAX, BOX_MIN
 from mitsnerf.render.volume import background_radiance, sample_rays
 
 
@@ -25,10 +25,9 @@ def render_rays_skipping(
     d,
     n_samples: int,
     *,
+    box: Box,
     u=None,
     background=None,
-    box_min=BOX_MIN,
-    box_max=BOX_MAX,
 ) -> tuple[Composite, Any]:
     """:func:`mitsnerf.render.volume.render_rays` with empty-space skipping and early ray stopping.
 
@@ -42,13 +41,14 @@ def render_rays_skipping(
         >>> import mitsuba as mi
         >>> from mitsnerf.env import set_variant; _ = set_variant("llvm_ad_rgb")
         >>> from mitsnerf.fields.occupancy import OccupancyConfig
+        >>> from mitsnerf.math.box import UNIT_BOX
         >>> slab = lambda x, d: (mi.Array3f(1.0) + 0 * x.x, mi.Float(2.0) + 0 * x.x)
-        >>> grid = OccupancyGrid(OccupancyConfig(resolution=4), mi.Float)
-        >>> out, mask = render_rays_skipping(slab, grid, mi.Array3f(0, 0, -2), mi.Array3f(0, 0, 1), 8)
+        >>> grid = OccupancyGrid(OccupancyConfig(resolution=4), mi.Float, UNIT_BOX)
+        >>> out, mask = render_rays_skipping(slab, grid, mi.Array3f(0, 0, -2), mi.Array3f(0, 0, 1), 8, box=UNIT_BOX)
         >>> out.opacity  # 1 - exp(-2 * 15/16), as render_rays
         [0.846645]
     """
-    s, _ = sample_rays(o, d, n_samples, u, box_min, box_max)
+    s, _ = sample_rays(o, d, n_samples, box, u)
     if grid is None:
         mask = dr.full(dr.mask_t(s.t), True, dr.width(s.t))
     else:

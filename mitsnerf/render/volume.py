@@ -18,9 +18,9 @@ from typing import Any, Callable
 
 import drjit as dr
 
+from mitsnerf.math.box import Box
 from mitsnerf.math.composite import Composite, composite
 from mitsnerf.math.sampling import stratified_t
-from mitsnerf.render.rays import BOX_MAX, BOX_MIN, intersect_box
 
 Field = Callable[[Any, Any], tuple[Any, Any]]
 
@@ -36,11 +36,11 @@ class Samples:
     n: int
 
 
-def sample_rays(o, d, n: int, u=None, box_min=BOX_MIN, box_max=BOX_MAX) -> tuple[Samples, Any]:
-    """Stratified samples inside the box along rays ``o + t d``; returns (samples, hit mask (R,))."""
+def sample_rays(o, d, n: int, box: Box, u=None) -> tuple[Samples, Any]:
+    """Stratified samples inside ``box`` along rays ``o + t d``; returns (samples, hit mask (R,))."""
     Array3f = type(o)
     UInt32 = dr.uint32_array_t(type(o.x))
-    t_n, t_f, hit = intersect_box(o, d, box_min, box_max)
+    t_n, t_f, hit = box.intersect(o, d)
     t, delta = stratified_t(t_n, t_f, n, u)
     ray = dr.arange(UInt32, dr.width(t)) // n
     o_s = dr.gather(Array3f, o, ray)
@@ -54,10 +54,9 @@ def render_rays(
     d,
     n_samples: int,
     *,
+    box: Box,
     u=None,
     background: Callable[[Any], Any] | float | None = None,
-    box_min=BOX_MIN,
-    box_max=BOX_MAX,
     composite_fn: Callable[..., Composite] = composite,
 ) -> Composite:
     """Render rays through ``field`` with the emission-absorption quadrature.
@@ -66,6 +65,7 @@ def render_rays(
         field: callable ``(x, d) -> (rgb, sigma)``.
         o, d: Array3f (R,), ray origins and unit directions.
         n_samples: N, samples per ray.
+        box: the scene box (:class:`mitsnerf.math.box.Box`); samples lie in each ray's ``[t_n, t_f]`` in it.
         u: Float (R*N,) jitter in [0, 1) (training), or None for stratum midpoints.
         background: callable ``d -> Array3f`` (R,), a constant, or None (black).
         composite_fn: the compositing step, called as ``composite_fn(sigma, delta, rgb, n,
@@ -81,15 +81,16 @@ def render_rays(
 
         >>> import drjit as dr
         >>> from drjit.llvm.ad import Array3f, Float
+        >>> from mitsnerf.math.box import UNIT_BOX
         >>> slab = lambda x, d: (Array3f(1.0), Float(2.0) + 0 * x.x)
         >>> o, d = Array3f(0, 0, -2), Array3f(0, 0, 1)
-        >>> out = render_rays(slab, o, d, 8, u=dr.zeros(Float, 8), background=1.0)
+        >>> out = render_rays(slab, o, d, 8, box=UNIT_BOX, u=dr.zeros(Float, 8), background=1.0)
         >>> out.rgb, out.opacity  # doctest: +ELLIPSIS
         ([[1, 1, 1]], [0.8646...])
-        >>> render_rays(slab, o, d, 8, background=1.0).opacity  # 1 - exp(-2 * 15/16)
+        >>> render_rays(slab, o, d, 8, box=UNIT_BOX, background=1.0).opacity  # 1 - exp(-2 * 15/16)
         [0.846645]
     """
-    s, _ = sample_rays(o, d, n_samples, u, box_min, box_max)
+    s, _ = sample_rays(o, d, n_samples, box, u)
     rgb, sigma = field(s.x, s.d)
     return composite_fn(sigma, s.delta, rgb, n_samples, background=background_radiance(background, d), t=s.t)
 

@@ -1,9 +1,10 @@
 """A :class:`~mitsnerf.scene.spec.SceneSpec` as a Mitsuba scene, its sensors, and its background.
 
-The scene (``docs/conventions.md``, "World and volume"): a ``cube`` scaled to the box
-``[-0.5, 0.5]^3`` with a ``null`` BSDF and a ``heterogeneous`` interior medium whose ``sigma_t``
-and ``albedo`` are ``gridvolume`` s (``to_world = translate(-0.5)``, ``accel = False``: no reduced
-precision hardware interpolation on CUDA), medium ``scale = 1`` (the grid holds true sigma_t),
+The scene (``docs/conventions.md``, "World and volume"): a ``cube`` placed on the scene box
+(:func:`scene_box`, ``[-0.5, 0.5]^3`` for every spec today) with a ``null`` BSDF and a
+``heterogeneous`` interior medium whose ``sigma_t`` and ``albedo`` are ``gridvolume`` s mapping
+``[0, 1]^3`` onto the box (``accel = False``: no reduced precision hardware interpolation on
+CUDA), medium ``scale = 1`` (the grid holds true sigma_t),
 an isotropic phase function, a ``volpath`` integrator and the spec's emitters. Sensors are not
 part of the scene: render each view with ``mi.render(scene, sensor=load_sensor(camera, spp), ...)``.
 """
@@ -14,12 +15,25 @@ from typing import Any
 
 import numpy as np
 
+from mitsnerf.math.box import UNIT_BOX, Box
 from mitsnerf.math.camera import Camera
 from mitsnerf.scene.lights import SKY_TO_WORLD, emitter_dict
 from mitsnerf.scene.spec import ConstantLight, SceneSpec, SkyLight
 
 #: Where a dataset keeps the sky's bitmap (relative to the dataset directory).
 ENVMAP_FILE = "volume/envmap.exr"
+
+
+def scene_box(spec: SceneSpec) -> Box:
+    """The box a spec's medium fills (world units): the volume families are authored in ``[-0.5, 0.5]^3``."""
+    return UNIT_BOX
+
+
+def _box_transform(box: Box):
+    """The ``to_world`` taking ``[0, 1]^3`` onto ``box``."""
+    import mitsuba as mi
+
+    return mi.ScalarTransform4f().translate(list(box.lo)).scale(list(box.size))
 
 
 def volume_grids(spec: SceneSpec) -> tuple[np.ndarray, np.ndarray]:
@@ -35,23 +49,23 @@ def volume_grids(spec: SceneSpec) -> tuple[np.ndarray, np.ndarray]:
     return np.ascontiguousarray(sigma_t), np.ascontiguousarray(grids.albedo, dtype=np.float32)
 
 
-def grid_volume(data: np.ndarray) -> dict[str, Any]:
-    """A ``gridvolume`` over the box for a ``[z, y, x]`` (1 channel) or ``[z, y, x, 3]`` array.
+def grid_volume(data: np.ndarray, box: Box) -> dict[str, Any]:
+    """A ``gridvolume`` over ``box`` for a ``[z, y, x]`` (1 channel) or ``[z, y, x, 3]`` array.
 
-    ``to_world`` maps its [0, 1]^3 onto the box [-0.5, 0.5]^3; ``accel=False`` keeps CUDA from
-    using reduced-precision hardware interpolation.
+    ``to_world`` maps its [0, 1]^3 onto the box; ``accel=False`` keeps CUDA from using
+    reduced-precision hardware interpolation.
     """
     import mitsuba as mi
 
     return {
         "type": "gridvolume",
         "grid": mi.VolumeGrid(np.ascontiguousarray(data, dtype=np.float32)),
-        "to_world": mi.ScalarTransform4f().translate(-0.5),
+        "to_world": _box_transform(box),
         "accel": False,
     }
 
 
-def medium_box(sigma_t: np.ndarray, albedo) -> dict[str, Any]:
+def medium_box(sigma_t: np.ndarray, albedo, box: Box) -> dict[str, Any]:
     """The box: a ``cube`` with a ``null`` BSDF around a heterogeneous medium, isotropic phase.
 
     ``sigma_t`` (R, R, R) holds the true extinction (``scale = 1``); ``albedo`` is an (R, R, R, 3)
@@ -59,16 +73,16 @@ def medium_box(sigma_t: np.ndarray, albedo) -> dict[str, Any]:
     """
     import mitsuba as mi
 
-    albedo_entry: Any = float(albedo) if np.ndim(albedo) == 0 else grid_volume(np.asarray(albedo, dtype=np.float32))
+    albedo_entry: Any = float(albedo) if np.ndim(albedo) == 0 else grid_volume(np.asarray(albedo, dtype=np.float32), box)
     return {
         "type": "cube",
-        "to_world": mi.ScalarTransform4f().scale(0.5),
+        "to_world": mi.ScalarTransform4f().translate(list(box.centre)).scale([0.5 * s for s in box.size]),
         "bsdf": {"type": "null"},
         "interior": {
             "type": "heterogeneous",
             "scale": 1.0,
             "phase": {"type": "isotropic"},
-            "sigma_t": grid_volume(sigma_t),
+            "sigma_t": grid_volume(sigma_t, box),
             "albedo": albedo_entry,
         },
     }
@@ -82,7 +96,7 @@ def scene_dict(spec: SceneSpec, sigma_t: np.ndarray, albedo: np.ndarray) -> dict
     d: dict[str, Any] = {
         "type": "scene",
         "integrator": {"type": "volpath", "max_depth": int(spec.render.max_depth)},
-        "medium_box": medium_box(sigma_t, albedo),
+        "medium_box": medium_box(sigma_t, albedo, scene_box(spec)),
     }
     for i, light in enumerate(spec.lights):
         d[f"light_{i}_{light.type}"] = emitter_dict(light)

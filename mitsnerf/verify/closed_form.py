@@ -35,6 +35,7 @@ import numpy as np
 from mitsnerf.math.composite import composite
 from mitsnerf.render.volume import render_rays
 from mitsnerf.verify.cases import ClosedFormCase
+from mitsnerf.math.box import UNIT_BOX
 
 RAY_O = (0.0, 0.0, -2.0)
 RAY_D = (0.0, 0.0, 1.0)
@@ -69,7 +70,7 @@ def _fraction(x):
 def _render(field, n, composite_fn, background=0.0):
     o, d = _ray()
     with dr.suspend_grad():
-        out = render_rays(field, o, d, n, background=background, composite_fn=composite_fn)
+        out = render_rays(field, o, d, n, background=background, composite_fn=composite_fn, box=UNIT_BOX)
     rgb = np.array([np.asarray(c, dtype=np.float64)[0] for c in out.rgb])
     return rgb, float(np.asarray(out.T_final, dtype=np.float64)[0])
 

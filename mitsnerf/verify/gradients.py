@@ -30,6 +30,7 @@ import numpy as np
 
 from mitsnerf.math.composite import composite
 from mitsnerf.verify.cases import GradientCase, Quality, front_heavy_sigma_t, procedural_albedo
+from mitsnerf.math.box import UNIT_BOX
 
 TARGET = 0.3
 BACKGROUND = (0.8, 0.7, 0.6)
@@ -62,7 +63,7 @@ def _rays(quality: Quality):
     import mitsuba as mi
 
     from mitsnerf.math.camera import Camera
-    from mitsnerf.render.rays import camera_rays
+    from mitsnerf.math.rays import camera_rays
 
     cam = quality.camera()
     small = Camera.from_fov(cam.c2w, IMAGE_WIDTH, IMAGE_WIDTH, cam.fov_x_deg)
@@ -82,7 +83,7 @@ def make_problem(case: GradientCase, quality: Quality, composite_fn=composite) -
     bg = mi.Array3f(*BACKGROUND)
 
     def loss_of(field):
-        out = render_rays(field, o, d, N_SAMPLES, background=bg, composite_fn=composite_fn)
+        out = render_rays(field, o, d, N_SAMPLES, background=bg, composite_fn=composite_fn, box=UNIT_BOX)
         diff = out.rgb - TARGET
         return dr.mean(dr.square(diff.x) + dr.square(diff.y) + dr.square(diff.z)) / 3.0
 
@@ -90,12 +91,12 @@ def make_problem(case: GradientCase, quality: Quality, composite_fn=composite) -
     albedo_np = procedural_albedo(GRID_RESOLUTION)
     if case.parameter == "sigma_t_grid":
         color = mi.TensorXf(albedo_np)
-        return mi.TensorXf(sigma_np[..., None]), lambda theta: loss_of(GridField.from_arrays(theta, color=color))
+        return mi.TensorXf(sigma_np[..., None]), lambda theta: loss_of(GridField.from_arrays(theta, UNIT_BOX, color=color))
     if case.parameter == "color_grid":
-        return mi.TensorXf(albedo_np), lambda theta: loss_of(GridField.from_arrays(sigma_np, color=theta))
+        return mi.TensorXf(albedo_np), lambda theta: loss_of(GridField.from_arrays(sigma_np, UNIT_BOX, color=theta))
     if case.parameter == "nerf_weights":
         config = NeRFConfig(width=16, depth=3, skip=2, pos_octaves=3, dir_octaves=1, features=4, head_width=8)
-        field = NeRFField.create(config, mi.TensorXf, seed=3)
+        field = NeRFField.create(config, mi.TensorXf, UNIT_BOX, seed=3)
         layer = field.net.trunk[0]
 
         def loss_nerf(theta):

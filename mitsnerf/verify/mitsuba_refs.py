@@ -29,6 +29,7 @@ from typing import Any
 
 import numpy as np
 
+from mitsnerf.math.box import UNIT_BOX
 from mitsnerf.math.camera import Camera
 from mitsnerf.scene.to_mitsuba import medium_box
 
@@ -56,7 +57,7 @@ def scene_dict(sigma_t, albedo, emitters: dict[str, dict], max_depth: int = -1) 
     d: dict[str, Any] = {
         "type": "scene",
         "integrator": {"type": "volpath", "max_depth": int(max_depth)},
-        "medium_box": medium_box(sigma_t, albedo),
+        "medium_box": medium_box(sigma_t, albedo, UNIT_BOX),
     }
     d.update(emitters)
     return d

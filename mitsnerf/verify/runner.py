@@ -24,6 +24,7 @@ import numpy as np
 from mitsnerf.math.composite import composite
 from mitsnerf.verify import cases as C
 from mitsnerf.verify.stats import compare
+from mitsnerf.math.box import UNIT_BOX
 
 
 @dataclass(frozen=True)
@@ -114,12 +115,12 @@ def prepare_scenario(s: C.VolpathScenario, quality: C.Quality) -> PreparedScenar
     env = scene.environment()
     background = EnvmapBackground(env) if env is not None else None
     if s.source == "zero":
-        field = GridField.from_arrays(sigma_t, color=(0.0, 0.0, 0.0))
+        field = GridField.from_arrays(sigma_t, UNIT_BOX, color=(0.0, 0.0, 0.0))
     elif s.source == "one":
-        field = GridField.from_arrays(sigma_t, color=(1.0, 1.0, 1.0))
+        field = GridField.from_arrays(sigma_t, UNIT_BOX, color=(1.0, 1.0, 1.0))
     else:
         albedo_grid = albedo if np.ndim(albedo) else np.full(sigma_t.shape + (3,), float(albedo), np.float32)
-        field = SingleScatterSource(GridField.from_arrays(sigma_t), GridField.from_arrays(sigma_t, color=albedo_grid),
+        field = SingleScatterSource(GridField.from_arrays(sigma_t, UNIT_BOX), GridField.from_arrays(sigma_t, UNIT_BOX, color=albedo_grid),
                                     s.sun_direction, s.sun_irradiance, C.isotropic_phase())
     return PreparedScenario(s, quality, ref, field, background)
 
@@ -169,7 +170,7 @@ def furnace_depths(rec: C.FurnaceDepthRecord, quality: C.Quality) -> CaseResult:
     """
     import mitsuba as mi
 
-    from mitsnerf.render.rays import intersect_box, to_array3f
+    from mitsnerf.math.rays import to_array3f
     from mitsnerf.verify import mitsuba_refs as M
 
     start = time.perf_counter()
@@ -239,9 +240,9 @@ def plugin_case(case: C.PluginCase, quality: C.Quality, composite_fn=composite,
     camera = quality.camera()
     if case.field == "grid":
         r = quality.resolution
-        field = GridField.from_arrays(C.front_heavy_sigma_t(r, 8.0), color=C.procedural_albedo(r))
+        field = GridField.from_arrays(C.front_heavy_sigma_t(r, 8.0), UNIT_BOX, color=C.procedural_albedo(r))
     else:
-        field = NeRFField.create(NeRFConfig(width=32, depth=2, skip=None), mi.TensorXf, seed=quality.seed + 1)
+        field = NeRFField.create(NeRFConfig(width=32, depth=2, skip=None), mi.TensorXf, UNIT_BOX, seed=quality.seed + 1)
     env = (M.envmap_environment(C.environment_bitmap()) if case.environment == "envmap"
            else M.constant_environment((0.6, 0.8, 1.0)))
     scene = mi.load_dict({
@@ -252,6 +253,7 @@ def plugin_case(case: C.PluginCase, quality: C.Quality, composite_fn=composite,
     })
     integrator = scene.integrator()
     integrator.field = field
+    integrator.box = UNIT_BOX
     integrator.composite_fn = composite_fn
     theirs = np.asarray(mi.render(scene), dtype=np.float64)
     ours = render_image(field, camera, quality.n_samples, EnvmapBackground(scene.environment()))

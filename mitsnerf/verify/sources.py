@@ -22,13 +22,14 @@ from typing import Any, Callable
 import drjit as dr
 import numpy as np
 
+from mitsnerf.math.box import UNIT_BOX, Box
 from mitsnerf.math.camera import Camera
 from mitsnerf.math.composite import composite
-from mitsnerf.render.rays import BOX_MAX, BOX_MIN, camera_rays_numpy, intersect_box, to_array3f
+from mitsnerf.math.rays import camera_rays_numpy, to_array3f
 from mitsnerf.render.volume import render_rays
 
 
-def march_transmittance(density: Callable[[Any], Any], x, w, m: int, box_min=BOX_MIN, box_max=BOX_MAX):
+def march_transmittance(density: Callable[[Any], Any], x, w, m: int, box: Box):
     """``T = exp(-int_0^{s_f} sigma_t(x + s w) ds)`` from points ``x`` inside the box along ``w``.
 
     Midpoint rule with ``m`` equal intervals (second order, unlike the render quadrature's last
@@ -39,7 +40,7 @@ def march_transmittance(density: Callable[[Any], Any], x, w, m: int, box_min=BOX
     >>> import mitsuba as mi
     >>> from mitsnerf.env import set_variant; _ = set_variant("llvm_ad_rgb")
     >>> slab = lambda p: 2.0 + 0.0 * p.x                      # sigma_t = 2, path 0.5 to the face
-    >>> march_transmittance(slab, mi.Array3f(0, 0, 0), mi.Array3f(0, 0, 1), 4)  # exp(-1)
+    >>> march_transmittance(slab, mi.Array3f(0, 0, 0), mi.Array3f(0, 0, 1), 4, UNIT_BOX)  # exp(-1)
     [0.367879]
     """
     Array3f = type(x)
@@ -47,7 +48,7 @@ def march_transmittance(density: Callable[[Any], Any], x, w, m: int, box_min=BOX
     UInt32 = dr.uint32_array_t(Float)
     width = dr.width(x)
     w = w + dr.zeros(Array3f, width) if dr.width(w) != width else w
-    _, s_f, _ = intersect_box(x, w, box_min, box_max)
+    _, s_f, _ = box.intersect(x, w)
     idx = dr.arange(UInt32, width * m)
     ray = idx // m
     k = Float(idx - ray * m)
@@ -76,7 +77,7 @@ class SingleScatterSource:
         Array3f = type(x)
         albedo, sigma = self.albedo_field(x, d)
         to_light = -Array3f(*self.light_direction)
-        T_light = march_transmittance(self.sigma_field.density, x, to_light, self.m_light)
+        T_light = march_transmittance(self.sigma_field.density, x, to_light, self.m_light, self.sigma_field.box)
         scale = Array3f(*self.irradiance) * self.phase
         return albedo * scale * T_light, sigma
 
@@ -92,6 +93,6 @@ def render_image(field, camera: Camera, n_samples: int, background=None, composi
         for start in range(0, len(o_np), chunk_rays):
             o = to_array3f(mi.Array3f, o_np[start:start + chunk_rays])
             d = to_array3f(mi.Array3f, d_np[start:start + chunk_rays])
-            comp = render_rays(field, o, d, n_samples, background=background, composite_fn=composite_fn)
+            comp = render_rays(field, o, d, n_samples, background=background, composite_fn=composite_fn, box=UNIT_BOX)
             out.append(np.stack([np.asarray(c, dtype=np.float64) for c in comp.rgb], axis=-1))
     return np.concatenate(out).reshape(camera.height, camera.width, 3)

@@ -65,7 +65,7 @@ def tiny_config(scene_paths, name: str = "tiny"):
         "train": {"steps": 12, "batch_rays": 128, "log_every": 4},
         "eval": {"curve_points": 2, "od_samples": 16},
         "methods": [{"name": "nerf", "label": "nerf-a", "config": net},
-                    {"name": "nerf", "label": "nerf-b", "config": wide, "train": {"lr": 0.01}}],
+                    {"name": "nerf", "label": "nerf-b", "config": {**wide, "lr": 0.01}}],
     }, "tiny.toml")
 
 

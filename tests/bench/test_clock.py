@@ -15,9 +15,10 @@ from mitsnerf.math.camera import Camera, look_at
 from mitsnerf.methods.base import SceneInfo
 from mitsnerf.methods.nerf import NeRFMethodConfig, NeRFModel
 from mitsnerf.render.background import ConstantBackground
-from mitsnerf.render.rays import camera_rays
+from mitsnerf.math.rays import camera_rays
 from mitsnerf.render.volume import render_rays
 from mitsnerf.train import PixelData, TrainConfig, train
+from mitsnerf.math.box import UNIT_BOX
 
 
 def test_hook_time_is_not_training_time(blob_grid):
@@ -25,9 +26,9 @@ def test_hook_time_is_not_training_time(blob_grid):
     bg = ConstantBackground((0.1, 0.1, 0.2))
     rays = camera_rays(mi.Array3f, cams)
     with dr.suspend_grad():
-        comp = render_rays(GridField.from_arrays(blob_grid, color=(1.0, 0.9, 0.1)), rays.o, rays.d, 16, background=bg)
+        comp = render_rays(GridField.from_arrays(blob_grid, UNIT_BOX, color=(1.0, 0.9, 0.1)), rays.o, rays.d, 16, background=bg, box=UNIT_BOX)
     images = np.stack([np.asarray(c) for c in comp.rgb], -1).reshape(2, 8, 8, 3)
-    info = SceneInfo((-0.5,) * 3, (0.5,) * 3, bg, float(images.max()))
+    info = SceneInfo(UNIT_BOX, bg, float(images.max()))
     model = NeRFModel(NeRFMethodConfig(network=NeRFConfig(width=8, depth=1, features=4, head_width=8), n_samples=8,
                                        n_importance=0), info)
     pause, budget, calls = 0.05, 0.5, []

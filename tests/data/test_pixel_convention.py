@@ -23,10 +23,11 @@ from mitsnerf.fields.grid import GridField
 from mitsnerf.math.camera import Camera, look_at
 from mitsnerf.math.color import linear_to_srgb
 from mitsnerf.math.metrics import mse
-from mitsnerf.render.rays import camera_rays_numpy, to_array3f
+from mitsnerf.math.rays import camera_rays_numpy, to_array3f
 from mitsnerf.render.volume import render_rays
-from mitsnerf.scene.generate import generate_dataset
+from mitsnerf.generate import generate_dataset
 from mitsnerf.scene.spec import parse_scene
+from mitsnerf.math.box import UNIT_BOX
 
 
 def _render(field, camera: Camera, pixel_center: float, n: int = 96, background=None, supersample: int = 1):
@@ -40,7 +41,7 @@ def _render(field, camera: Camera, pixel_center: float, n: int = 96, background=
             o, d = camera_rays_numpy([shifted], pixel_center)
             with dr.suspend_grad():
                 comp = render_rays(field, to_array3f(mi.Array3f, o), to_array3f(mi.Array3f, d), n,
-                                   background=background)
+                                   background=background, box=UNIT_BOX)
             out = out + np.stack([np.asarray(c) for c in comp.rgb], -1)
     return (out / supersample**2).reshape(camera.height, camera.width, 3)
 
@@ -60,14 +61,14 @@ def test_mitsuba_datasets_use_pixel_centres(tmp_path):
     ds = load_dataset(generate_dataset(spec, tmp_path, progress=False))
     views = ds.views("train")
     assert views.pixel_center == 0.5
-    field = GridField.from_arrays(np.load(ds.root / "volume" / "sigma_t.npy"))
+    field = GridField.from_arrays(np.load(ds.root / "volume" / "sigma_t.npy"), UNIT_BOX)
     err = {pc: np.mean([mse(_render(field, cam, pc, background=1.0, supersample=3), img)
                         for cam, img in zip(views.cameras, views.images)]) for pc in (0.5, 0.0)}
     assert err[0.5] < 0.25 * err[0.0], err  # measured: 1.1e-4 vs 1.3e-2
 
 
 def test_foreign_nerf_synthetic_data_uses_pixel_corners(tmp_path, blob_grid):
-    field = GridField.from_arrays(blob_grid, color=(1.0, 0.6, 0.2))
+    field = GridField.from_arrays(blob_grid, UNIT_BOX, color=(1.0, 0.6, 0.2))
     cams = [Camera.from_fov(look_at(p), 20, 20, 35.0) for p in ((0.3, -2.0, 0.4), (-1.8, 0.6, -0.5))]
     root = tmp_path / "lego"
     (root / "train").mkdir(parents=True)
@@ -76,7 +77,7 @@ def test_foreign_nerf_synthetic_data_uses_pixel_corners(tmp_path, blob_grid):
         rgb = _render(field, cam, pixel_center=0.0)  # how the original Blender loader casts rays
         o, d = camera_rays_numpy([cam], 0.0)
         with dr.suspend_grad():
-            opacity = np.asarray(render_rays(field, to_array3f(mi.Array3f, o), to_array3f(mi.Array3f, d), 96).opacity)
+            opacity = np.asarray(render_rays(field, to_array3f(mi.Array3f, o), to_array3f(mi.Array3f, d), 96, box=UNIT_BOX).opacity)
         alpha = opacity.reshape(20, 20, 1)
         # straight (unpremultiplied) colour, as Blender writes RGBA PNGs
         straight = np.where(alpha > 1e-4, rgb / np.maximum(alpha, 1e-4), 0.0)

@@ -10,6 +10,7 @@ from mitsnerf.fields.grid import GridField
 from mitsnerf.fields.occupancy import OccupancyConfig, OccupancyGrid, eval_masked
 from mitsnerf.render.skipping import render_rays_skipping
 from mitsnerf.render.volume import render_rays
+from mitsnerf.math.box import UNIT_BOX
 
 
 def _smooth_noise_grid(r=32, seed=0, peak=30.0):
@@ -40,8 +41,8 @@ def _misses(field, grid, threshold, n=200_000, seed=1):
 @pytest.mark.parametrize("threshold", [0.01, 1.0])
 def test_occupied_space_is_never_marked_empty(blob_grid, resolution, threshold):
     for sigma_t in (blob_grid, _smooth_noise_grid()):
-        field = GridField.from_arrays(sigma_t)
-        grid = OccupancyGrid(OccupancyConfig(resolution=resolution, threshold=threshold), mi.Float)
+        field = GridField.from_arrays(sigma_t, UNIT_BOX)
+        grid = OccupancyGrid(OccupancyConfig(resolution=resolution, threshold=threshold), mi.Float, UNIT_BOX)
         for step in range(3):  # a few updates, as during training
             grid.update(field.density, seed=0, step=step)
         misses, dense, occupied = _misses(field, grid, threshold)
@@ -51,9 +52,9 @@ def test_occupied_space_is_never_marked_empty(blob_grid, resolution, threshold):
 
 
 def test_a_single_update_is_conservative_with_dilation_only(blob_grid):
-    field = GridField.from_arrays(_smooth_noise_grid(seed=3))
-    loose = OccupancyGrid(OccupancyConfig(resolution=32, threshold=0.5, dilate=0), mi.Float)
-    tight = OccupancyGrid(OccupancyConfig(resolution=32, threshold=0.5, dilate=1), mi.Float)
+    field = GridField.from_arrays(_smooth_noise_grid(seed=3), UNIT_BOX)
+    loose = OccupancyGrid(OccupancyConfig(resolution=32, threshold=0.5, dilate=0), mi.Float, UNIT_BOX)
+    tight = OccupancyGrid(OccupancyConfig(resolution=32, threshold=0.5, dilate=1), mi.Float, UNIT_BOX)
     loose.update(field.density, seed=0, step=0)
     tight.update(field.density, seed=0, step=0)
     assert _misses(field, tight, 0.5)[0] == 0
@@ -65,8 +66,8 @@ def test_skipping_and_early_stopping_leave_a_ground_truth_render_unchanged():
     sigma_t = _smooth_noise_grid(seed=2, peak=150.0)  # thick enough for rays to become opaque
     r = sigma_t.shape[0]
     color = np.stack([np.linspace(0.2, 1.0, r)[None, None, :].repeat(r, 0).repeat(r, 1)] * 3, -1).astype(np.float32)
-    field = GridField.from_arrays(sigma_t, color=color)
-    grid = OccupancyGrid(OccupancyConfig(resolution=32), mi.Float)
+    field = GridField.from_arrays(sigma_t, UNIT_BOX, color=color)
+    grid = OccupancyGrid(OccupancyConfig(resolution=32), mi.Float, UNIT_BOX)
     for step in range(2):
         grid.update(field.density, seed=0, step=step)
     rng = np.random.default_rng(4)
@@ -76,8 +77,8 @@ def test_skipping_and_early_stopping_leave_a_ground_truth_render_unchanged():
     d = target - o
     d /= np.linalg.norm(d, axis=1, keepdims=True)
     o, d = mi.Array3f(*o.T.astype(np.float32)), mi.Array3f(*d.T.astype(np.float32))
-    full = render_rays(field, o, d, 128, background=0.5)
-    fast, mask = render_rays_skipping(field, grid, o, d, 128, background=0.5)
+    full = render_rays(field, o, d, 128, background=0.5, box=UNIT_BOX)
+    fast, mask = render_rays_skipping(field, grid, o, d, 128, background=0.5, box=UNIT_BOX)
     kept = dr.count(mask)[0] / dr.width(mask)
     assert kept < 0.75
     diff = np.abs(np.stack([np.asarray(a) for a in fast.rgb]) - np.stack([np.asarray(a) for a in full.rgb]))

@@ -11,9 +11,10 @@ from mitsnerf.fields.grid import GridField
 from mitsnerf.math.camera import Camera, look_at
 from mitsnerf.methods.base import SceneInfo
 from mitsnerf.render.background import ConstantBackground
-from mitsnerf.render.rays import camera_rays
+from mitsnerf.math.rays import camera_rays
 from mitsnerf.render.volume import render_rays
 from mitsnerf.train import PixelData
+from mitsnerf.math.box import UNIT_BOX
 
 
 @pytest.fixture
@@ -27,12 +28,12 @@ def tiny_views(blob_grid):
             v = rng.normal(size=3)
             cams.append(Camera.from_fov(look_at(2.0 * v / np.linalg.norm(v)), size, size, 40.0))
         bg = ConstantBackground((0.05, 0.1, 0.3))
-        gt = GridField.from_arrays(blob_grid, color=(1.0, 0.9, 0.1))
+        gt = GridField.from_arrays(blob_grid, UNIT_BOX, color=(1.0, 0.9, 0.1))
         rays = camera_rays(mi.Array3f, cams)
         with dr.suspend_grad():
-            comp = render_rays(gt, rays.o, rays.d, 64, background=bg)
+            comp = render_rays(gt, rays.o, rays.d, 64, background=bg, box=UNIT_BOX)
         images = np.stack([np.asarray(c) for c in comp.rgb], -1).reshape(n_views, size, size, 3)
-        info = SceneInfo((-0.5,) * 3, (0.5,) * 3, bg, float(images.max()))
+        info = SceneInfo(UNIT_BOX, bg, float(images.max()))
         return PixelData.from_views(images, cams), info
 
     return make

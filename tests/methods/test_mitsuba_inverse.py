@@ -8,11 +8,13 @@ import pytest
 
 from mitsnerf.checkpoint import capture, restore_optimizer
 from mitsnerf.errors import DatasetError
-from mitsnerf.evaluate import evaluate_views
+from mitsnerf.evaluate import render_views, stack_rgb
+from mitsnerf.math.box import UNIT_BOX
+from mitsnerf.math.metrics import psnr
 from mitsnerf.methods.base import SceneInfo
 from mitsnerf.methods.mitsuba_inverse import MitsubaInverseConfig, MitsubaInverseModel
 from mitsnerf.render.background import ConstantBackground
-from mitsnerf.train import PixelData, TrainConfig, make_optimizer, train
+from mitsnerf.train import PixelData, TrainConfig, TrainState, make_optimizer, train
 
 TINY = {
     "name": "tiny-inverse",
@@ -29,11 +31,15 @@ CONFIG = MitsubaInverseConfig(resolutions=(8, 16), upsample_at=(10,), spp=16, ev
 FLAT = TrainConfig(steps=20, log_every=5, lr_final_factor=1.0)  # no decay: 20 steps only
 
 
+def _mean_psnr(model, images, cameras) -> float:
+    return float(np.mean(psnr(np.clip(stack_rgb(render_views(model, cameras)[0]), 0, 1), np.clip(images, 0, 1))))
+
+
 @pytest.fixture(scope="module")
 def tiny(tmp_path_factory):
     from mitsnerf.data.dataset import load_dataset
     from mitsnerf.run import scene_info
-    from mitsnerf.scene.generate import generate_dataset
+    from mitsnerf.generate import generate_dataset
     from mitsnerf.scene.spec import parse_scene
 
     root = generate_dataset(parse_scene(TINY, "tiny"), tmp_path_factory.mktemp("inverse"), progress=False)
@@ -46,9 +52,9 @@ def test_a_few_steps_lower_the_image_error_and_upsample(tiny):
     dataset, info, data = tiny
     model = MitsubaInverseModel(CONFIG, info)
     assert model.max_depth == 8  # the dataset's, not prbvolpath's default 6
-    before = evaluate_views(model, data.images, data.cameras, keep_renders=False).psnr_mean
+    before = _mean_psnr(model, data.images, data.cameras)
     result, opt = train(model, data, FLAT, CONFIG.lr, progress=False)
-    after = evaluate_views(model, data.images, data.cameras, keep_renders=False).psnr_mean
+    after = _mean_psnr(model, data.images, data.cameras)
     assert after > before + 1.0, (before, after)
     assert result.steps == 20 and result.rays_per_s > 0
     assert model.resolution == 16 and opt["sigma_t"].shape == (16, 16, 16, 1) and opt["albedo"].shape == (16, 16, 16, 3)
@@ -58,7 +64,7 @@ def test_a_few_steps_lower_the_image_error_and_upsample(tiny):
     assert model.lr_scales(10)["sigma_t"] == 0.5
 
     test = dataset.views("test")
-    rendered = evaluate_views(model, test.images, test.cameras).renders[0]
+    rendered = render_views(model, test.cameras)[0][0]
     assert rendered.rgb.shape == (12, 12, 3) and rendered.opacity.shape == (12, 12)
     assert 0 < rendered.opacity.max() <= 1
     field_sigma = model.field().density(mi.Array3f(0.0, 0.0, 0.0))
@@ -76,7 +82,8 @@ def test_a_checkpoint_restores_the_upsampled_grids(tiny):
     fresh.set_parameters(opt2)
     assert fresh.resolution == 16
     np.testing.assert_array_equal(np.asarray(fresh.sigma_t), np.asarray(model.sigma_t))
-    result, _ = train(fresh, data, TrainConfig(steps=12, log_every=1), CONFIG.lr, opt=opt2, start_step=11, progress=False)
+    result, _ = train(fresh, data, TrainConfig(steps=12, log_every=1), CONFIG.lr, state=TrainState(opt2, 11),
+                      progress=False)
     assert result.steps == 12 and np.isfinite(result.final_loss)
 
 
@@ -89,7 +96,7 @@ def test_a_fixed_albedo_is_not_optimised(tiny):
 
 
 def test_it_needs_a_generated_dataset_and_valid_settings():
-    info = SceneInfo((-0.5,) * 3, (0.5,) * 3, ConstantBackground((1, 1, 1)), 1.0)
+    info = SceneInfo(UNIT_BOX, ConstantBackground((1, 1, 1)), 1.0)
     with pytest.raises(DatasetError, match="mitsnerf generate"):
         MitsubaInverseModel(CONFIG, info)
     with pytest.raises(ValueError, match="upsample_at"):

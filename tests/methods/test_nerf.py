@@ -8,12 +8,14 @@ from mitsnerf.methods.base import SceneInfo
 from mitsnerf.methods.nerf import NeRFMethodConfig, NeRFModel
 from mitsnerf.render.background import ConstantBackground
 from mitsnerf.train import TrainConfig, train
+from mitsnerf.math.box import UNIT_BOX
+from mitsnerf.math.rays import RayBatch
 
 SMALL = NeRFConfig(width=32, depth=2, pos_octaves=6)
 
 
 def test_nerf_density_depends_on_position_only():
-    info = SceneInfo((-0.5,) * 3, (0.5,) * 3, ConstantBackground((0, 0, 0)), 1.0)
+    info = SceneInfo(UNIT_BOX, ConstantBackground((0, 0, 0)), 1.0)
     model = NeRFModel(NeRFMethodConfig(network=NeRFConfig(width=16, depth=2)), info)
     x = mi.Array3f([0.1, 0.1], [0.2, 0.2], [-0.3, -0.3])
     d = mi.Array3f([1.0, 0.0], [0.0, 0.0], [0.0, 1.0])
@@ -48,10 +50,10 @@ def test_hierarchical_training_lowers_both_losses(tiny_views):
                               n_samples=12, n_importance=16)
     model = NeRFModel(config, info)
     params = model.parameters()
-    assert "coarse.trunk.0.weights" in params and "trunk.0.weights" in params
+    assert "coarse.trunk.0.weights" in params and "fine.trunk.0.weights" in params
     assert model.jitter_size() == 28 and model.samples_per_ray() == 12 + 28
 
-    rays = data.rays.take(mi.UInt32(np.arange(64, dtype=np.uint32)))
+    rays = RayBatch(*data.pixels.rays(mi.UInt32(np.arange(64, dtype=np.uint32)), mi.Float(0.5), mi.Float(0.5)))
     target = dr.gather(mi.Array3f, data.rgb, mi.UInt32(np.arange(64, dtype=np.uint32)))
 
     def errors():
@@ -79,16 +81,15 @@ def test_fine_samples_gather_where_the_coarse_weights_are(tiny_views):
     from mitsnerf.math.composite import weights
     from mitsnerf.math.sampling import sample_pdf
     from mitsnerf.methods.nerf import coarse_edges, importance_strata
-    from mitsnerf.render.rays import intersect_box
     from mitsnerf.render.volume import sample_rays
 
     blob = np.zeros((16, 16, 16), np.float32)
     blob[7:9, 7:9, 7:9] = 50.0
-    gt = GridField.from_arrays(blob)
+    gt = GridField.from_arrays(blob, UNIT_BOX)
     o, d = mi.Array3f(0.0, 0.0, -2.0), mi.Array3f(0.0, 0.0, 1.0)
-    s, _ = sample_rays(o, d, 32)
+    s, _ = sample_rays(o, d, 32, UNIT_BOX)
     w, _ = weights(gt.density(s.x), s.delta, 32)
-    _, t_f, _ = intersect_box(o, d)
+    _, t_f, _ = UNIT_BOX.intersect(o, d)
     t = np.asarray(sample_pdf(coarse_edges(s.t, t_f, 32), w, 32, 64, importance_strata(1, 64, None, mi.Float)))
     z = -2.0 + t
     assert np.mean(np.abs(z) < 0.15) > 0.9

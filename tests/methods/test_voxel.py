@@ -3,6 +3,7 @@ import mitsuba as mi
 import numpy as np
 import pytest
 
+from mitsnerf.math.box import UNIT_BOX
 from mitsnerf.fields.voxel import VoxelField, VoxelFieldConfig, total_variation, upsample
 from mitsnerf.methods import get_method
 from mitsnerf.methods.voxel import SH_KEY, SIGMA_KEY, VoxelMethodConfig, VoxelModel
@@ -30,7 +31,7 @@ def test_upsampling_keeps_the_rendered_field():
     smooth = np.sin(2 * x + y) + z**2
     sigma_raw = mi.TensorXf(smooth[..., None].astype(np.float32))
     sh = mi.TensorXf(np.repeat(smooth[..., None], 12, -1).astype(np.float32))
-    f = VoxelField(VoxelFieldConfig(), sigma_raw, sh)
+    f = VoxelField(VoxelFieldConfig(), sigma_raw, sh, UNIT_BOX)
     g = f.with_grids(upsample(sigma_raw, 2 * r), upsample(sh, 2 * r))
     assert g.resolution == 2 * r
     p = rng.uniform(-0.4, 0.4, (2000, 3)).astype(np.float32)
@@ -67,13 +68,13 @@ def test_a_resumed_model_takes_upsampled_grids():
     from mitsnerf.methods.base import SceneInfo
     from mitsnerf.render.background import ConstantBackground
 
-    info = SceneInfo((-0.5,) * 3, (0.5,) * 3, ConstantBackground((0, 0, 0)), 1.0)
+    info = SceneInfo(UNIT_BOX, ConstantBackground((0, 0, 0)), 1.0)
     config = VoxelMethodConfig(resolution=8, initial_resolution=4, upsample_steps=(3,), n_samples=8)
     model = VoxelModel(config, info)
     opt = make_optimizer(model, 0.1)
-    model.on_step(2, opt)
+    assert model.after_step(2, opt) == {}
     assert model.resolution == 4
-    model.on_step(3, opt)
+    opt.update(model.after_step(3, opt))  # the trainer writes the upsampled grids into the optimiser
     assert model.resolution == 8 and opt[SH_KEY].shape == (8, 8, 8, 12)
     fresh = VoxelModel(config, info)
     fresh.set_parameters({k: opt[k] for k in opt.keys()})

@@ -11,6 +11,7 @@ from mitsnerf.verify import mitsuba_refs as M
 from mitsnerf.verify.mutations import MUTATIONS
 from mitsnerf.verify.runner import plugin_case
 from mitsnerf.verify.sources import render_image
+from mitsnerf.math.box import UNIT_BOX
 
 QUALITY = C.QUALITIES["quick"]
 CASES = {p.name: p for p in C.PLUGIN_CASES}
@@ -39,8 +40,9 @@ def _scene(n_samples=16, environment=True, width=4):
 
 def test_without_an_environment_the_background_is_black_and_a_set_background_is_used():
     scene, cam = _scene(environment=False)
-    field = GridField.from_arrays(np.zeros((4, 4, 4), np.float32))  # empty box: only background
+    field = GridField.from_arrays(np.zeros((4, 4, 4), np.float32), UNIT_BOX)  # empty box: only background
     scene.integrator().field = field
+    scene.integrator().box = UNIT_BOX
     assert np.all(np.asarray(mi.render(scene)) == 0.0)
     scene.integrator().background = 0.5
     np.testing.assert_allclose(np.asarray(mi.render(scene)), 0.5)
@@ -67,8 +69,9 @@ def test_n_samples_is_validated():
 def test_register_is_idempotent_and_the_render_uses_n_samples():
     assert register() is register()
     scene, cam = _scene(n_samples=8)
-    field = GridField.from_arrays(C.front_heavy_sigma_t(8, 6.0), color=(1.0, 0.5, 0.2))
+    field = GridField.from_arrays(C.front_heavy_sigma_t(8, 6.0), UNIT_BOX, color=(1.0, 0.5, 0.2))
     scene.integrator().field = field
+    scene.integrator().box = UNIT_BOX
     from mitsnerf.render.background import EnvmapBackground
 
     expected = render_image(field, cam, 8, EnvmapBackground(scene.environment()))

@@ -4,8 +4,9 @@ import numpy as np
 
 from mitsnerf.fields.grid import GridField
 from mitsnerf.math.camera import Camera, look_at
-from mitsnerf.render.rays import camera_rays, intersect_box
+from mitsnerf.math.rays import camera_rays
 from mitsnerf.render.volume import render_rays
+from mitsnerf.math.box import UNIT_BOX
 
 
 def _np(x):
@@ -15,7 +16,7 @@ def _np(x):
 def test_box_intersection_clips_rays_and_marks_misses():
     o = mi.Array3f([0.0, 0.0, 2.0, 0.0], [0.0, 0.3, 2.0, 0.0], [-2.0, -2.0, 0.0, 0.0])
     d = dr.normalize(mi.Array3f([0.0, 0.0, 0.0, 1.0], [0.0, 0.0, 1.0, 0.0], [1.0, 1.0, 0.0, 0.0]))
-    t_n, t_f, hit = intersect_box(o, d)
+    t_n, t_f, hit = UNIT_BOX.intersect(o, d)
     np.testing.assert_allclose(_np(t_n), [1.5, 1.5, 0.0, 0.0], atol=1e-6)
     np.testing.assert_allclose(_np(t_f), [2.5, 2.5, 0.0, 0.5], atol=1e-6)
     assert list(np.asarray(hit)) == [True, True, False, True]
@@ -24,19 +25,19 @@ def test_box_intersection_clips_rays_and_marks_misses():
 def test_homogeneous_box_through_the_renderer_matches_beer_lambert():
     # sigma = 3 everywhere in the box; rays along z through the box have L = 1, diagonal ones longer.
     sigma = 3.0
-    field = GridField.from_arrays(np.full((4, 4, 4), sigma, np.float32), color=(1.0, 1.0, 1.0))
+    field = GridField.from_arrays(np.full((4, 4, 4), sigma, np.float32), UNIT_BOX, color=(1.0, 1.0, 1.0))
     o = mi.Array3f([0.0, 0.2], [0.0, -0.1], [-3.0, -3.0])
     d = dr.normalize(mi.Array3f([0.0, 0.0], [0.0, 0.0], [1.0, 1.0]))
     n = 32
-    out = render_rays(field, o, d, n, u=dr.zeros(mi.Float, 2 * n), background=0.25)
+    out = render_rays(field, o, d, n, u=dr.zeros(mi.Float, 2 * n), background=0.25, box=UNIT_BOX)
     np.testing.assert_allclose(_np(out.opacity), 1 - np.exp(-sigma * 1.0), rtol=1e-5)
     np.testing.assert_allclose(_np(out.rgb.x), (1 - np.exp(-sigma)) + 0.25 * np.exp(-sigma), rtol=1e-5)
 
 
 def test_rays_missing_the_box_see_exactly_the_background():
-    field = GridField.from_arrays(np.full((4, 4, 4), 50.0, np.float32), color=(1.0, 0.0, 0.0))
+    field = GridField.from_arrays(np.full((4, 4, 4), 50.0, np.float32), UNIT_BOX, color=(1.0, 0.0, 0.0))
     out = render_rays(field, mi.Array3f(2.0, 2.0, 2.0), mi.Array3f(0.0, 0.0, 1.0), 16,
-                      background=lambda d: mi.Array3f(0.1, 0.2, 0.3))
+                      background=lambda d: mi.Array3f(0.1, 0.2, 0.3), box=UNIT_BOX)
     np.testing.assert_allclose(np.array([_np(c)[0] for c in out.rgb]), [0.1, 0.2, 0.3], rtol=1e-6)
     assert _np(out.opacity)[0] == 0.0
 
@@ -45,10 +46,10 @@ def test_midpoint_quadrature_error_is_first_order(blob_grid):
     # The stratified quadrature covers [t_0, t_f]; with midpoints its optical-depth error is
     # -(h/2) sigma_t(t_f) (half an interval missing at the exit), so the error of the rendered
     # opacity of a homogeneous medium falls as 1/N: halving when N doubles.
-    field = GridField.from_arrays(np.full((4, 4, 4), 2.0, np.float32))
+    field = GridField.from_arrays(np.full((4, 4, 4), 2.0, np.float32), UNIT_BOX)
     o, d = mi.Array3f(0.0, 0.0, -2.0), mi.Array3f(0.0, 0.0, 1.0)
     exact = 1 - np.exp(-2.0)
-    errors = [abs(_np(render_rays(field, o, d, n).opacity)[0] - exact) for n in (4, 8, 16, 32, 64)]
+    errors = [abs(_np(render_rays(field, o, d, n, box=UNIT_BOX).opacity)[0] - exact) for n in (4, 8, 16, 32, 64)]
     orders = np.log2(np.array(errors[:-1]) / np.array(errors[1:]))
     np.testing.assert_allclose(orders, 1.0, atol=0.1)
 
@@ -56,7 +57,7 @@ def test_midpoint_quadrature_error_is_first_order(blob_grid):
 def test_camera_rays_through_a_blob_are_darker_at_its_projection(blob_grid):
     cam = Camera.from_fov(look_at((0.0, -2.0, 0.5)), 16, 12, 40.0)
     rays = camera_rays(mi.Array3f, [cam])
-    out = render_rays(GridField.from_arrays(blob_grid), rays.o, rays.d, 64)
+    out = render_rays(GridField.from_arrays(blob_grid, UNIT_BOX), rays.o, rays.d, 64, box=UNIT_BOX)
     opacity = _np(out.opacity).reshape(12, 16)
     row, col = np.unravel_index(np.argmax(opacity), opacity.shape)
     proj = cam.project(np.array([[0.1, 0.0, 0.0]]))[0]

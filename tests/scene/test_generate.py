@@ -16,7 +16,8 @@ import pytest
 
 from mitsnerf.data.images import read_exr
 from mitsnerf.data.transforms import read_transforms
-from mitsnerf.scene import generate as gen
+from mitsnerf import generate as gen
+from mitsnerf.scene import render as scene_render
 from mitsnerf.scene.lights import bake_sky
 from mitsnerf.scene.rigs import camera_rig
 from mitsnerf.scene.spec import parse_scene
@@ -33,7 +34,7 @@ def generated(tmp_path_factory):
     spec = parse_scene(json.loads(json.dumps(TINY)), "tiny.toml")
     root = tmp_path_factory.mktemp("data")
     used: list[np.ndarray] = []
-    real = gen.load_sensor
+    real = scene_render.load_sensor
 
     def recording(camera, spp):
         sensor = real(camera, spp)
@@ -41,7 +42,7 @@ def generated(tmp_path_factory):
         return sensor
 
     with pytest.MonkeyPatch.context() as mp:
-        mp.setattr(gen, "load_sensor", recording)
+        mp.setattr(scene_render, "load_sensor", recording)
         path = gen.generate_dataset(spec, root, progress=False)
     return spec, root, path, used
 
@@ -171,7 +172,7 @@ import mitsnerf
 from mitsnerf.env import set_variant
 set_variant()
 import mitsuba as mi
-from mitsnerf.scene.generate import generate_dataset
+from mitsnerf.generate import generate_dataset
 from mitsnerf.scene.spec import parse_scene
 real = mi.render
 def slow(*args, **kwargs):
@@ -204,22 +205,3 @@ def test_sigkill_mid_render_then_recover(tiny_spec, tmp_path):
     assert (path / "manifest.json").is_file()
     assert not list(tmp_path.glob(".*.tmp-*")), "stale temporaries were not cleaned"
     assert [p for p in tmp_path.iterdir() if not p.name.startswith(".")] == [path]
-
-
-def test_optical_depth_and_medium_mask():
-    from mitsnerf.math.camera import Camera, look_at
-
-    grid = np.full((8, 8, 8), 2.0, np.float32)  # uniform: tau = 2 * chord length
-    o = np.array([[0.0, 0.0, 3.0], [0.0, 0.0, 3.0], [3.0, 3.0, 3.0], [0.2, -3.0, 0.1]])
-    d = np.array([[0.0, 0.0, -1.0], [0.0, 0.0, 1.0], [-1.0, -1.0, -1.0], [0.0, 1.0, 0.0]])
-    d /= np.linalg.norm(d, axis=1, keepdims=True)
-    assert np.allclose(gen.optical_depth(o, d, grid), [2.0, 0.0, 2.0 * np.sqrt(3.0), 2.0], rtol=1e-9)
-    cam = Camera.from_fov(look_at((0.0, -3.0, 0.0)), 16, 12, 40.0)
-    mask = gen.medium_mask(cam, grid)
-    _, dirs = cam.pixel_rays()
-    # the box's face y = -0.5 spans |x|, |z| <= 0.5 at distance 2.5 along the axis
-    t = 2.5 / dirs[:, 1]
-    hits = (np.abs(dirs[:, 0] * t) <= 0.5) & (np.abs(dirs[:, 2] * t) <= 0.5)
-    assert np.array_equal(mask.ravel(), hits)
-    sparse = np.zeros((8, 8, 8), np.float32)
-    assert not gen.medium_mask(cam, sparse).any()

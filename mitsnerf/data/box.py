@@ -1,0 +1,92 @@
+"""Where a dataset's scene box comes from, in order of precedence.
+
+1. an explicit box (``mitsnerf train --box``), or an ``aabb`` key ``[[x0, y0, z0], [x1, y1, z1]]``
+   in the transforms file;
+2. mitsnerf's own datasets: the manifest's ``box`` (datasets older than format 4 have a
+   ``spec`` and the unit box ``[-0.5, 0.5]^3``);
+3. instant-ngp's convention, when the transforms have ``aabb_scale`` (with ``scale``, default
+   0.33, and ``offset``, default ``[0.5, 0.5, 0.5]``): instant-ngp maps a world point ``p`` to
+   ``q = cycle(p * scale + offset)`` and renders the cube ``q in [0.5 - a/2, 0.5 + a/2]^3``
+   (``a = aabb_scale``), so the world box is ``(0.5 -+ a/2 - offset) / scale`` per axis;
+4. plain NeRF-synthetic data: nerfstudio's blender default ``[-1.5, 1.5]^3``.
+
+The source is recorded with the box (:class:`ResolvedBox`) and said in the output of
+``mitsnerf train``. A box whose cameras all lie inside it is refused: the scene must be seen
+from outside.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, Mapping, Sequence
+
+import numpy as np
+
+from mitsnerf.errors import DatasetError
+from mitsnerf.math.box import UNIT_BOX, Box
+
+NERF_SYNTHETIC_BOX = Box.cube(1.5)
+"""nerfstudio's blender dataparser default, and where the original NeRF-synthetic scenes fit."""
+NGP_DEFAULT_SCALE = 0.33
+NGP_DEFAULT_OFFSET = (0.5, 0.5, 0.5)
+
+
+@dataclass(frozen=True)
+class ResolvedBox:
+    box: Box
+    source: str
+    """Where it came from, e.g. ``"transforms_train.json: aabb"`` or ``"default: nerfstudio blender [-1.5, 1.5]^3"``."""
+
+
+def _parse_box(value: Any, where: Path | str | None, field: str) -> Box:
+    try:
+        return Box.from_list(value)
+    except ValueError as exc:
+        raise DatasetError(where, field, str(exc).removeprefix("box: ")) from None
+
+
+def ngp_box(doc: Mapping[str, Any], where: Path | str | None = None) -> Box:
+    """The world box of instant-ngp's ``aabb_scale``, ``scale`` and ``offset`` keys (module docstring).
+
+    >>> ngp_box({"aabb_scale": 1}).lo  # doctest: +ELLIPSIS
+    (-1.515..., -1.515..., -1.515...)
+    """
+    a, scale = doc.get("aabb_scale"), doc.get("scale", NGP_DEFAULT_SCALE)
+    offset = doc.get("offset", NGP_DEFAULT_OFFSET)
+    for field, value in (("aabb_scale", a), ("scale", scale)):
+        if isinstance(value, bool) or not isinstance(value, (int, float)) or not value > 0:
+            raise DatasetError(where, field, f"must be a positive number, got {value!r}")
+    off = np.asarray(offset, dtype=np.float64) if isinstance(offset, (list, tuple)) else np.full(3, np.nan)
+    if off.shape != (3,) or not np.all(np.isfinite(off)):
+        raise DatasetError(where, "offset", f"must be 3 finite numbers, got {offset!r}")
+    lo = (0.5 - 0.5 * a - off) / scale
+    hi = (0.5 + 0.5 * a - off) / scale
+    return Box(tuple(lo), tuple(hi))
+
+
+def resolve_box(explicit: Box | None, transforms: Mapping[str, Any], transforms_path: Path,
+                manifest: Mapping[str, Any] | None, manifest_path: Path) -> ResolvedBox:
+    """The dataset's box by the module docstring's rules."""
+    name = transforms_path.name
+    if explicit is not None:
+        return ResolvedBox(explicit, "given explicitly (--box)")
+    if "aabb" in transforms:
+        return ResolvedBox(_parse_box(transforms["aabb"], transforms_path, "aabb"), f"{name}: aabb")
+    if manifest:
+        if "box" in manifest:
+            return ResolvedBox(_parse_box(manifest["box"], manifest_path, "box"), "manifest.json: box")
+        if "spec" in manifest:
+            return ResolvedBox(UNIT_BOX, "manifest.json: spec (mitsnerf's unit box)")
+    if "aabb_scale" in transforms:
+        return ResolvedBox(ngp_box(transforms, transforms_path), f"{name}: instant-ngp aabb_scale/scale/offset")
+    return ResolvedBox(NERF_SYNTHETIC_BOX, "default for NeRF-synthetic data: nerfstudio's blender box [-1.5, 1.5]^3")
+
+
+def check_cameras_outside(box: Box, origins: Sequence[np.ndarray], where: Path | str | None, source: str) -> None:
+    """Refuse a box that contains every camera: nothing would be seen from outside the medium."""
+    inside = box.contains(np.asarray(origins, dtype=np.float64).reshape(-1, 3))
+    if len(inside) and bool(np.all(inside)):
+        raise DatasetError(where, "frames[*].transform_matrix",
+                           f"every camera lies inside the scene box {box.to_list()} ({source}); "
+                           "give a smaller box (--box or an 'aabb' key) or check the camera poses")

@@ -1,0 +1,179 @@
+"""Ground-truth datasets: a scene spec rendered by Mitsuba's ``volpath`` into the dataset layout.
+
+``generate_dataset(spec, out_root)`` writes ``out_root / f"{spec.name}-{hash[:12]}"`` (layout in
+``docs/conventions.md``, "Dataset directory"). The hash covers the spec, the splits, the Mitsuba
+and Dr.Jit versions, the variant and :data:`FORMAT_VERSION`: a changed spec gets a new directory,
+an unchanged one is a cache hit (:mod:`mitsnerf.data.cache`). The directory is built in a
+temporary sibling and renamed into place with ``manifest.json`` written last, so an interrupted
+run (Ctrl-C, SIGKILL) never leaves a directory that looks complete. Views are rendered by
+:mod:`mitsnerf.scene.render`; the noise floor is scored by :mod:`mitsnerf.scoring` on the same
+medium pixels as every method.
+"""
+
+from __future__ import annotations
+
+import os
+import time
+from pathlib import Path
+from typing import Any, Mapping, Sequence
+
+import numpy as np
+
+from mitsnerf.data.cache import clean_temps, dataset_lock, is_complete, sha256_file
+from mitsnerf.math.box import Box
+from mitsnerf.math.camera import Camera
+from mitsnerf.scene.render import render_split, split_spp, write_volume
+from mitsnerf.scene.rigs import camera_rig
+from mitsnerf.scene.spec import SceneSpec, list_scenes, load_scene
+from mitsnerf.scene.to_mitsuba import background_description, scene_box, scene_dict, volume_grids
+
+#: Version of the dataset layout and generation rules; part of the dataset hash.
+#: 2: the noise floor's medium mask is the centre-ray opacity > 1e-3 rule of ``mitsnerf.run``.
+#: 3: the plume family rises along the world's up axis z (it lay along y); families are part of the data.
+#: 4: the scene box is recorded (manifest ``box``, transforms ``aabb``); medium masks by ``mitsnerf.scoring``.
+FORMAT_VERSION = 4
+SPLITS = ("train", "test", "test_ref")
+
+
+def default_splits(spec: SceneSpec) -> tuple[str, ...]:
+    """``train``, ``test``, and ``test_ref`` when ``render.noise_floor`` is on."""
+    return SPLITS if spec.render.noise_floor else SPLITS[:2]
+
+
+def _resolve_splits(spec: SceneSpec, splits: Sequence[str] | None) -> tuple[str, ...]:
+    if splits is None:
+        return default_splits(spec)
+    unknown = [s for s in splits if s not in SPLITS]
+    if unknown or not splits:
+        raise ValueError(f"splits must be a non-empty subset of {SPLITS}, got {list(splits)}")
+    return tuple(s for s in SPLITS if s in splits)
+
+
+def hash_extra(splits: Sequence[str]) -> dict[str, Any]:
+    """What besides the spec decides a dataset's content (needs the Mitsuba variant set)."""
+    import drjit as dr
+    import mitsuba as mi
+
+    return {"format_version": FORMAT_VERSION, "variant": mi.variant(), "mitsuba": mi.__version__,
+            "drjit": dr.__version__, "splits": list(splits)}
+
+
+def _ensure_variant() -> str:
+    import mitsuba as mi
+
+    from mitsnerf.env import set_variant
+
+    return set_variant(mi.variant())
+
+
+def dataset_dir(spec: SceneSpec, out_root: str | os.PathLike, splits: Sequence[str] | None = None) -> Path:
+    """Where :func:`generate_dataset` puts ``spec`` (sets the default variant if none is set)."""
+    _ensure_variant()
+    digest = spec.content_hash(hash_extra(_resolve_splits(spec, splits)))
+    return Path(out_root) / f"{spec.name}-{digest[:12]}"
+
+
+def _write_split(tmp: Path, spec: SceneSpec, split: str, images: list[np.ndarray], cameras: list[Camera],
+                 box: Box) -> None:
+    """The split's EXR and PNG images and its ``transforms_<split>.json`` (with the box as ``aabb``)."""
+    from mitsnerf.data.images import write_exr, write_png
+    from mitsnerf.data.transforms import write_transforms
+    from mitsnerf.scene.render import render_seed
+
+    (tmp / split).mkdir()
+    for i, img in enumerate(images):
+        write_exr(tmp / split / f"r_{i:03d}.exr", img)
+        write_png(tmp / split / f"r_{i:03d}.png", img[..., :3])
+    seeds = [render_seed(spec.render.seed, split, i) for i in range(len(cameras))]
+    write_transforms(tmp / f"transforms_{split}.json", cameras, [f"./{split}/r_{i:03d}" for i in range(len(cameras))],
+                     aabb_scale=1, extra={"aabb": box.to_list(), "split": split, "spp": split_spp(spec, split),
+                                          "render_seeds": seeds})
+
+
+def _manifest(spec: SceneSpec, digest: str, splits, box: Box, timings: dict, noise: dict | None, tmp: Path) -> dict:
+    from mitsnerf.env import provenance
+
+    files = {p.relative_to(tmp).as_posix(): sha256_file(p) for p in sorted(tmp.rglob("*")) if p.is_file()}
+    return {
+        "format_version": FORMAT_VERSION, "name": spec.name, "hash": digest, "spec": spec.to_dict(),
+        "source": spec.source, "provenance": provenance(), "box": box.to_list(),
+        "background": background_description(spec),
+        "render": {
+            "integrator": "volpath", "max_depth": spec.render.max_depth, "film": "hdrfilm, rgba, box filter",
+            "pixel_center": 0.5, "spp": {s: split_spp(spec, s) for s in splits}, "seed": spec.render.seed,
+            "seed_rule": "mitsnerf.scene.render.render_seed(render.seed, split, view index)",
+            "alpha": "1 everywhere with an environment light; else the fraction of samples "
+                     "that scattered or were absorbed in the medium (an estimate of 1 - transmittance)",
+        },
+        "splits": list(splits), "timings": timings, "noise_floor": noise, "files": files,
+    }
+
+
+def _build(tmp: Path, spec: SceneSpec, splits: tuple[str, ...], digest: str, progress: bool) -> dict:
+    """Render everything into ``tmp``; returns the manifest (not yet written)."""
+    import mitsuba as mi
+
+    from mitsnerf import scoring
+
+    started = time.perf_counter()
+    box = scene_box(spec)
+    sigma_t, albedo = volume_grids(spec)
+    write_volume(tmp, spec, sigma_t, albedo, box)
+    scene = mi.load_dict(scene_dict(spec, sigma_t, albedo))
+    cams = {s: camera_rig(spec.cameras, "train" if s == "train" else "test") for s in splits}
+    images, timings = {}, {}
+    for split in splits:
+        images[split], timings[split] = render_split(scene, spec, split, cams[split], progress)
+        _write_split(tmp, spec, split, images[split], cams[split], box)
+    noise = None
+    if "test" in images and "test_ref" in images:
+        masks = scoring.medium_masks(sigma_t, box, cams["test"])
+        noise = scoring.noise_floor(np.stack(images["test"]), np.stack(images["test_ref"]), masks)
+    timings["total_seconds"] = time.perf_counter() - started
+    return _manifest(spec, digest, splits, box, timings, noise, tmp)
+
+
+def generate_dataset(spec: SceneSpec, out_root: str | os.PathLike, *, force: bool = False, progress: bool = True,
+                     splits: Sequence[str] | None = None) -> Path:
+    """Render ``spec`` into ``out_root / f"{spec.name}-{hash[:12]}"`` and return that directory.
+
+    A complete dataset with the same hash is returned at once (``force=True`` regenerates it).
+    ``splits``: a subset of ``("train", "test", "test_ref")`` (default: all, ``test_ref`` only with
+    ``render.noise_floor``); the noise floor is measured when both ``test`` and ``test_ref`` are made.
+    Uses the current Mitsuba variant, else :func:`mitsnerf.env.set_variant`'s default.
+    """
+    from mitsnerf.data.atomic import atomic_dir, atomic_write_json
+
+    _ensure_variant()
+    splits = _resolve_splits(spec, splits)
+    digest = spec.content_hash(hash_extra(splits))
+    final = Path(out_root) / f"{spec.name}-{digest[:12]}"
+    if not force and is_complete(final, digest, FORMAT_VERSION):
+        return final
+    with dataset_lock(final, progress):
+        if not force and is_complete(final, digest, FORMAT_VERSION):  # another process finished it meanwhile
+            return final
+        clean_temps(final)
+        with atomic_dir(final, overwrite=True) as tmp:
+            atomic_write_json(tmp / "manifest.json", _build(tmp, spec, splits, digest, progress))
+    return final
+
+
+def generate_all(out_root: str | os.PathLike, *, names: Sequence[str] | None = None,
+                 overrides: Mapping[str, Any] | None = None, force: bool = False, progress: bool = True) -> list[Path]:
+    """Generate every scene of the library (or ``names``), each with ``overrides`` applied.
+
+    Returns the dataset directories in the order of ``names`` (default: :func:`list_scenes`).
+    """
+    from tqdm.auto import tqdm
+
+    names = list(names) if names is not None else list_scenes()
+    out: list[Path] = []
+    with tqdm(names, desc="scenes", unit="scene", disable=not progress) as bar:
+        for name in bar:
+            bar.set_postfix_str(name)
+            spec = load_scene(name)
+            if overrides:
+                spec = spec.with_overrides(overrides)
+            out.append(generate_dataset(spec, out_root, force=force, progress=progress))
+    return out

@@ -1,0 +1,321 @@
+"""Every score mitsnerf reports, each computed once, by one rule.
+
+Dataset generation (the noise floor), :func:`mitsnerf.run.fit`, the benchmark and
+``mitsnerf score`` all score through this module.
+
+**Medium pixels** (:func:`medium_masks`): a pixel sees the medium when the true medium's opacity
+``1 - exp(-tau)`` along the ray through its sample point exceeds :data:`MEDIUM_OPACITY`, with
+``tau`` the optical depth of the true ``sigma_t`` (trilinear, Mitsuba's lookup) by the midpoint
+rule at two samples per voxel length of the box's diagonal. Background pixels are exact in the
+ground truth and inflate whole-image PSNR (by 8-9 dB on the default cloud), so the medium scores
+are the ones that tell methods apart.
+
+**Image scores** (:func:`image_scores`) of renders against references ``(V, H, W, 3)``:
+
+- ``linear``: PSNR/SSIM of linear radiance clipped to ``[0, 1]`` (max value 1);
+- ``srgb``: the same values clipped, then sRGB-encoded (what a viewer sees);
+- ``medium``: PSNR over the medium pixels only; means are over the views that have any.
+
+**Density scores** (:func:`density_scores`, :func:`optical_depth_scores`) of a learned density
+``x -> sigma`` against the true ``sigma_t``: on the voxel centres of the box
+(:func:`mitsnerf.math.metrics.density_error`), and as optical depth along every test pixel's ray.
+
+**Noise floor** (:func:`noise_floor`): the same PSNRs between two independent ground-truth
+renders of the test views (``test``, ``test_ref``); a noise-free model scores about 3 dB above it.
+
+**Error budget** (:func:`error_budget`): a method's medium PSNR next to the oracle's and the
+floor, and the gaps between them.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Any, Callable, Sequence
+
+import numpy as np
+
+from mitsnerf.math.box import Box, optical_depth
+from mitsnerf.math.color import linear_to_srgb
+from mitsnerf.math.metrics import SSIM_WINDOW, density_error, psnr, ssim
+from mitsnerf.math.rays import camera_rays_numpy, to_array3f
+
+MEDIUM_OPACITY = 1e-3
+"""Opacity along a pixel's ray above which the pixel sees the medium."""
+NO_DENSITY = "no queryable density (model.field().density)"
+
+Density = Callable[[Any], Any]
+"""``x -> sigma``: Dr.Jit Array3f (M,) -> Float (M,)."""
+
+
+def finite(x) -> float | None:
+    """``float(x)``, or None for None, NaN and infinities (JSON has no such numbers)."""
+    if x is None:
+        return None
+    x = float(x)
+    return x if math.isfinite(x) else None
+
+
+def mean_of(values: Sequence[float | None]) -> float | None:
+    """The mean of the values that are not None (None if there are none)."""
+    vals = [v for v in values if v is not None]
+    return float(np.mean(vals)) if vals else None
+
+
+# --------------------------------------------------------------------------- densities along rays
+
+
+def true_density(sigma_t: np.ndarray, box: Box) -> Density:
+    """The true ``sigma_t`` grid (R, R, R) over ``box`` as ``x -> sigma`` (trilinear, clamped: Mitsuba's lookup)."""
+    from mitsnerf.fields.grid import GridField
+
+    return GridField.from_arrays(sigma_t, box).density
+
+
+def query_density(fn: Density, points: np.ndarray, chunk: int = 1 << 18) -> np.ndarray:
+    """``fn`` at ``points`` ``(M, 3)``, in chunks, without gradients: float64 ``(M,)``."""
+    import drjit as dr
+    import mitsuba as mi
+
+    out = np.empty(len(points), dtype=np.float64)
+    with dr.suspend_grad():
+        for start in range(0, len(points), chunk):
+            out[start:start + chunk] = np.asarray(fn(to_array3f(mi.Array3f, points[start:start + chunk])), np.float64)
+    return out
+
+
+def ray_optical_depths(fn: Density, o: np.ndarray, d: np.ndarray, box: Box, n: int,
+                       chunk_samples: int = 1 << 20) -> np.ndarray:
+    """``tau = int_{t_n}^{t_f} sigma dt`` (M,) of numpy rays (M, 3) through ``box``, ``n`` midpoints each."""
+    import drjit as dr
+    import mitsuba as mi
+
+    tau = np.zeros(len(o))
+    per = max(1, chunk_samples // n)
+    with dr.suspend_grad():
+        for s in range(0, len(o), per):
+            oo, dd = to_array3f(mi.Array3f, o[s:s + per]), to_array3f(mi.Array3f, d[s:s + per])
+            tau[s:s + per] = np.asarray(optical_depth(fn, oo, dd, box, n), np.float64)
+    return tau
+
+
+def mask_samples(sigma_t: np.ndarray, box: Box) -> int:
+    """Midpoint samples per ray of the medium mask: two per voxel length along the box's diagonal."""
+    voxel = min(box.size) / sigma_t.shape[0]
+    return int(math.ceil(2.0 * box.diagonal / voxel))
+
+
+def medium_masks(sigma_t: np.ndarray, box: Box, cameras, pixel_center: float = 0.5,
+                 opacity: float = MEDIUM_OPACITY) -> np.ndarray:
+    """(V, H, W) bool: pixels whose ray through their sample point crosses the true medium (module docstring)."""
+    fn = true_density(sigma_t, box)
+    n = mask_samples(sigma_t, box)
+    masks = []
+    for cam in cameras:
+        o, d = camera_rays_numpy([cam], pixel_center)
+        tau = ray_optical_depths(fn, o, d, box, n)
+        masks.append((-np.expm1(-tau) > opacity).reshape(cam.height, cam.width))
+    return np.stack(masks)
+
+
+# --------------------------------------------------------------------------- images
+
+
+def image_scores(preds: np.ndarray, refs: np.ndarray, masks: np.ndarray | None = None, prefix: str = "psnr_test",
+                 with_ssim: bool = True) -> dict[str, Any]:
+    """Per-view and mean PSNR/SSIM of ``preds`` against ``refs`` (both ``(V, H, W, 3)`` linear).
+
+    Keys (with the default prefix): ``psnr_test``, ``psnr_test_srgb``, ``ssim_test``,
+    ``ssim_test_srgb``, ``psnr_test_medium``, ``psnr_test_medium_srgb``, each with a
+    ``_per_view`` list. Medium scores need ``masks`` (``(V, H, W)`` bool); views without
+    medium pixels get None. SSIM is None for images under 11x11 pixels (left out with
+    ``with_ssim=False``).
+
+    >>> ref = np.full((1, 12, 12, 3), 0.5); pred = ref + 0.01
+    >>> s = image_scores(pred, ref)
+    >>> round(s["psnr_test"], 6), round(s["ssim_test_srgb"], 3)
+    (40.0, 1.0)
+    """
+    ssim_prefix = prefix.replace("psnr", "ssim")
+    lin_p, lin_r = np.clip(preds, 0.0, 1.0), np.clip(refs, 0.0, 1.0)
+    enc = {"": (lin_p, lin_r), "_srgb": (linear_to_srgb(lin_p), linear_to_srgb(lin_r))}
+    out: dict[str, Any] = {}
+    small = min(preds.shape[1:3]) < SSIM_WINDOW or not with_ssim
+    for tag, (p, r) in enc.items():
+        per_psnr = [finite(v) for v in np.atleast_1d(psnr(p, r))]
+        out[f"{prefix}{tag}"], out[f"{prefix}{tag}_per_view"] = mean_of(per_psnr), per_psnr
+        if with_ssim:
+            per_ssim = [None] * len(p) if small else [finite(v) for v in np.atleast_1d(ssim(p, r))]
+            out[f"{ssim_prefix}{tag}"], out[f"{ssim_prefix}{tag}_per_view"] = mean_of(per_ssim), per_ssim
+        if masks is not None:
+            per_med = [finite(psnr(pv, rv, mask=m)) if m.any() else None for pv, rv, m in zip(p, r, masks)]
+            out[f"{prefix}_medium{tag}"], out[f"{prefix}_medium{tag}_per_view"] = mean_of(per_med), per_med
+    return out
+
+
+def noise_floor(test: np.ndarray, ref: np.ndarray, masks: np.ndarray) -> dict[str, Any]:
+    """The PSNRs between two independent ground-truth renders of the same views (the manifest's ``noise_floor``)."""
+    s = image_scores(test[..., :3], ref[..., :3], masks, prefix="psnr", with_ssim=False)
+    return {
+        "psnr": s["psnr"],
+        "psnr_medium": s["psnr_medium"],
+        "psnr_per_view": s["psnr_per_view"],
+        "psnr_medium_per_view": s["psnr_medium_per_view"],
+        "psnr_srgb": s["psnr_srgb"],
+        "psnr_medium_srgb": s["psnr_medium_srgb"],
+        "medium_pixel_fraction": float(masks.mean()),
+        "medium_mask": (f"pixels whose ray through the pixel centre has opacity 1 - exp(-tau) > {MEDIUM_OPACITY:g} "
+                        "through the true sigma_t (trilinear); views without such pixels are skipped"),
+        "method": "mean over test views of PSNR(test, test_ref), linear RGB clipped to [0, 1], max_val 1",
+    }
+
+
+# --------------------------------------------------------------------------- density fields
+
+
+def _slices(grid: np.ndarray) -> dict[str, np.ndarray]:
+    r = grid.shape[0] // 2
+    return {"z": grid[r].astype(np.float32), "y": grid[:, r].astype(np.float32), "x": grid[:, :, r].astype(np.float32)}
+
+
+def density_scores(fn: Density | None, sigma_t: np.ndarray, box: Box,
+                   resolution: int = 0) -> tuple[dict[str, Any], dict[str, np.ndarray]]:
+    """Learned (``fn``) against true density on the voxel centres of an ``R^3`` grid over ``box`` (0: the true grid's R).
+
+    Returns ``(scores, slices)``: ``density_rel_l1``, ``density_rel_l2``, ``density_psnr``,
+    ``density_resolution`` (None values and ``density_note`` when ``fn`` is None), and the
+    central ``z``, ``y`` and ``x`` slices of both grids (``true_z``, ``learned_z``, ...).
+    """
+    r = int(resolution or sigma_t.shape[0])
+    points = box.voxel_centres(r).reshape(-1, 3)
+    truth = (np.asarray(sigma_t, dtype=np.float64) if r == sigma_t.shape[0]
+             else query_density(true_density(sigma_t, box), points).reshape(r, r, r))
+    slices = {f"true_{a}": s for a, s in _slices(truth).items()}
+    if fn is None:
+        return {"density_rel_l1": None, "density_rel_l2": None, "density_psnr": None,
+                "density_resolution": r, "density_note": NO_DENSITY}, slices
+    learned = query_density(fn, points).reshape(r, r, r)
+    err = density_error(learned, truth)
+    slices.update({f"learned_{a}": s for a, s in _slices(learned).items()})
+    return {"density_rel_l1": finite(err["rel_l1"]), "density_rel_l2": finite(err["rel_l2"]),
+            "density_psnr": finite(err["psnr"]), "density_resolution": r, "density_note": None}, slices
+
+
+def optical_depth_scores(fn: Density | None, sigma_t: np.ndarray, box: Box, cameras, pixel_center: float = 0.5,
+                         n_samples: int = 0) -> dict[str, Any]:
+    """Optical depth of the learned against the true density along every pixel ray of ``cameras``.
+
+    ``n_samples`` midpoints per ray (0: twice the true grid's resolution). Keys: ``tau_rel_l1``
+    (``sum |tau_l - tau_t| / sum tau_t``), ``tau_rmse``, ``transmittance_mae`` (mean
+    ``|exp(-tau_l) - exp(-tau_t)|`` over rays that meet the box), ``tau_samples``, ``tau_rays``.
+    """
+    n = int(n_samples or 2 * sigma_t.shape[0])
+    o, d = camera_rays_numpy(cameras, pixel_center)
+    empty = {"tau_rel_l1": None, "tau_rmse": None, "transmittance_mae": None, "tau_samples": n, "tau_rays": len(o)}
+    _, _, hit = box.intersect_numpy(o, d)
+    if fn is None or not hit.any():
+        return empty
+    tau_true = ray_optical_depths(true_density(sigma_t, box), o[hit], d[hit], box, n)
+    tau_learned = ray_optical_depths(fn, o[hit], d[hit], box, n)
+    if tau_true.sum() <= 0:
+        return empty
+    diff = tau_learned - tau_true
+    return {
+        "tau_rel_l1": finite(np.abs(diff).sum() / tau_true.sum()),
+        "tau_rmse": finite(np.sqrt(np.mean(diff**2))),
+        "transmittance_mae": finite(np.mean(np.abs(np.exp(-tau_learned) - np.exp(-tau_true)))),
+        "tau_samples": n,
+        "tau_rays": int(hit.sum()),
+    }
+
+
+# --------------------------------------------------------------------------- the error budget
+
+
+def error_budget(medium_psnr: float | None, oracle_medium: float | None, floor_medium: float | None) -> dict[str, Any]:
+    """A result's medium PSNR against the oracle's (the best any emission-absorption model can do
+    on the dataset) and the noise floor: ``gap_to_oracle = oracle - result`` (dB the method
+    leaves on the table), ``oracle_to_floor = floor - oracle`` (what the representation itself
+    costs, plus the reference noise).
+
+    >>> error_budget(38.0, 43.5, 44.0)
+    {'gap_to_oracle': 5.5, 'oracle_to_floor': 0.5, 'gap_to_floor': 6.0}
+    """
+    def gap(a, b):
+        return None if a is None or b is None else round(float(a) - float(b), 6)
+
+    return {"gap_to_oracle": gap(oracle_medium, medium_psnr), "oracle_to_floor": gap(floor_medium, oracle_medium),
+            "gap_to_floor": gap(floor_medium, medium_psnr)}
+
+
+# --------------------------------------------------------------------------- a dataset's references
+
+
+@dataclass(frozen=True)
+class Reference:
+    """What renders of one split are scored against, and everything known about that split."""
+
+    images: np.ndarray
+    """(V, H, W, 3) linear RGB, the split's ground truth."""
+    cameras: tuple
+    pixel_center: float
+    box: Box
+    sigma_t: np.ndarray | None
+    """The true extinction grid (None for foreign data)."""
+    masks: np.ndarray | None
+    """(V, H, W) medium pixels (None without a true grid)."""
+    noise_floor: dict | None
+    """The manifest's ``noise_floor`` (None without ``test_ref``)."""
+
+
+def load_true_sigma_t(root) -> np.ndarray | None:
+    """The ground-truth ``sigma_t`` grid of a generated dataset (None for foreign data)."""
+    from pathlib import Path
+
+    from mitsnerf.errors import DatasetError
+
+    path = Path(root) / "volume" / "sigma_t.npy"
+    if not path.exists():
+        return None
+    try:
+        return np.load(path, allow_pickle=False)
+    except (OSError, ValueError) as exc:
+        raise DatasetError(path, None, f"not a readable numpy grid: {exc}") from None
+
+
+def reference(dataset, split: str = "test") -> Reference:
+    """The :class:`Reference` of a :class:`mitsnerf.data.dataset.Dataset` split (masks from its true grid)."""
+    views = dataset.views(split)
+    sigma_t = load_true_sigma_t(dataset.root)
+    masks = medium_masks(sigma_t, dataset.box, views.cameras, views.pixel_center) if sigma_t is not None else None
+    floor = (dataset.manifest or {}).get("noise_floor") if split == "test" else None
+    return Reference(views.images, tuple(views.cameras), views.pixel_center, dataset.box, sigma_t, masks, floor)
+
+
+def score_views(preds: np.ndarray, ref: Reference, density: Density | None = None, *, oracle: dict | None = None,
+                density_resolution: int = 0, od_samples: int = 0) -> tuple[dict[str, Any], dict[str, np.ndarray]]:
+    """Every score of renders ``preds`` (V, H, W, 3) of ``ref``'s views: ``(metrics, density slices)``.
+
+    ``metrics``: :func:`image_scores`; the noise floor (``noise_floor_psnr``,
+    ``noise_floor_psnr_medium``, ...); with ``oracle`` (the oracle's own metrics at the same
+    footprint) ``oracle_psnr_test_medium`` and the :func:`error_budget`; with a true grid, the
+    :func:`density_scores` and :func:`optical_depth_scores` of ``density`` (a note without one).
+    """
+    if preds.shape != ref.images.shape:
+        raise ValueError(f"renders have shape {preds.shape}, the references {ref.images.shape}")
+    metrics = image_scores(preds, ref.images, ref.masks)
+    floor = ref.noise_floor or {}
+    for key in ("psnr", "psnr_medium", "psnr_per_view", "psnr_srgb", "psnr_medium_srgb"):
+        metrics[f"noise_floor_{key}"] = floor.get(key)
+    oracle_medium = (oracle or {}).get("psnr_test_medium")
+    metrics["oracle_psnr_test"] = (oracle or {}).get("psnr_test")
+    metrics["oracle_psnr_test_medium"] = oracle_medium
+    metrics.update(error_budget(metrics.get("psnr_test_medium"), oracle_medium, floor.get("psnr_medium")))
+    slices: dict[str, np.ndarray] = {}
+    if ref.sigma_t is None:
+        metrics["density_note"] = "the dataset has no true sigma_t grid"
+        return metrics, slices
+    dens, slices = density_scores(density, ref.sigma_t, ref.box, density_resolution)
+    metrics.update(dens)
+    metrics.update(optical_depth_scores(density, ref.sigma_t, ref.box, ref.cameras, ref.pixel_center, od_samples))
+    return metrics, slices

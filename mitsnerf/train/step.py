@@ -1,0 +1,37 @@
+"""One training step's loss, by protocol: a random ray batch for per-ray models, the model's own for whole-view ones.
+
+For a :class:`mitsnerf.methods.base.RayModel` (``B`` rays, targets ``C*``)::
+
+    loss = mean_rays,channels (C - C*)^2 + sum extra_losses + sum_aux mean (C_aux - C*)^2
+"""
+
+from __future__ import annotations
+
+import drjit as dr
+import mitsuba as mi
+
+from mitsnerf.methods.base import Model, RayModel, StepLoss
+from mitsnerf.train.config import TrainConfig
+from mitsnerf.train.data import PixelData
+
+
+def ray_batch_loss(model: RayModel, data: PixelData, config: TrainConfig, rng) -> StepLoss:
+    """Render ``config.batch_rays`` random training pixels (jittered training samples)."""
+    B = config.batch_rays
+    o, d, target = data.batch(rng, B, config.pixel_jitter)
+    n = model.jitter_size()
+    out = model.render_rays(o, d, u=rng.random(mi.Float, B * n) if n else None, training=True)
+    mse = dr.mean(dr.square(out.rgb - target), axis=None)
+    loss = mse
+    for extra in out.extra_losses.values():
+        loss = loss + extra
+    for aux in (out.aux_rgb or {}).values():
+        loss = loss + dr.mean(dr.square(aux - target), axis=None)
+    return StepLoss(loss, mse, B)
+
+
+def step_loss(model: Model, data: PixelData, config: TrainConfig, step: int, rng) -> StepLoss:
+    """The step of ``model``'s protocol."""
+    if isinstance(model, RayModel):
+        return ray_batch_loss(model, data, config, rng)
+    return model.training_loss(data, step, rng)
