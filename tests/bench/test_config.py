@@ -51,7 +51,7 @@ def _config(**kw):
 
 
 @pytest.mark.parametrize("change, field", [
-    ({"methods": [{"name": "nope"}]}, "methods[0].name"),
+    ({"methods": [{"name": "nope"}]}, "methods.0.name"),  # list items by index, as in overrides
     ({"methods": [{"name": "nerf"}, {"name": "nerf"}]}, "methods"),
     ({"seeds": []}, "seeds"),
     ({"scenes": "some"}, "scenes"),
