@@ -172,7 +172,13 @@ def test_method_config_errors_still_read_field_problem():
 
 
 def test_docs_come_from_one_place_per_field():
+    from mitsnerf.volumes.cloud import Params
+
     assert field_docs(Root)["extra"] == "Free-form settings."  # an attribute docstring
+    assert field_docs(Params)["radius"] == "envelope radius (density 0 beyond it)"  # param(doc=...)
+    table = doc_table(Params)
+    assert "| radius | a number in [0.05, 0.45] | 0.32 | envelope radius (density 0 beyond it) |" in table
+    assert "| albedo | 3 numbers in [0, 1] | [0.8, 0.8, 0.8] |" in table
     assert "| seeds | a list | [0] |" in doc_table(Root) and "| name | a string | required |" in doc_table(Root)
 
 

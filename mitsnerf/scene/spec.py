@@ -44,7 +44,7 @@ else:  # pragma: no cover - Python 3.10
     import tomli as tomllib
 
 from mitsnerf.errors import SpecError
-from mitsnerf.volumes.params import range_text
+from mitsnerf.config import range_text
 
 #: The world's up axis (Z-up). Rigs' "upper half" and the sky's zenith are +Z.
 UP = (0.0, 0.0, 1.0)
