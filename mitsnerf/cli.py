@@ -12,33 +12,16 @@ import sys
 from pathlib import Path
 
 
-def _parse_value(text: str):
-    """A CLI override value: JSON where it parses (numbers, lists, true/false), else a string."""
-    try:
-        return json.loads(text)
-    except json.JSONDecodeError:
-        return text
-
-
 def _overrides(pairs: list[str] | None) -> dict:
+    """``--set KEY=VALUE`` pairs as ``{dotted key: value}`` (values read by :func:`mitsnerf.config.parse_value`)."""
+    from mitsnerf.config import parse_value
+
     out = {}
     for pair in pairs or []:
         key, sep, value = pair.partition("=")
         if not sep or not key:
             raise ValueError(f"--set {pair!r}: expected KEY=VALUE")
-        out[key.strip()] = _parse_value(value)
-    return out
-
-
-def _nest(flat: dict) -> dict:
-    """``{"a.b": 1}`` -> ``{"a": {"b": 1}}`` (for dataclass configs built from tables)."""
-    out: dict = {}
-    for key, value in flat.items():
-        node = out
-        parts = key.split(".")
-        for part in parts[:-1]:
-            node = node.setdefault(part, {})
-        node[parts[-1]] = value
+        out[key.strip()] = parse_value(value)
     return out
 
 
@@ -50,12 +33,17 @@ def cmd_env(args) -> int:
 
 
 def cmd_scenes(args) -> int:
+    from mitsnerf.errors import SpecError
     from mitsnerf.scene.spec import list_scenes, load_scene
 
+    status = 0
     for name in list_scenes():
-        spec = load_scene(name)
-        print(f"{name:16s} {spec.description}")
-    return 0
+        try:
+            print(f"{name:16s} {load_scene(name).description}")
+        except SpecError as exc:  # the others are still listed
+            print(f"mitsnerf: error: {exc}", file=sys.stderr)
+            status = 2
+    return status
 
 
 def cmd_generate(args) -> int:
@@ -101,7 +89,7 @@ def _load(args, path):
 
 
 def cmd_train(args) -> int:
-    from mitsnerf.config import from_dict
+    from mitsnerf.config import apply_overrides, from_dict
     from mitsnerf.evaluate import EvalConfig
     from mitsnerf.run import fit, resume_run
     from mitsnerf.train import TrainConfig
@@ -121,7 +109,7 @@ def cmd_train(args) -> int:
             raise ValueError("train: name a DATASET directory (or pass --resume to continue the run in --out)")
         dataset = _load(args, args.dataset)
         print(f"mitsnerf: scene box {dataset.box.to_list()} ({dataset.box_source})", flush=True)
-        overrides = _nest(_overrides(args.set))
+        overrides = apply_overrides({}, _overrides(args.set), "--set")
         if args.lr is not None:
             overrides["lr"] = args.lr
         eval_config = from_dict(EvalConfig, {} if args.footprint is None else {"footprint": args.footprint})

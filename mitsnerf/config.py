@@ -1,110 +1,479 @@
-"""Typed, frozen dataclass configs from plain mappings (TOML tables, CLI overrides).
+"""Typed, frozen dataclass configs from plain data (TOML tables, JSON, CLI overrides): the one mechanism.
+
+A config is a frozen dataclass. A field declared with :func:`param` carries its range, its choices
+and its documentation (one place per field); :func:`from_dict` converts plain data into the class,
+checking types, ranges, choices and unknown keys, then runs the class's own ``__post_init__`` for
+rules between fields. Every problem is one :class:`~mitsnerf.errors.SpecError` (a ``ValueError``)
+naming the file, the dotted field (list items by index: ``lights.1.radiance``) and the problem:
 
 >>> from dataclasses import dataclass
 >>> @dataclass(frozen=True)
-... class C:
-...     steps: int = 10
-...     lr: float = 0.1
->>> from_dict(C, {"lr": 1})
-C(steps=10, lr=1.0)
->>> from_dict(C, {"stepz": 1})
+... class Grid:
+...     resolution: int = param(64, lo=8, hi=512, doc="voxels per axis")
+...     scale: float = param(1.0, lo=0.0, lo_open=True)
+...     albedo: tuple[float, float, float] = param((0.8, 0.8, 0.8), lo=0.0, hi=1.0)
+>>> from_dict(Grid, {"scale": 2, "albedo": [1, 0.5, 0]})
+Grid(resolution=64, scale=2.0, albedo=(1.0, 0.5, 0.0))
+>>> from_dict(Grid, {"resolution": 4}, source="grid.toml")
 Traceback (most recent call last):
 ...
-ValueError: stepz: unknown key (known: steps, lr)
+mitsnerf.errors.SpecError: grid.toml: resolution: must be an integer in [8, 512], got 4
+>>> from_dict(Grid, {"resolutoin": 4}, source="grid.toml")
+Traceback (most recent call last):
+...
+mitsnerf.errors.SpecError: grid.toml: resolutoin: unknown field (did you mean 'resolution'?)
+
+Fields typed ``int``, ``float`` (finite; ints accepted), ``bool``, ``str``, ``Literal``, tuples
+(fixed ``tuple[float, float, float]`` and variadic ``tuple[int, ...]``; lists accepted),
+nested dataclasses (a table; over the field's own default key by key), ``X | None``,
+``Mapping`` and unions of dataclasses tagged by a ``type`` class attribute (dispatched on the
+table's ``type`` key) are understood. :func:`to_dict` turns a config back into plain data,
+:func:`apply_overrides` applies dotted overrides (``{"lights.0.radiance": [1, 1, 1]}``) to plain
+data, :func:`parse_value` reads a command-line value, :func:`read_toml` reads a file.
+
+Fields declared without :func:`param` (the method and training configs) keep their older wording:
+``expected an integer`` and ``unknown key``.
 """
 
 from __future__ import annotations
 
+import ast
+import collections.abc
 import dataclasses
+import difflib
+import inspect
+import json
+import math
+import re
+import sys
+import textwrap
 import types
 import typing
+from numbers import Integral, Real
+from pathlib import Path
 from typing import Any, Mapping
 
+from mitsnerf.errors import SpecError
 
-def _convert(tp, value, key: str):
-    origin = typing.get_origin(tp)
-    args = typing.get_args(tp)
-    if origin in (typing.Union, types.UnionType):
-        if value is None and type(None) in args:
-            return None
-        errors = []
-        for arg in args:
-            if arg is type(None):
-                continue
-            try:
-                return _convert(arg, value, key)
-            except ValueError as exc:
-                errors.append(str(exc))
-        raise ValueError(errors[0] if errors else f"{key}: invalid value {value!r}")
-    if dataclasses.is_dataclass(tp):
-        if isinstance(value, tp):
-            return value
-        if not isinstance(value, Mapping):
-            raise ValueError(f"{key}: expected a table, got {type(value).__name__}")
-        return from_dict(tp, value, prefix=f"{key}.")
-    if origin is tuple:
-        if not isinstance(value, (list, tuple)):
-            raise ValueError(f"{key}: expected a list, got {type(value).__name__}")
-        if len(args) == 2 and args[1] is Ellipsis:
-            return tuple(_convert(args[0], v, f"{key}[{i}]") for i, v in enumerate(value))
-        if len(args) != len(value):
-            raise ValueError(f"{key}: expected {len(args)} values, got {len(value)}")
-        return tuple(_convert(a, v, f"{key}[{i}]") for i, (a, v) in enumerate(zip(args, value)))
-    if tp is bool:
-        if not isinstance(value, bool):
-            raise ValueError(f"{key}: expected true/false, got {value!r}")
-        return value
-    if tp is int:
-        if isinstance(value, bool) or not isinstance(value, int):
-            raise ValueError(f"{key}: expected an integer, got {value!r}")
-        return value
-    if tp is float:
-        if isinstance(value, bool) or not isinstance(value, (int, float)):
-            raise ValueError(f"{key}: expected a number, got {value!r}")
-        return float(value)
-    if tp is str:
-        if not isinstance(value, str):
-            raise ValueError(f"{key}: expected a string, got {value!r}")
-        return value
-    if typing.get_origin(tp) is typing.Literal:
-        if value not in args:
-            raise ValueError(f"{key}: must be one of {', '.join(map(repr, args))}, got {value!r}")
-        return value
-    return value
+if sys.version_info >= (3, 11):
+    import tomllib
+else:  # pragma: no cover - Python 3.10
+    import tomli as tomllib
+
+_BOUNDS = "mitsnerf.config.bounds"
+#: Metadata key of fields that are not configuration data (not read by from_dict, not in to_dict).
+INTERNAL = "mitsnerf.config.internal"
+_SOURCE = "mitsnerf.config.source"
+#: The key that selects the member of a tagged union of dataclasses (their ``type`` class attribute).
+TAG = "type"
+_FIELD_PATH = re.compile(r"[A-Za-z_][A-Za-z0-9_]*(\.[A-Za-z0-9_]+)*")
 
 
-def from_dict(cls, values: Mapping[str, Any] | None, prefix: str = ""):
-    """Build dataclass ``cls`` from ``values``; errors are ``ValueError("field: problem")``.
+# --------------------------------------------------------------------------- declaring fields
 
-    Nested dataclass fields take nested mappings; missing keys keep their defaults;
-    the dataclass's own ``__post_init__`` validation runs (its messages get the prefix).
+
+@dataclasses.dataclass(frozen=True)
+class Bounds:
+    """What a :func:`param` field admits besides its type: a range (for every number in it) or choices."""
+
+    lo: float | None = None
+    hi: float | None = None
+    lo_open: bool = False
+    hi_open: bool = False
+    choices: tuple | None = None
+    doc: str = ""
+
+    def text(self) -> str:
+        return range_text(self.lo, self.hi, self.lo_open, self.hi_open)
+
+    def admits(self, x: Any) -> bool:
+        if self.choices is not None:
+            return x in self.choices
+        if self.lo is not None and (x <= self.lo if self.lo_open else x < self.lo):
+            return False
+        return self.hi is None or (x < self.hi if self.hi_open else x <= self.hi)
+
+
+def param(
+    default: Any = dataclasses.MISSING,
+    *,
+    default_factory: Any = dataclasses.MISSING,
+    lo: float | None = None,
+    hi: float | None = None,
+    lo_open: bool = False,
+    hi_open: bool = False,
+    choices: tuple | None = None,
+    doc: str = "",
+    **kwargs: Any,
+) -> Any:
+    """A dataclass field with its range (``[lo, hi]``, ends open on request; it applies to every
+    number of a tuple), its ``choices`` and its documentation; no default: the field is required."""
+    bounds = Bounds(lo, hi, lo_open, hi_open, tuple(choices) if choices is not None else None, doc)
+    return dataclasses.field(default=default, default_factory=default_factory,
+                             metadata={_BOUNDS: bounds}, **kwargs)
+
+
+def source_field() -> Any:
+    """A field that records the file a config was read from: filled by :func:`from_dict`'s ``source``,
+    not configuration data itself (not read from the data, not in :func:`to_dict`, not compared)."""
+    return dataclasses.field(default=None, compare=False, metadata={INTERNAL: True, _SOURCE: True})
+
+
+def range_text(lo, hi, lo_open: bool = False, hi_open: bool = False) -> str:
+    """How an allowed range reads in a message: `` in [8, 512]``, `` > 0``, ``""``.
+
+    >>> range_text(1, 2**20), range_text(0.0, 0.45, lo_open=True), range_text(0, None)
+    (' in [1, 1048576]', ' in (0, 0.45]', ' >= 0')
     """
-    values = dict(values or {})
-    hints = typing.get_type_hints(cls)
-    fields = {f.name: f for f in dataclasses.fields(cls) if f.init}
-    unknown = [k for k in values if k not in fields]
-    if unknown:
-        raise ValueError(f"{prefix}{unknown[0]}: unknown key (known: {', '.join(fields)})")
-    for key, value in values.items():
-        # A table for a nested config overrides that field's own default, key by key.
-        default = _field_default(fields[key])
-        if dataclasses.is_dataclass(default) and isinstance(value, Mapping):
-            values[key] = deep_merge(to_dict(default), value)
-    kwargs = {k: _convert(hints[k], v, f"{prefix}{k}") for k, v in values.items()}
+    if lo is not None and hi is not None:
+        return f" in {'(' if lo_open else '['}{_number(lo)}, {_number(hi)}{')' if hi_open else ']'}"
+    if lo is not None:
+        return f" {'>' if lo_open else '>='} {_number(lo)}"
+    if hi is not None:
+        return f" {'<' if hi_open else '<='} {_number(hi)}"
+    return ""
+
+
+def _number(x: float) -> str:
+    return str(int(x)) if float(x).is_integer() and abs(x) < 1e15 else f"{x:g}"
+
+
+def is_int(value: Any) -> bool:
+    """An integer, not a bool."""
+    return isinstance(value, Integral) and not isinstance(value, bool)
+
+
+def is_number(value: Any) -> bool:
+    """A finite real number (int or float), not a bool."""
+    return isinstance(value, Real) and not isinstance(value, bool) and math.isfinite(value)
+
+
+def _bounds(f: dataclasses.Field) -> Bounds | None:
+    return f.metadata.get(_BOUNDS)
+
+
+def _is_internal(f: dataclasses.Field) -> bool:
+    return bool(f.metadata.get(INTERNAL)) or not f.init
+
+
+def _noun(cls) -> str:
+    """What the keys of ``cls`` are called: its ``config_noun``, "field" for :func:`param` configs."""
+    declared = any(_bounds(f) for f in dataclasses.fields(cls))
+    return getattr(cls, "config_noun", "field" if declared else "key")
+
+
+# --------------------------------------------------------------------------- describing
+
+
+def _kind(value: Any) -> str:
+    if isinstance(value, bool):
+        return "a boolean"
+    if isinstance(value, Mapping):
+        return "a table"
+    if isinstance(value, (list, tuple)):
+        return "a list"
+    return {str: "a string", int: "an integer", float: "a number"}.get(type(value), type(value).__name__)
+
+
+def _tag(cls) -> str | None:
+    """The ``type`` class attribute of a tagged-union member, else None."""
+    tag = getattr(cls, TAG, None) if dataclasses.is_dataclass(cls) else None
+    return tag if isinstance(tag, str) and TAG not in {f.name for f in dataclasses.fields(cls)} else None
+
+
+def _vector_length(tp) -> int | None:
+    """n for ``tuple[float, ..., float]`` (n numbers), else None."""
+    args = typing.get_args(tp)
+    if typing.get_origin(tp) is tuple and args and Ellipsis not in args and all(a in (int, float) for a in args):
+        return len(args)
+    return None
+
+
+def describe(tp, bounds: Bounds | None = None) -> str:
+    """What a field of type ``tp`` must be, in words: ``an integer in [8, 512]``, ``3 numbers >= 0``."""
+    rng = bounds.text() if bounds else ""
+    origin, args = typing.get_origin(tp), typing.get_args(tp)
+    if bounds and bounds.choices is not None:
+        return f"one of {', '.join(map(repr, bounds.choices))}"
+    if origin in (typing.Union, types.UnionType):
+        members = [a for a in args if a is not type(None)]
+        if all(_tag(a) for a in members):
+            return "a table"
+        return " or ".join(describe(a, bounds) for a in members)
+    if origin is typing.Literal:
+        return f"one of {', '.join(map(repr, args))}"
+    if _vector_length(tp):
+        return f"{_vector_length(tp)} numbers{rng}"
+    if origin is tuple:
+        return "a list" if Ellipsis in args else f"{len(args)} values"
+    if dataclasses.is_dataclass(tp) or origin in (dict, collections.abc.Mapping) or tp is dict:
+        return "a table"
+    named = {int: "an integer", float: "a number", bool: "true or false", str: "a string"}
+    return named[tp] + rng if tp in named else "a value"
+
+
+def field_docs(cls) -> dict[str, str]:
+    """The documentation of each field of ``cls``: its :func:`param` ``doc``, else its attribute docstring."""
+    docs: dict[str, str] = {}
+    for klass in reversed(cls.__mro__):
+        if dataclasses.is_dataclass(klass):
+            docs.update(_attribute_docstrings(klass))
+    out = {}
+    for f in dataclasses.fields(cls):
+        if not _is_internal(f):
+            out[f.name] = (_bounds(f).doc if _bounds(f) and _bounds(f).doc else "") or docs.get(f.name, "")
+    return out
+
+
+def _attribute_docstrings(klass) -> dict[str, str]:
     try:
-        return cls(**kwargs)
-    except ValueError as exc:
-        raise ValueError(f"{prefix}{exc}") from None
-    except TypeError as exc:
-        raise ValueError(f"{prefix.rstrip('.') or cls.__name__}: {exc}") from None
+        tree = ast.parse(textwrap.dedent(inspect.getsource(klass)))
+    except (OSError, TypeError, SyntaxError):
+        return {}
+    body = tree.body[0].body if tree.body and isinstance(tree.body[0], ast.ClassDef) else []
+    out = {}
+    for node, nxt in zip(body, body[1:]):
+        if (isinstance(node, ast.AnnAssign) and isinstance(node.target, ast.Name) and isinstance(nxt, ast.Expr)
+                and isinstance(nxt.value, ast.Constant) and isinstance(nxt.value.value, str)):
+            out[node.target.id] = " ".join(inspect.cleandoc(nxt.value.value).split())
+    return out
 
 
-def _field_default(f: dataclasses.Field):
+def doc_table(cls) -> str:
+    """The fields of config ``cls`` as a markdown table: name, what it must be, default, meaning.
+
+    >>> @dataclasses.dataclass(frozen=True)
+    ... class Rig:
+    ...     fov: float = param(lo=0.0, hi=180.0, lo_open=True, hi_open=True, doc="field of view, degrees")
+    ...     seed: int = param(0, lo=0, doc="rig randomisation")
+    >>> print(doc_table(Rig))
+    | field | must be | default | meaning |
+    |---|---|---|---|
+    | fov | a number in (0, 180) | required | field of view, degrees |
+    | seed | an integer >= 0 | 0 | rig randomisation |
+    """
+    hints = typing.get_type_hints(cls)
+    docs = field_docs(cls)
+    rows = ["| field | must be | default | meaning |", "|---|---|---|---|"]
+    for f in dataclasses.fields(cls):
+        if f.name not in docs:
+            continue
+        default = _default(f)
+        shown = "required" if default is dataclasses.MISSING else json.dumps(plain(default))
+        rows.append(f"| {f.name} | {describe(hints[f.name], _bounds(f))} | {shown} | {docs[f.name] or '...'} |")
+    return "\n".join(rows)
+
+
+# --------------------------------------------------------------------------- from_dict
+
+
+def _join(prefix: str, key: Any) -> str:
+    prefix = prefix.rstrip(".")
+    return f"{prefix}.{key}" if prefix else str(key)
+
+
+def _default(f: dataclasses.Field) -> Any:
     if f.default is not dataclasses.MISSING:
         return f.default
     if f.default_factory is not dataclasses.MISSING:  # type: ignore[misc]
         return f.default_factory()  # type: ignore[misc]
-    return None
+    return dataclasses.MISSING
+
+
+def from_dict(cls, data: Mapping[str, Any] | None, *, source: Any = None, prefix: str = ""):
+    """Build config ``cls`` from plain ``data``; every problem is a ``SpecError(source, field, problem)``.
+
+    Missing keys keep their defaults (a required one is "missing field"); unknown keys are
+    errors with a "did you mean" hint; then the class's ``__post_init__`` runs, and a
+    ``ValueError("field: problem")`` it raises is reported at ``prefix.field``.
+    """
+    source = None if source is None else str(source)
+    data = {} if data is None else data
+    if not isinstance(data, Mapping):
+        raise SpecError(source, prefix.rstrip(".") or None, f"must be a table, got {_kind(data)}")
+    fields = [f for f in dataclasses.fields(cls) if not _is_internal(f)]
+    _check_unknown(cls, data, [f.name for f in fields], source, prefix)
+    hints = typing.get_type_hints(cls)
+    kwargs = {}
+    for f in fields:
+        path = _join(prefix, f.name)
+        if f.name in data:
+            value, default = data[f.name], _default(f)
+            if dataclasses.is_dataclass(default) and isinstance(value, Mapping):
+                value = deep_merge(to_dict(default), value)  # a table over the field's own default
+            kwargs[f.name] = _convert(hints[f.name], value, path, _bounds(f), source)
+        elif _default(f) is dataclasses.MISSING:
+            raise SpecError(source, path, f"missing field ({describe(hints[f.name], _bounds(f))})")
+    kwargs.update({f.name: source for f in dataclasses.fields(cls) if f.metadata.get(_SOURCE)})
+    try:
+        return cls(**kwargs)
+    except ValueError as exc:
+        raise as_spec_error(exc, source, prefix) from None
+
+
+def check_fields(obj) -> None:
+    """Check every :func:`param` field of a config instance against its type and bounds, as
+    :func:`from_dict` does (for configs built directly in code); call it from ``__post_init__``.
+
+    >>> from dataclasses import dataclass
+    >>> @dataclass(frozen=True)
+    ... class Budget:
+    ...     steps: int = param(10, lo=1)
+    ...     def __post_init__(self):
+    ...         check_fields(self)
+    >>> Budget(steps=0)
+    Traceback (most recent call last):
+    ...
+    mitsnerf.errors.SpecError: steps: must be an integer >= 1, got 0
+    """
+    hints = typing.get_type_hints(type(obj))
+    for f in dataclasses.fields(obj):
+        bounds = _bounds(f)
+        if bounds is not None and not _is_internal(f):
+            _convert(hints[f.name], getattr(obj, f.name), f.name, bounds, None)
+
+
+def as_spec_error(exc: ValueError, source: Any, prefix: str = "") -> SpecError:
+    """``exc`` (a ``ValueError("field: problem")`` or a SpecError) as a SpecError at ``prefix.field`` in ``source``."""
+    if isinstance(exc, SpecError):
+        where = exc.where if exc.where is not None else source
+        return SpecError(where, _join(prefix, exc.field) if exc.field else (prefix.rstrip(".") or None), exc.message)
+    field_name, sep, message = str(exc).partition(": ")
+    if sep and _FIELD_PATH.fullmatch(field_name):
+        return SpecError(source, _join(prefix, field_name), message)
+    return SpecError(source, prefix.rstrip(".") or None, str(exc))
+
+
+def _check_unknown(cls, data: Mapping, known: list[str], source, prefix: str) -> None:
+    for key in data:
+        if key not in known:
+            close = difflib.get_close_matches(str(key), known, n=1)
+            hint = f" (did you mean {close[0]!r}?)" if close else f" (known: {', '.join(known)})"
+            raise SpecError(source, _join(prefix, key), f"unknown {_noun(cls)}{hint}")
+
+
+def _convert(tp, value: Any, path: str, bounds: Bounds | None, source) -> Any:
+    """``value`` as type ``tp`` (checked against ``bounds``), or a SpecError at ``path``."""
+    origin = typing.get_origin(tp)
+    if origin in (typing.Union, types.UnionType):
+        return _convert_union(tp, value, path, bounds, source)
+    if dataclasses.is_dataclass(tp):
+        if isinstance(value, tp):
+            return value
+        if not isinstance(value, Mapping):
+            raise SpecError(source, path, f"{_verb(bounds)} a table, got {_kind(value)}")
+        return from_dict(tp, value, source=source, prefix=path)
+    if origin is tuple:
+        return _convert_tuple(tp, value, path, bounds, source)
+    if origin in (dict, collections.abc.Mapping) or tp is dict:
+        if not isinstance(value, Mapping):
+            raise SpecError(source, path, f"{_verb(bounds)} a table, got {_kind(value)}")
+        return value
+    if tp in (int, float, bool, str) or origin is typing.Literal:
+        return _convert_scalar(tp, value, path, bounds, source)
+    return value
+
+
+def _verb(bounds: Bounds | None) -> str:
+    return "must be" if bounds is not None else "expected"
+
+
+def _convert_scalar(tp, value: Any, path: str, bounds: Bounds | None, source) -> Any:
+    if typing.get_origin(tp) is typing.Literal:
+        ok = value in typing.get_args(tp) and isinstance(value, (str, int, bool))
+    elif tp is bool:
+        ok = isinstance(value, bool)
+    elif tp is int:
+        ok = is_int(value)
+    elif tp is float:
+        ok = is_number(value)
+    else:
+        ok = isinstance(value, str)
+    if ok and bounds is not None and tp in (int, float, str):
+        ok = bounds.admits(value)
+    if not ok:
+        raise SpecError(source, path, f"{_verb(bounds)} {describe(tp, bounds)}, got {value!r}")
+    return float(value) if tp is float else int(value) if tp is int else value
+
+
+def _convert_tuple(tp, value: Any, path: str, bounds: Bounds | None, source) -> tuple:
+    args = typing.get_args(tp)
+    n = _vector_length(tp)
+    if not isinstance(value, (list, tuple)):
+        raise SpecError(source, path, f"{_verb(bounds)} {describe(tp, bounds)}, got {_kind(value)} {value!r}")
+    if n is not None:  # a vector of numbers is reported whole
+        what = f"{_verb(bounds)} {describe(tp, bounds)}"
+        if len(value) != n:
+            raise SpecError(source, path, f"{what}, got {len(value)} values")
+        try:
+            return tuple(_convert_scalar(a, v, path, bounds, source) for a, v in zip(args, value))
+        except SpecError:
+            raise SpecError(source, path, f"{what}, got {value!r}") from None
+    if Ellipsis in args:
+        return tuple(_convert(args[0], v, _join(path, i), bounds, source) for i, v in enumerate(value))
+    if len(args) != len(value):
+        raise SpecError(source, path, f"{_verb(bounds)} {len(args)} values, got {len(value)}")
+    return tuple(_convert(a, v, _join(path, i), bounds, source) for i, (a, v) in enumerate(zip(args, value)))
+
+
+def _convert_union(tp, value: Any, path: str, bounds: Bounds | None, source) -> Any:
+    members = [a for a in typing.get_args(tp) if a is not type(None)]
+    if value is None and len(members) < len(typing.get_args(tp)):
+        return None
+    if all(_tag(m) for m in members):
+        return _convert_tagged(members, value, path, source)
+    errors = []
+    for member in members:
+        try:
+            return _convert(member, value, path, bounds, source)
+        except SpecError as exc:
+            errors.append(exc)
+    raise errors[0]
+
+
+def _convert_tagged(members: list, value: Any, path: str, source) -> Any:
+    """A table whose ``type`` key picks the dataclass among ``members`` (their ``type`` class attribute)."""
+    if isinstance(value, tuple(members)):
+        return value
+    if not isinstance(value, Mapping):
+        raise SpecError(source, path, f"must be a table, got {_kind(value)}")
+    tags = {_tag(m): m for m in members}
+    kind = getattr(members[0], "config_kind", "")
+    if TAG not in value:
+        raise SpecError(source, _join(path, TAG), f"missing field (one of {', '.join(tags)})")
+    if value[TAG] not in tags:
+        what = f"unknown {kind} type" if kind else "unknown type"
+        raise SpecError(source, _join(path, TAG), f"{what} {value[TAG]!r} (known: {', '.join(tags)})")
+    rest = {k: v for k, v in value.items() if k != TAG}
+    return from_dict(tags[value[TAG]], rest, source=source, prefix=path)
+
+
+# --------------------------------------------------------------------------- plain data
+
+
+def to_dict(obj) -> dict:
+    """A config as plain nested dicts and lists (JSON and TOML friendly) that :func:`from_dict` reads back.
+
+    A tagged-union member starts with its ``type``; a None field whose default is None is left out.
+    """
+    out: dict[str, Any] = {TAG: _tag(type(obj))} if _tag(type(obj)) else {}
+    for f in dataclasses.fields(obj):
+        value = getattr(obj, f.name)
+        if _is_internal(f) or (value is None and f.default is None):
+            continue
+        out[f.name] = plain(value)
+    return out
+
+
+def plain(value: Any) -> Any:
+    """``value`` as plain data: configs as :func:`to_dict`, mappings as dicts, tuples as lists."""
+    if dataclasses.is_dataclass(value) and not isinstance(value, type):
+        return to_dict(value)
+    if isinstance(value, Mapping):
+        return {k: plain(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [plain(v) for v in value]
+    return value
 
 
 def deep_merge(base: Mapping[str, Any], over: Mapping[str, Any]) -> dict:
@@ -122,22 +491,69 @@ def deep_merge(base: Mapping[str, Any], over: Mapping[str, Any]) -> dict:
     return out
 
 
-def to_dict(obj) -> dict:
-    """A dataclass config as plain nested dicts/lists (JSON and TOML friendly)."""
-    return dataclasses.asdict(obj)
+def apply_overrides(data: Mapping[str, Any], overrides: Mapping[str, Any], source: Any = None) -> dict:
+    """A plain copy of ``data`` with dotted keys replaced; integer parts index lists.
+
+    Missing tables on the way are created (so an unknown key reaches :func:`from_dict`, which
+    names it); a problem on the way is a SpecError naming ``source`` and the dotted key.
+
+    >>> apply_overrides({"lights": [{"radiance": [0, 0, 0]}], "n": 1}, {"lights.0.radiance": [1, 1, 1], "a.b": 2})
+    {'lights': [{'radiance': [1, 1, 1]}], 'n': 1, 'a': {'b': 2}}
+    >>> apply_overrides({"lights": []}, {"lights.3.radiance": 1}, "x.toml")
+    Traceback (most recent call last):
+    ...
+    mitsnerf.errors.SpecError: x.toml: lights.3.radiance: no item '3' (there are 0)
+    """
+    out = plain(data)
+    for key, value in overrides.items():
+        parts = str(key).split(".")
+        node: Any = out
+        for i, part in enumerate(parts):
+            if isinstance(node, list):
+                if not part.isdigit() or int(part) >= len(node):
+                    raise SpecError(source, str(key), f"no item {part!r} (there are {len(node)})")
+                part = int(part)
+            elif not isinstance(node, dict):
+                raise SpecError(source, str(key), f"cannot override inside {'.'.join(parts[:i])!r}: not a table")
+            if i == len(parts) - 1:
+                node[part] = plain(value)
+            else:
+                if isinstance(node, dict) and part not in node:
+                    node[part] = {}
+                node = node[part]
+    return out
 
 
-def with_overrides(obj, overrides: Mapping[str, Any]):
-    """A copy of config ``obj`` with dotted-key overrides, e.g. ``{"network.width": 32}``, validated."""
-    base = to_dict(obj)
-    for dotted, value in overrides.items():
-        node = base
-        parts = dotted.split(".")
-        for part in parts[:-1]:
-            if not isinstance(node.get(part), dict):
-                raise ValueError(f"{dotted}: unknown key")
-            node = node[part]
-        if parts[-1] not in node:
-            raise ValueError(f"{dotted}: unknown key")
-        node[parts[-1]] = value
-    return from_dict(type(obj), base)
+def with_overrides(obj, overrides: Mapping[str, Any], source: Any = None):
+    """A copy of config ``obj`` with dotted-key overrides (``{"network.width": 32}``), validated again."""
+    return from_dict(type(obj), apply_overrides(to_dict(obj), overrides, source), source=source)
+
+
+def parse_value(text: str) -> Any:
+    """A command-line value: JSON where it parses (numbers, lists, true/false), else the string itself.
+
+    >>> parse_value("16"), parse_value("[1, 1, 1]"), parse_value("true"), parse_value("sphere")
+    (16, [1, 1, 1], True, 'sphere')
+    """
+    try:
+        return json.loads(text)
+    except json.JSONDecodeError:
+        return text
+
+
+def read_toml(path: str | Path, what: str = "a TOML file") -> dict:
+    """A TOML file's data; a SpecError naming the file when it cannot be read or parsed (``what``
+    the file should be, for a directory's message)."""
+    path = Path(path)
+    if path.is_dir():
+        raise SpecError(path, None, f"is a directory, not {what}")
+    try:
+        raw = path.read_bytes()
+    except OSError as exc:
+        raise SpecError(path, None, f"cannot read: {exc.strerror or exc}") from None
+    try:
+        return tomllib.loads(raw.decode("utf-8"))
+    except UnicodeDecodeError as exc:
+        raise SpecError(path, None, f"not a text file (invalid UTF-8 at byte {exc.start})") from None
+    except tomllib.TOMLDecodeError as exc:
+        raise SpecError(path, None, f"TOML syntax error: {exc}") from None

@@ -22,8 +22,14 @@ class MitsnerfError(Exception):
         super().__init__(": ".join(parts))
 
 
-class SpecError(MitsnerfError):
-    """A scene or benchmark specification is malformed (file, field, what is wrong)."""
+class SpecError(MitsnerfError, ValueError):
+    """A configuration is malformed: a scene spec, a benchmark, a method or training config
+    (file, dotted field, what is wrong). The one error of :func:`mitsnerf.config.from_dict`; a
+    ``ValueError`` too, so a config built without a file reads ``field: problem``."""
+
+
+#: The same class under the name the config layer uses.
+ConfigError = SpecError
 
 
 class DatasetError(MitsnerfError):

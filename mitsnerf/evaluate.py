@@ -14,6 +14,7 @@ from typing import Sequence
 
 import numpy as np
 
+from mitsnerf.config import check_fields, param
 from mitsnerf.math.camera import Camera
 from mitsnerf.methods.base import Model
 from mitsnerf.render.camera import Rendered
@@ -23,35 +24,29 @@ from mitsnerf.render.camera import Rendered
 class EvalConfig:
     """What is measured besides training: after it, and (``curve_points``) during it."""
 
-    footprint: int = 3
+    footprint: int = param(3, lo=1, hi=16)
     """Rays per pixel side K: each test pixel is the mean of K x K stratified rays over its area
     (1: one ray through the pixel's sample point)."""
-    curve_points: int = 8
+    curve_points: int = param(8, lo=0)
     """Held-out evaluations during training at steps k / curve_points of the budget (0: none);
     their time is kept off the training clock."""
-    curve_views: int = 0
+    curve_views: int = param(0, lo=0)
     """Test views rendered at each curve point: the first N (0: all)."""
-    psnr_targets: tuple[float, ...] = (30.0, 35.0, 40.0)
+    psnr_targets: tuple[float, ...] = param((30.0, 35.0, 40.0), lo=0.0)
     """Medium-pixel PSNRs whose first crossing on the held-out curve is reported as seconds and steps."""
-    density_resolution: int = 0
-    """Density error on an R^3 grid of voxel centres (0: the true grid's resolution)."""
-    od_samples: int = 0
+    density_resolution: int = param(0, lo=0)
+    """Density error on an R^3 grid of voxel centres (0: the true grid's resolution; else >= 2)."""
+    od_samples: int = param(0, lo=0)
     """Midpoint samples per test ray for the optical-depth error (0: twice the true grid's resolution)."""
-    report_view: int = 0
+    report_view: int = param(0, lo=0)
     """The test view shown in the image grid of the report."""
-    train_eval_views: int = 4
+    train_eval_views: int = param(4, lo=0)
     """Training views scored after training (train PSNR, an overfitting check)."""
 
     def __post_init__(self) -> None:
-        if not 1 <= self.footprint <= 16:
-            raise ValueError(f"footprint: must be an integer in [1, 16], got {self.footprint}")
-        for name in ("curve_points", "curve_views", "density_resolution", "od_samples", "report_view",
-                     "train_eval_views"):
-            if getattr(self, name) < 0:
-                raise ValueError(f"{name}: must be >= 0, got {getattr(self, name)}")
-        if self.density_resolution and self.density_resolution < 2:
+        check_fields(self)
+        if self.density_resolution == 1:
             raise ValueError(f"density_resolution: must be 0 (the true grid's) or >= 2, got {self.density_resolution}")
-        object.__setattr__(self, "psnr_targets", tuple(float(t) for t in self.psnr_targets))
 
 
 def render_views(model: Model, cameras: Sequence[Camera], *, pixel_center: float = 0.5,

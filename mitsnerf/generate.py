@@ -164,16 +164,18 @@ def generate_all(out_root: str | os.PathLike, *, names: Sequence[str] | None = N
     """Generate every scene of the library (or ``names``), each with ``overrides`` applied.
 
     Returns the dataset directories in the order of ``names`` (default: :func:`list_scenes`).
+    Every spec is loaded first: a broken one is reported (a SpecError naming its file) before
+    anything renders.
     """
     from tqdm.auto import tqdm
 
     names = list(names) if names is not None else list_scenes()
+    specs = [load_scene(name) for name in names]  # every spec checked before anything renders
+    if overrides:
+        specs = [spec.with_overrides(overrides) for spec in specs]
     out: list[Path] = []
-    with tqdm(names, desc="scenes", unit="scene", disable=not progress) as bar:
-        for name in bar:
-            bar.set_postfix_str(name)
-            spec = load_scene(name)
-            if overrides:
-                spec = spec.with_overrides(overrides)
+    with tqdm(specs, desc="scenes", unit="scene", disable=not progress) as bar:
+        for spec in bar:
+            bar.set_postfix_str(spec.name)
             out.append(generate_dataset(spec, out_root, force=force, progress=progress))
     return out

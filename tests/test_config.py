@@ -2,11 +2,15 @@
 
 from __future__ import annotations
 
+import copy
 from dataclasses import dataclass, field
+from typing import Any, ClassVar, Literal, Mapping
 
 import pytest
 
-from mitsnerf.config import from_dict, with_overrides
+from mitsnerf.config import (apply_overrides, doc_table, field_docs, from_dict, param, parse_value, read_toml, to_dict,
+                             with_overrides)
+from mitsnerf.errors import SpecError
 from mitsnerf.methods.nerf import NeRFMethodConfig
 
 
@@ -42,3 +46,193 @@ def test_errors_name_the_field():
     with pytest.raises(ValueError, match=r"^bogus: unknown key"):
         from_dict(Outer, {"bogus": 1})
     assert with_overrides(Outer(), {"small.depth": 5}).small == Inner(width=32, depth=5)
+
+
+# ---------------------------------------------------------------- the one mechanism: param(), from_dict
+
+
+@dataclass(frozen=True)
+class Leaf:
+    n: int = param(1, lo=1, hi=2**20)
+    x: float = param(0.5, lo=0.0, hi=1.0, hi_open=True)
+    rgb: tuple[float, float, float] = param((0.0, 0.0, 0.0), lo=0.0)
+    mode: str = param("a", choices=("a", "b"))
+    flag: bool = param(True)
+    kind: Literal["p", "q"] = param("p")
+    pair: tuple[int, int] | None = param(None)
+
+
+@dataclass(frozen=True)
+class Circle:
+    config_kind: ClassVar[str] = "shape"
+    type: ClassVar[str] = "circle"
+    r: float = param(lo=0.0, lo_open=True)
+
+
+@dataclass(frozen=True)
+class Square:
+    config_kind: ClassVar[str] = "shape"
+    type: ClassVar[str] = "square"
+    side: float = param(1.0, lo=0.0, lo_open=True)
+
+
+@dataclass(frozen=True)
+class Root:
+    name: str = param()
+    leaf: Leaf = param(default_factory=Leaf)
+    shapes: tuple[Circle | Square, ...] = param(())
+    seeds: tuple[int, ...] = param((0,), lo=0)
+    extra: Mapping[str, Any] = param(default_factory=dict)
+    """Free-form settings."""
+
+    def __post_init__(self) -> None:
+        if self.name == "bad":
+            raise ValueError("name: must not be 'bad'")
+        if len(self.shapes) > 2:
+            raise ValueError("shapes.2: at most two shapes")
+
+
+CIRCLE = {"type": "circle", "r": 1}
+BAD_ROOTS = [
+    ({"leaf": {"n": 0}}, "leaf.n", "must be an integer in [1, 1048576], got 0"),
+    ({"leaf": {"n": True}}, "leaf.n", "must be an integer in [1, 1048576], got True"),
+    ({"leaf": {"n": 2.0}}, "leaf.n", "must be an integer in [1, 1048576], got 2.0"),
+    ({"leaf": {"x": 1.0}}, "leaf.x", "must be a number in [0, 1), got 1.0"),
+    ({"leaf": {"x": float("nan")}}, "leaf.x", "must be a number in [0, 1), got nan"),
+    ({"leaf": {"x": "0.5"}}, "leaf.x", "must be a number in [0, 1), got '0.5'"),
+    ({"leaf": {"rgb": [1, -1, 0]}}, "leaf.rgb", "must be 3 numbers >= 0, got [1, -1, 0]"),
+    ({"leaf": {"rgb": [1, float("inf"), 0]}}, "leaf.rgb", "must be 3 numbers >= 0, got [1, inf, 0]"),
+    ({"leaf": {"rgb": [1, 1]}}, "leaf.rgb", "must be 3 numbers >= 0, got 2 values"),
+    ({"leaf": {"rgb": "red"}}, "leaf.rgb", "must be 3 numbers >= 0, got a string 'red'"),
+    ({"leaf": {"mode": "c"}}, "leaf.mode", "must be one of 'a', 'b', got 'c'"),
+    ({"leaf": {"flag": 1}}, "leaf.flag", "must be true or false, got 1"),
+    ({"leaf": {"kind": "r"}}, "leaf.kind", "must be one of 'p', 'q', got 'r'"),
+    ({"leaf": {"pair": [1, "x"]}}, "leaf.pair", "must be 2 numbers, got [1, 'x']"),
+    ({"leaf": 3}, "leaf", "must be a table, got an integer"),
+    ({"leaf": {"mdoe": "a"}}, "leaf.mdoe", "unknown field (did you mean 'mode'?)"),
+    ({"lef": {}}, "lef", "unknown field (did you mean 'leaf'?)"),
+    ({"zzz": 1}, "zzz", "unknown field (known: name, leaf, shapes, seeds, extra)"),
+    ({"name": None}, "name", "missing field (a string)"),
+    ({"name": "bad"}, "name", "must not be 'bad'"),
+    ({"shapes": [CIRCLE, {"type": "square", "side": -1}]}, "shapes.1.side", "must be a number > 0, got -1"),
+    ({"shapes": [{"r": 1}]}, "shapes.0.type", "missing field (one of circle, square)"),
+    ({"shapes": [{"type": "hexagon"}]}, "shapes.0.type", "unknown shape type 'hexagon' (known: circle, square)"),
+    ({"shapes": [{"type": "circle"}]}, "shapes.0.r", "missing field (a number > 0)"),
+    ({"shapes": [{"type": "circle", "r": 1, "d": 2}]}, "shapes.0.d", "unknown field (known: r)"),
+    ({"shapes": [CIRCLE, [1]]}, "shapes.1", "must be a table, got a list"),
+    ({"shapes": [CIRCLE, CIRCLE, CIRCLE]}, "shapes.2", "at most two shapes"),
+    ({"shapes": "circle"}, "shapes", "must be a list, got a string 'circle'"),
+    ({"seeds": [0, -1]}, "seeds.1", "must be an integer >= 0, got -1"),
+    ({"extra": [1]}, "extra", "must be a table, got a list"),
+]
+
+
+@pytest.mark.parametrize("change, field_name, message", BAD_ROOTS, ids=[c[1] + ":" + c[2][:20] for c in BAD_ROOTS])
+def test_every_problem_names_the_file_and_the_field(change, field_name, message):
+    data = {k: v for k, v in {"name": "r", **change}.items() if v is not None}
+    with pytest.raises(SpecError) as info:
+        from_dict(Root, data, source="dir/f.toml")
+    assert (info.value.where, info.value.field, info.value.message) == ("dir/f.toml", field_name, message)
+    assert str(info.value) == f"dir/f.toml: {field_name}: {message}"
+    assert isinstance(info.value, ValueError)  # callers that catch ValueError keep working
+
+
+def test_prefix_and_no_source():
+    with pytest.raises(SpecError) as info:
+        from_dict(Leaf, {"n": 0}, prefix="quick.leaf")
+    assert info.value.where is None and str(info.value) == "quick.leaf.n: must be an integer in [1, 1048576], got 0"
+
+
+def test_values_are_converted_and_round_trip():
+    root = from_dict(Root, {"name": "r", "leaf": {"x": 0, "rgb": [1, 2, 3], "pair": [1, 2]}, "seeds": [3, 4],
+                            "shapes": [CIRCLE, {"type": "square"}]})
+    assert root.leaf.x == 0.0 and isinstance(root.leaf.x, float) and root.leaf.rgb == (1.0, 2.0, 3.0)
+    assert root.leaf.pair == (1, 2) and root.seeds == (3, 4)
+    assert root.shapes == (Circle(r=1.0), Square(side=1.0))
+    data = to_dict(root)
+    assert data["shapes"] == [{"type": "circle", "r": 1.0}, {"type": "square", "side": 1.0}]
+    assert data["leaf"]["rgb"] == [1.0, 2.0, 3.0]
+    assert "pair" not in to_dict(Leaf())  # None with a None default is left out (TOML has no null)
+    assert from_dict(Root, data) == root
+
+
+def test_method_config_errors_still_read_field_problem():
+    from mitsnerf.methods.voxel import VoxelMethodConfig
+
+    with pytest.raises(ValueError) as info:
+        from_dict(NeRFMethodConfig, {"n_samples": 0})
+    assert str(info.value) == "n_samples: must be >= 1, got 0"
+    with pytest.raises(ValueError, match=r"^network\.depth: "):
+        from_dict(NeRFMethodConfig, {"network": {"depth": 0}})
+    with pytest.raises(ValueError) as info:  # a message that does not start with one field stays whole
+        from_dict(VoxelMethodConfig, {"resolution": 4, "initial_resolution": 8})
+    assert info.value.field is None and str(info.value).startswith("initial_resolution, resolution: ")
+    with pytest.raises(ValueError, match=r"^coarse_network\.width: expected an integer, got 'w'$"):
+        from_dict(NeRFMethodConfig, {"coarse_network": {"width": "w"}})
+
+
+def test_docs_come_from_one_place_per_field():
+    from mitsnerf.volumes.cloud import Params
+
+    assert field_docs(Root)["extra"] == "Free-form settings."  # an attribute docstring
+    assert field_docs(Params)["radius"] == "envelope radius (density 0 beyond it)"  # param(doc=...)
+    table = doc_table(Params)
+    assert "| radius | a number in [0.05, 0.45] | 0.32 | envelope radius (density 0 beyond it) |" in table
+    assert "| albedo | 3 numbers in [0, 1] | [0.8, 0.8, 0.8] |" in table
+    assert "| seeds | a list | [0] |" in doc_table(Root) and "| name | a string | required |" in doc_table(Root)
+
+
+# ---------------------------------------------------------------- dotted overrides, CLI values, files
+
+
+GOOD_OVERRIDES = [
+    ({}, {"a.b": 1}, {"a": {"b": 1}}),
+    ({"l": [{"x": 0}, {"x": 1}]}, {"l.1.x": 2}, {"l": [{"x": 0}, {"x": 2}]}),
+    ({"l": [{"x": 0}]}, {"l.0": {"y": (1, 2)}}, {"l": [{"y": [1, 2]}]}),
+    ({"m": [{"c": {"n": 1}}, {"c": {}}]}, {"m.1.c.n": 3}, {"m": [{"c": {"n": 1}}, {"c": {"n": 3}}]}),
+]
+
+
+@pytest.mark.parametrize("data, overrides, expected", GOOD_OVERRIDES)
+def test_apply_overrides(data, overrides, expected):
+    before = copy.deepcopy(data)
+    assert apply_overrides(data, overrides, "x.toml") == expected
+    assert data == before  # a copy
+
+
+BAD_OVERRIDES = [
+    ({"l": [{"x": 0}, {"x": 1}]}, "l.2.x", "no item '2' (there are 2)"),
+    ({"l": [{"x": 0}]}, "l.x", "no item 'x' (there are 1)"),
+    ({"n": 1}, "n.x", "cannot override inside 'n': not a table"),
+    ({"n": {"m": "s"}}, "n.m.k", "cannot override inside 'n.m': not a table"),
+]
+
+
+@pytest.mark.parametrize("data, key, message", BAD_OVERRIDES)
+def test_apply_overrides_errors_name_the_source_and_the_key(data, key, message):
+    with pytest.raises(SpecError) as info:
+        apply_overrides(data, {key: 1}, "--set")
+    assert (info.value.where, info.value.field, info.value.message) == ("--set", key, message)
+
+
+@pytest.mark.parametrize("text, value", [("16", 16), ("0.5", 0.5), ("[1, 1, 1]", [1, 1, 1]), ("true", True),
+                                         ('"7"', "7"), ("sphere", "sphere"), ("", "")])
+def test_parse_value(text, value):
+    assert parse_value(text) == value and type(parse_value(text)) is type(value)
+
+
+def test_read_toml_names_the_file(tmp_path):
+    good = tmp_path / "good.toml"
+    good.write_text('a = 1\n[b]\nc = "x"\n')
+    assert read_toml(good) == {"a": 1, "b": {"c": "x"}}
+    binary = tmp_path / "binary.toml"
+    binary.write_bytes(b"a = 1\n\xff\xfe\x00\x80")
+    bad = tmp_path / "bad.toml"
+    bad.write_text("a = \n")
+    for path, message in [(binary, "not a text file (invalid UTF-8 at byte 6)"), (tmp_path, "is a directory, not a spec"),
+                          (tmp_path / "absent.toml", "cannot read: No such file or directory")]:
+        with pytest.raises(SpecError) as info:
+            read_toml(path, "a spec")
+        assert (info.value.where, info.value.field, info.value.message) == (str(path), None, message)
+    with pytest.raises(SpecError, match=r"bad\.toml: TOML syntax error: .*line 1"):
+        read_toml(bad)

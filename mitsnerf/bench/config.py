@@ -28,22 +28,17 @@ with a warning (configs may name methods before they land).
 
 from __future__ import annotations
 
+import dataclasses
 import os
-import sys
 import warnings
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Mapping
 
-from mitsnerf.config import deep_merge, from_dict
+from mitsnerf.config import INTERNAL, as_spec_error, deep_merge, from_dict, param, read_toml, source_field, to_dict
 from mitsnerf.errors import SpecError
 from mitsnerf.evaluate import EvalConfig
 from mitsnerf.methods import METHODS
-
-if sys.version_info >= (3, 11):
-    import tomllib
-else:  # pragma: no cover
-    import tomli as tomllib
 
 BENCHMARKS_ENV = "MITSNERF_BENCHMARKS"
 
@@ -52,21 +47,22 @@ BENCHMARKS_ENV = "MITSNERF_BENCHMARKS"
 class MethodQuick:
     """A method's own part of the ``--quick`` profile (over the profile's shared settings)."""
 
-    config: Mapping[str, Any] = field(default_factory=dict)
-    train: Mapping[str, Any] = field(default_factory=dict)
+    config: Mapping[str, Any] = param(default_factory=dict, doc="method config keys")
+    train: Mapping[str, Any] = param(default_factory=dict, doc="training settings")
 
 
 @dataclass(frozen=True)
 class MethodRun:
     """One method column of a benchmark: the method, its config, its training budget."""
 
-    name: str
-    label: str = ""
-    config: Mapping[str, Any] = field(default_factory=dict)
-    """The method's config (``mitsnerf.methods.METHODS[name].config_type`` keys)."""
-    train: Mapping[str, Any] = field(default_factory=dict)
-    """Training settings over the benchmark's shared ``train`` (``mitsnerf.train.TrainConfig`` keys)."""
-    quick: MethodQuick = field(default_factory=MethodQuick)
+    name: str = param(doc="a registered method (mitsnerf.methods.METHODS)")
+    label: str = param("", doc="column label (default: name); unique")
+    config: Mapping[str, Any] = param(
+        default_factory=dict, doc="the method's config (mitsnerf.methods.METHODS[name].config_type keys)")
+    train: Mapping[str, Any] = param(
+        default_factory=dict,
+        doc="training settings over the benchmark's shared train (mitsnerf.train.TrainConfig keys)")
+    quick: MethodQuick = param(default_factory=MethodQuick, doc="this method's part of the --quick profile")
 
     def __post_init__(self) -> None:
         if self.name not in METHODS:
@@ -81,23 +77,26 @@ class MethodRun:
 class QuickProfile:
     """Overrides applied by ``--quick``: to every scene spec, every method config, budget and eval."""
 
-    scene: Mapping[str, Any] = field(default_factory=dict)
-    config: Mapping[str, Any] = field(default_factory=dict)
-    train: Mapping[str, Any] = field(default_factory=dict)
-    eval: Mapping[str, Any] = field(default_factory=dict)
+    scene: Mapping[str, Any] = param(default_factory=dict, doc="dotted SceneSpec.with_overrides keys")
+    config: Mapping[str, Any] = param(default_factory=dict, doc="method config keys, for every method")
+    train: Mapping[str, Any] = param(default_factory=dict, doc="training settings, for every method")
+    eval: Mapping[str, Any] = param(default_factory=dict, doc="EvalConfig keys")
 
 
 @dataclass(frozen=True)
 class BenchConfig:
-    name: str
-    scenes: tuple[str, ...]
-    methods: tuple[MethodRun, ...]
-    seeds: tuple[int, ...] = (0,)
-    train: Mapping[str, Any] = field(default_factory=dict)
+    name: str = param(doc="results go to results/<name>[-quick]/; default: the file's stem")
+    scenes: tuple[str, ...] = param(doc='scene names or spec paths, or "all"')
+    methods: tuple[MethodRun, ...] = param(doc='[[methods]] tables, or "all" (with [method_settings.NAME])')
+    seeds: tuple[int, ...] = param((0,), lo=0, doc="training seeds; every cell runs once per seed")
+    train: Mapping[str, Any] = param(default_factory=dict)
     """Training settings shared by every method (a method's own ``train`` wins)."""
-    eval: EvalConfig = field(default_factory=EvalConfig)
-    quick: QuickProfile = field(default_factory=QuickProfile)
-    description: str = ""
+    eval: EvalConfig = param(default_factory=EvalConfig, doc="what is measured besides the test PSNR")
+    quick: QuickProfile = param(default_factory=QuickProfile, doc="the --quick profile")
+    description: str = param("", doc="one line")
+    source: str | None = source_field()
+    methods_all: bool = field(default=False, compare=False, metadata={INTERNAL: True})
+    """``methods = "all"``: the methods' settings are ``[method_settings.NAME]`` tables."""
 
     def __post_init__(self) -> None:
         if not self.name or "/" in self.name or self.name.startswith("."):
@@ -112,28 +111,50 @@ class BenchConfig:
             raise ValueError("seeds: at least one seed is needed")
         if len(set(self.seeds)) != len(self.seeds):
             raise ValueError(f"seeds: listed twice in {list(self.seeds)}")
-        if any(s < 0 for s in self.seeds):
-            raise ValueError(f"seeds: must be >= 0, got {list(self.seeds)}")
         labels = [m.label for m in self.methods]
         if len(set(labels)) != len(labels):
             raise ValueError(f"methods: labels must be unique, got {labels}")
 
-    def method_settings(self, method: MethodRun, quick: bool) -> tuple[dict, dict]:
-        """``(method config, train settings)`` of ``method``, merged in order: shared, the
-        method's own, then (``quick``) the profile's shared and the method's quick settings."""
-        config = deep_merge({}, method.config)
-        train = deep_merge(self.train, method.train)
+    def method_path(self, method: MethodRun) -> str:
+        """Where ``method``'s settings are in the file: ``methods.I`` or ``method_settings.NAME``."""
+        if self.methods_all:
+            return f"method_settings.{method.name}"
+        return f"methods.{[m.label for m in self.methods].index(method.label)}"
+
+    def setting_layers(self, method: MethodRun, quick: bool, part: str) -> list[tuple[str, Mapping[str, Any]]]:
+        """``(where in the file, table)`` of ``method``'s ``part`` ("config" or "train"), in merge order:
+        shared (``train`` only), the method's own, then (``quick``) the profile's and the method's quick."""
+        own = self.method_path(method)
+        layers = [(part, self.train)] if part == "train" else []
+        layers.append((f"{own}.{part}", getattr(method, part)))
         if quick:
-            config = deep_merge(deep_merge(config, self.quick.config), method.quick.config)
-            train = deep_merge(deep_merge(train, self.quick.train), method.quick.train)
+            layers += [(f"quick.{part}", getattr(self.quick, part)), (f"{own}.quick.{part}", getattr(method.quick, part))]
+        return layers
+
+    def method_settings(self, method: MethodRun, quick: bool) -> tuple[dict, dict]:
+        """``(method config, train settings)`` of ``method``: its :meth:`setting_layers` merged."""
+        config, train = ({}, {})
+        for _, table in self.setting_layers(method, quick, "config"):
+            config = deep_merge(config, table)
+        for _, table in self.setting_layers(method, quick, "train"):
+            train = deep_merge(train, table)
         return config, train
+
+    def blame(self, method: MethodRun, quick: bool, part: str, exc: ValueError) -> SpecError:
+        """``exc`` (about ``method``'s merged ``part`` settings) as a SpecError at the field of the
+        file that set the key: the last layer holding it, else the method's own table."""
+        error = as_spec_error(exc, self.source)
+        head = (error.field or "").split(".")[0]
+        layers = self.setting_layers(method, quick, part)
+        path = next((where for where, table in reversed(layers) if head in table), f"{self.method_path(method)}.{part}")
+        field_name = f"{path}.{error.field}" if error.field else path
+        return SpecError(self.source, field_name, f"{error.message} (method {method.label})")
 
     def eval_config(self, quick: bool) -> EvalConfig:
         if not quick or not self.quick.eval:
             return self.eval
-        from mitsnerf.config import to_dict
-
-        return from_dict(EvalConfig, deep_merge(to_dict(self.eval), self.quick.eval), prefix="quick.eval.")
+        return from_dict(EvalConfig, deep_merge(to_dict(self.eval), self.quick.eval), source=self.source,
+                         prefix="quick.eval")
 
 
 def benchmarks_dir() -> Path:
@@ -141,7 +162,7 @@ def benchmarks_dir() -> Path:
     return Path(os.environ.get(BENCHMARKS_ENV) or Path(__file__).resolve().parents[2] / "benchmarks")
 
 
-def _expand(raw: dict) -> dict:
+def _expand(raw: dict, source: str) -> dict:
     """``scenes = "all"`` and ``methods = "all"`` (with ``[method_settings.NAME]``) as explicit lists."""
     raw = dict(raw)
     if raw.get("scenes") == "all":
@@ -150,36 +171,46 @@ def _expand(raw: dict) -> dict:
         raw["scenes"] = list_scenes()
     settings = raw.pop("method_settings", None)
     if raw.get("methods") == "all":
+        if not isinstance(settings or {}, Mapping):
+            raise SpecError(source, "method_settings", "must be a table of method names")
         settings = dict(settings or {})
-        if not isinstance(settings, Mapping):
-            raise ValueError("method_settings: expected a table of method names")
         for name in sorted(set(settings) - set(METHODS)):
             warnings.warn(f"method_settings.{name}: no method {name!r} is registered (yet); ignored", stacklevel=3)
         methods = []
         for name in sorted(METHODS):
             entry = dict(settings.get(name) or {})
             if "name" in entry and entry["name"] != name:
-                raise ValueError(f"method_settings.{name}.name: must be {name!r} or left out")
+                raise SpecError(source, f"method_settings.{name}.name", f"must be {name!r} or left out")
             methods.append({**entry, "name": name})
         raw["methods"] = methods
     elif settings is not None:
-        raise ValueError('method_settings: only with methods = "all" (give settings in each [[methods]] table)')
+        raise SpecError(source, "method_settings", 'only with methods = "all" (give settings in each [[methods]] table)')
     elif isinstance(raw.get("methods"), str):
-        raise ValueError(f'methods: a list of [[methods]] tables or "all", got {raw["methods"]!r}')
+        raise SpecError(source, "methods", f'a list of [[methods]] tables or "all", got {raw["methods"]!r}')
     if isinstance(raw.get("scenes"), str):
-        raise ValueError(f'scenes: a list of scene names or "all", got {raw["scenes"]!r}')
+        raise SpecError(source, "scenes", f'a list of scene names or "all", got {raw["scenes"]!r}')
     return raw
 
 
 def parse_bench_config(raw: Mapping[str, Any], source: str | os.PathLike = "<config>") -> BenchConfig:
-    """A :class:`BenchConfig` from plain data (a parsed TOML file); SpecError naming the field."""
+    """A :class:`BenchConfig` from plain data (a parsed TOML file); SpecError naming the file and field."""
+    source = str(source)
     raw = dict(raw)
-    raw.setdefault("name", Path(str(source)).stem)
+    raw.setdefault("name", Path(source).stem)
+    expanded = _expand(raw, source)
+    if raw.get("methods") != "all":
+        return from_dict(BenchConfig, expanded, source=source)
+    names = [m["name"] for m in expanded["methods"]]
     try:
-        return from_dict(BenchConfig, _expand(raw))
-    except ValueError as exc:
-        field_name, _, message = str(exc).partition(": ")
-        raise SpecError(source, field_name, message or str(exc)) from None
+        config = from_dict(BenchConfig, expanded, source=source)
+    except SpecError as exc:  # methods.I.x of the expanded list is method_settings.NAME.x in the file
+        head, _, rest = (exc.field or "").partition(".")
+        index, _, tail = rest.partition(".")
+        if head == "methods" and index.isdigit():
+            raise SpecError(exc.where, ".".join(filter(None, ("method_settings", names[int(index)], tail))),
+                            exc.message) from None
+        raise
+    return dataclasses.replace(config, methods_all=True)
 
 
 def load_bench_config(name_or_path: str | os.PathLike) -> BenchConfig:
@@ -187,12 +218,7 @@ def load_bench_config(name_or_path: str | os.PathLike) -> BenchConfig:
     path = Path(name_or_path)
     if path.suffix != ".toml" and not path.exists():
         path = benchmarks_dir() / f"{name_or_path}.toml"
-    if not path.is_file():
+    if not path.exists():
         known = sorted(p.stem for p in benchmarks_dir().glob("*.toml"))
         raise SpecError(path, None, f"no such benchmark config (known: {', '.join(known) or 'none'})")
-    try:
-        raw = tomllib.loads(path.read_text())
-    except tomllib.TOMLDecodeError as exc:
-        raise SpecError(path, None, f"TOML syntax error: {exc}") from None
-    raw.setdefault("name", path.stem)
-    return parse_bench_config(raw, path)
+    return parse_bench_config(read_toml(path, "a benchmark config"), path)

@@ -33,6 +33,7 @@ from mitsnerf.bench.tables import (average_rows, best_rules, cell_row, csv_keys,
                                    scene_rows)
 from mitsnerf.config import from_dict, to_dict
 from mitsnerf.data.atomic import atomic_write_json, atomic_write_text
+from mitsnerf.errors import SpecError
 
 DATA_ENV = "MITSNERF_DATA"
 
@@ -84,11 +85,8 @@ def out_root_of(config: BenchConfig, options: BenchOptions) -> Path:
 
 
 def plan_cells(config: BenchConfig, options: BenchOptions) -> list[Cell]:
-    """Every cell of ``config``, resolved and validated (ValueError naming the method or scene)."""
-    from mitsnerf.methods import get_method
+    """Every cell of ``config``, resolved and validated (a SpecError naming the bench file and field)."""
     from mitsnerf.generate import dataset_dir
-    from mitsnerf.scene.spec import load_scene
-    from mitsnerf.train import TrainConfig
 
     import mitsuba as mi
 
@@ -97,42 +95,62 @@ def plan_cells(config: BenchConfig, options: BenchOptions) -> list[Cell]:
     out_root = out_root_of(config, options).resolve()
     data_root = Path(options.data_root).resolve()
     evalc = to_dict(config.eval_config(options.quick))
-    specs = []
-    for name in config.scenes:
-        spec = load_scene(name)
-        if options.quick and config.quick.scene:
-            spec = spec.with_overrides(dict(config.quick.scene))
-        specs.append(spec)
-    names = [s.name for s in specs]
-    if len(set(names)) != len(names):
-        raise ValueError(f"scenes: two specs share a name ({', '.join(names)}); results are keyed by name")
-    methods = []
-    for method in config.methods:
-        mconfig, train = config.method_settings(method, options.quick)
-        if "seed" in train:
-            raise ValueError(f"{method.label}: train.seed: set by the benchmark's seeds, not per method")
-        entry = get_method(method.name)
-        try:
-            resolved = to_dict(from_dict(entry.config_type, mconfig))
-        except ValueError as exc:
-            raise ValueError(f"method {method.label}: config.{exc}") from None
-        methods.append((method, resolved, train))
+    specs = _scene_specs(config, options.quick)
     cells = []
     for spec in specs:
         ds_dir = str(dataset_dir(spec, data_root))
-        for method, resolved, train in methods:
+        for method, resolved, train in _method_settings(config, options.quick):
             for seed in config.seeds:
-                try:
-                    train_config = to_dict(from_dict(TrainConfig, {**train, "seed": seed}))
-                except ValueError as exc:
-                    raise ValueError(f"method {method.label}: train.{exc}") from None
                 cells.append(Cell(
                     bench=config.name, scene=spec.name, label=method.label, method=method.name, seed=seed,
-                    spec=spec.to_dict(), method_config=resolved, train=train_config, eval=evalc,
+                    spec=spec.to_dict(), method_config=resolved, train=train[seed], eval=evalc,
                     variant=variant, code_version=version, dataset_dir=ds_dir, data_root=str(data_root),
                     out_dir=str(cell_dir(out_root, spec.name, method.label, seed)), quick=options.quick,
                 ))
     return cells
+
+
+def _scene_specs(config: BenchConfig, quick: bool) -> list:
+    """The benchmark's scene specs, with the quick profile's overrides (blamed on ``quick.scene.KEY``)."""
+    from mitsnerf.scene.spec import load_scene
+
+    specs = []
+    for name in config.scenes:
+        spec = load_scene(name)
+        if quick and config.quick.scene:
+            try:
+                spec = spec.with_overrides(config.quick.scene)
+            except SpecError as exc:
+                raise SpecError(config.source, f"quick.scene.{exc.field}" if exc.field else "quick.scene",
+                                f"{exc.message} (scene {name})") from None
+        specs.append(spec)
+    names = [s.name for s in specs]
+    if len(set(names)) != len(names):
+        raise SpecError(config.source, "scenes", f"two specs share a name ({', '.join(names)}); results are keyed by name")
+    return specs
+
+
+def _method_settings(config: BenchConfig, quick: bool) -> list[tuple[Any, dict, dict[int, dict]]]:
+    """``(method, resolved method config, {seed: resolved train settings})`` per method, validated;
+    a problem is blamed on the field of the bench file that set it."""
+    from mitsnerf.methods import get_method
+    from mitsnerf.train import TrainConfig
+
+    out = []
+    for method in config.methods:
+        mconfig, train = config.method_settings(method, quick)
+        if "seed" in train:
+            raise config.blame(method, quick, "train", ValueError("seed: set by the benchmark's seeds, not per method"))
+        try:
+            resolved = to_dict(from_dict(get_method(method.name).config_type, mconfig))
+        except ValueError as exc:
+            raise config.blame(method, quick, "config", exc) from None
+        try:
+            trains = {seed: to_dict(from_dict(TrainConfig, {**train, "seed": seed})) for seed in config.seeds}
+        except ValueError as exc:
+            raise config.blame(method, quick, "train", exc) from None
+        out.append((method, resolved, trains))
+    return out
 
 
 def _generate(cells: list[Cell], options: BenchOptions, log: Callable[[str], None]) -> None:

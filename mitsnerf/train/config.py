@@ -11,49 +11,38 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+from mitsnerf.config import check_fields, param
+
 
 @dataclass(frozen=True)
 class TrainConfig:
     """Training settings shared by every method (the learning rate is the method's own ``lr``)."""
 
-    steps: int = 3000
+    steps: int = param(3000, lo=1, hi=10**8)
     """The budget: optimiser steps. Schedules follow ``step / steps``."""
-    seconds: float = 0.0
+    seconds: float = param(0.0, lo=0.0)
     """Optional wall-clock cap in seconds (0: none); training then stops at the first limit reached."""
-    batch_rays: int = 2048
+    batch_rays: int = param(2048, lo=1, hi=1 << 22)
     """Rays per step (per-ray models)."""
-    pixel_jitter: bool = True
+    pixel_jitter: bool = param(True)
     """Cast each training ray through a uniformly random point of its pixel (instant-ngp's rule),
     matching a box-filtered film; false: every ray through the pixel's sample point."""
-    lr_final_factor: float = 0.1
+    lr_final_factor: float = param(0.1, lo=0.0, hi=1.0, lo_open=True)
     """Exponential decay of the learning rate to ``lr * lr_final_factor`` at the last step."""
-    seed: int = 0
-    log_every: int = 25
+    seed: int = param(0, lo=0, hi=2**32 - 1)
+    log_every: int = param(25, lo=1)
     """Steps between progress-bar updates and history entries."""
-    checkpoint_every: int = 0
+    checkpoint_every: int = param(0, lo=0)
     """Steps between checkpoints (0: only at the end and when interrupted); needs a run directory."""
-    divergence_factor: float = 10.0
+    divergence_factor: float = param(10.0, lo=0.0)
     """Diverging: the mean loss of a log interval above this times its running minimum (0: no check)."""
-    divergence_patience: int = 3
+    divergence_patience: int = param(3, lo=1)
     """Log intervals in a row above ``divergence_factor`` x minimum before training stops."""
 
     def __post_init__(self) -> None:
-        if not 1 <= self.steps <= 10**8:
-            raise ValueError(f"steps: must be an integer in [1, 100000000], got {self.steps}")
-        if self.seconds < 0:
-            raise ValueError(f"seconds: must be >= 0, got {self.seconds}")
-        if not 1 <= self.batch_rays <= 1 << 22:
-            raise ValueError(f"batch_rays: must be an integer in [1, 4194304], got {self.batch_rays}")
-        if not 0 < self.lr_final_factor <= 1:
-            raise ValueError(f"lr_final_factor: must be in (0, 1], got {self.lr_final_factor}")
-        if self.log_every < 1:
-            raise ValueError(f"log_every: must be >= 1, got {self.log_every}")
-        if self.checkpoint_every < 0:
-            raise ValueError(f"checkpoint_every: must be >= 0, got {self.checkpoint_every}")
+        check_fields(self)
         if self.divergence_factor != 0 and not self.divergence_factor > 1:
-            raise ValueError(f"divergence_factor: must be 0 (off) or > 1, got {self.divergence_factor}")
-        if self.divergence_patience < 1:
-            raise ValueError(f"divergence_patience: must be >= 1, got {self.divergence_patience}")
+            raise ValueError(f"divergence_factor: must be 0 (off) or > 1, got {self.divergence_factor:g}")
 
     @property
     def budget(self) -> str:

@@ -23,15 +23,15 @@ faces of the scene box ``[-0.5, 0.5]^3``.
 >>> make_params("cloud", {"octaves": 0})
 Traceback (most recent call last):
 ...
-ValueError: octaves: must be an integer >= 1, got 0
+mitsnerf.errors.SpecError: octaves: must be an integer >= 1, got 0
 """
 
 from __future__ import annotations
 
-import dataclasses
 from types import MappingProxyType
 from typing import Any, Mapping
 
+from mitsnerf.config import from_dict
 from mitsnerf.volumes import blobs, cloud, lattice, nebula, plume, shell
 from mitsnerf.volumes.base import Family, VolumeGrids
 
@@ -52,31 +52,23 @@ def _family(name: Any) -> Family:
 
 
 def make_params(family: str, values: Mapping[str, Any]) -> Any:
-    """Build ``family``'s parameter dataclass from a plain mapping (as parsed from TOML).
-
-    Missing keys take their defaults; lists are accepted for tuples and ints for floats.
+    """Build ``family``'s parameter dataclass from a plain mapping (as parsed from TOML), with
+    :func:`mitsnerf.config.from_dict`: missing keys take their defaults; lists are accepted for
+    tuples and ints for floats; ranges are the fields' own.
 
     Raises:
-        ValueError: an unknown family (the message names the known ones), or an unknown key, a
-            wrong type or an out-of-range value (the message starts with the field name).
+        ValueError: an unknown family (the message names the known ones); a
+            :class:`~mitsnerf.errors.SpecError` (a ValueError) for an unknown key, a wrong type or an
+            out-of-range value, its message starting with the field name.
 
     >>> make_params("shell", {"shape": "torus", "thickness": 0.02}).shape
     'torus'
-    >>> make_params("shell", {"thickness_mm": 2})  # doctest: +ELLIPSIS
+    >>> make_params("shell", {"thickness_mm": 2})
     Traceback (most recent call last):
     ...
-    ValueError: thickness_mm: unknown parameter of volume family 'shell'; known: shape, radius, ...
+    mitsnerf.errors.SpecError: thickness_mm: unknown parameter of volume family 'shell' (did you mean 'thickness'?)
     """
-    fam = _family(family)
-    if not isinstance(values, Mapping):
-        raise ValueError(f"params: must be a table of {family} parameters, got {type(values).__name__}")
-    fields = [f.name for f in dataclasses.fields(fam.params_type)]
-    for key in values:
-        if key not in fields:
-            raise ValueError(
-                f"{key}: unknown parameter of volume family {family!r}; known: {', '.join(fields)}"
-            )
-    return fam.params_type(**values)
+    return from_dict(_family(family).params_type, values)
 
 
 def generate_volume(

@@ -63,8 +63,10 @@ class Family:
 
     Attributes:
         name: registry key, e.g. ``"cloud"``.
-        params_type: frozen dataclass of the family's parameters; every field has a default and
-            ``__post_init__`` validates (raising ``ValueError("field: ...")``) and normalises them.
+        params_type: frozen dataclass of the family's parameters, built by
+            :func:`mitsnerf.config.from_dict`: every field is a :func:`mitsnerf.config.param` with a
+            default and its range; ``__post_init__`` checks the rules between fields (raising
+            ``ValueError("field: ...")``).
         generate: ``(params, resolution, seed) -> VolumeGrids``; deterministic in its arguments.
         description: one line saying what the family stresses.
     """

@@ -18,11 +18,13 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import ClassVar
 
 import numpy as np
 
+from mitsnerf.config import param
+from mitsnerf.volumes import params as common
 from mitsnerf.volumes.base import MARGIN, Family, VolumeGrids, constant_albedo, finish, voxel_centres
-from mitsnerf.volumes.params import check_float, check_int, check_rgb, normalise
 
 _CUTOFF = 3.0  # support radius in standard deviations
 _TRIES = 20000
@@ -30,32 +32,20 @@ _TRIES = 20000
 
 @dataclass(frozen=True)
 class Params:
-    """Parameters of ``blobs`` (lengths in world units).
-
-    | name    | type      | default         | meaning                                             |
-    |---------|-----------|-----------------|-----------------------------------------------------|
-    | n_blobs | int       | 5               | number of lobes, 1 to 16                            |
-    | sigma   | float     | 0.05            | standard deviation of each lobe (support 3 sigma)   |
-    | gap     | float     | 0.05            | least empty distance between two lobes' supports    |
-    | albedo  | 3 floats  | (0.8, 0.8, 0.8) | constant single-scattering albedo                   |
+    """Parameters of ``blobs`` (lengths in world units); ``mitsnerf.config.doc_table(Params)`` lists them.
 
     The lobes must fit: the cube holding the centres must have room for ``n_blobs`` points
     ``6 sigma + gap`` apart (checked against a packing fraction of 0.2; the defaults allow 7).
     """
 
-    n_blobs: int = 5
-    sigma: float = 0.05
-    gap: float = 0.05
-    albedo: tuple[float, float, float] = (0.8, 0.8, 0.8)
+    config_noun: ClassVar[str] = "parameter of volume family 'blobs'"
+
+    n_blobs: int = param(5, lo=1, hi=16, doc="number of lobes")
+    sigma: float = param(0.05, lo=0.005, hi=0.1, doc="standard deviation of each lobe (support 3 sigma)")
+    gap: float = param(0.05, lo=0.0, hi=0.5, doc="least empty distance between two lobes' supports")
+    albedo: tuple[float, float, float] = common.albedo((0.8, 0.8, 0.8))
 
     def __post_init__(self) -> None:
-        normalise(
-            self,
-            n_blobs=check_int("n_blobs", self.n_blobs, lo=1, hi=16),
-            sigma=check_float("sigma", self.sigma, 0.005, 0.1),
-            gap=check_float("gap", self.gap, 0.0, 0.5),
-            albedo=check_rgb("albedo", self.albedo),
-        )
         # Place-ability: points >= d apart in a cube of side L are disjoint balls of radius d/2 in a
         # cube of side L + d. Random sequential placement jams near a packing fraction of 0.38; asking
         # for at most 0.2 keeps dart throwing quick and reliable.

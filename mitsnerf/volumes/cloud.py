@@ -24,60 +24,40 @@ Albedo is constant.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import ClassVar
 
 import numpy as np
 
+from mitsnerf.config import param
+from mitsnerf.volumes import params as common
 from mitsnerf.volumes.base import (
     MARGIN, Family, VolumeGrids, constant_albedo, finish, smoothstep, voxels_in_ball,
 )
 from mitsnerf.volumes.noise import NOISE_BOUND, GradientNoise, fbm
-from mitsnerf.volumes.params import check_fbm, check_float, check_rgb, normalise
 
 
 @dataclass(frozen=True)
 class Params:
-    """Parameters of ``cloud`` (lengths in world units, the box is ``[-0.5, 0.5]^3``).
+    """Parameters of ``cloud`` (lengths in world units, the box is ``[-0.5, 0.5]^3``);
+    ``mitsnerf.config.doc_table(Params)`` lists them with their ranges."""
 
-    | name           | type          | default         | meaning                                        |
-    |----------------|---------------|-----------------|------------------------------------------------|
-    | octaves        | int >= 1      | 5               | fBm octaves                                    |
-    | base_frequency | float         | 3.0             | lowest octave, lattice cells per unit length   |
-    | persistence    | float (0, 1]  | 0.5             | amplitude ratio between octaves                |
-    | lacunarity     | float [1.5, 4]| 2.0             | frequency ratio between octaves                |
-    | radius         | float         | 0.32            | envelope radius (density 0 beyond it)          |
-    | edge_softness  | float         | 0.14            | width of the envelope's fall-off inside radius |
-    | displacement   | float         | 0.15            | how far the noise pushes the envelope in/out   |
-    | coverage       | float [0, 1]  | 0.45            | density where the noise is 0                   |
-    | contrast       | float         | 3.5             | density change per unit of noise               |
-    | albedo         | 3 floats      | (0.8, 0.8, 0.8) | constant single-scattering albedo              |
-    """
+    config_noun: ClassVar[str] = "parameter of volume family 'cloud'"
 
-    octaves: int = 5
-    base_frequency: float = 3.0
-    persistence: float = 0.5
-    lacunarity: float = 2.0
-    radius: float = 0.32
-    edge_softness: float = 0.14
-    displacement: float = 0.15
-    coverage: float = 0.45
-    contrast: float = 3.5
-    albedo: tuple[float, float, float] = (0.8, 0.8, 0.8)
+    octaves: int = common.octaves(5)
+    base_frequency: float = common.base_frequency(3.0)
+    persistence: float = common.persistence(0.5)
+    lacunarity: float = common.lacunarity(2.0)
+    radius: float = param(0.32, lo=0.05, hi=MARGIN, doc="envelope radius (density 0 beyond it)")
+    edge_softness: float = param(0.14, lo=0.0, hi=0.5, lo_open=True,
+                                 doc="width of the envelope's fall-off inside radius")
+    displacement: float = param(0.15, lo=0.0, hi=0.45, doc="how far the noise pushes the envelope in or out")
+    coverage: float = param(0.45, lo=0.0, hi=1.0, doc="density where the noise is 0")
+    contrast: float = param(3.5, lo=0.0, hi=20.0, doc="density change per unit of noise")
+    albedo: tuple[float, float, float] = common.albedo((0.8, 0.8, 0.8))
 
     def __post_init__(self) -> None:
-        normalise(self, **check_fbm(self.octaves, self.base_frequency, self.persistence, self.lacunarity))
-        normalise(
-            self,
-            radius=check_float("radius", self.radius, 0.05, MARGIN),
-            edge_softness=check_float("edge_softness", self.edge_softness, 0.0, 0.5, lo_open=True),
-            displacement=check_float("displacement", self.displacement, 0.0, 0.45),
-            coverage=check_float("coverage", self.coverage, 0.0, 1.0),
-            contrast=check_float("contrast", self.contrast, 0.0, 20.0),
-            albedo=check_rgb("albedo", self.albedo),
-        )
-        if self.edge_softness > self.radius:
-            raise ValueError(
-                f"edge_softness: must be <= radius ({self.radius:g}), got {self.edge_softness:g}"
-            )
+        common.check_fbm(self)
+        common.check_edge_softness(self)
         if self.radius + self.displacement * NOISE_BOUND > MARGIN:
             raise ValueError(
                 f"displacement: radius + displacement * {NOISE_BOUND:.3f} must be <= {MARGIN:g}, got "

@@ -21,41 +21,26 @@ evaluated at voxel centres, so values are exactly 0 or 1 at every resolution.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import ClassVar
 
 import numpy as np
 
+from mitsnerf.config import param
+from mitsnerf.volumes import params as common
 from mitsnerf.volumes.base import MARGIN, Family, VolumeGrids, constant_albedo, finish, voxel_centres
-from mitsnerf.volumes.params import check_float, check_int, check_rgb, normalise
 
 
 @dataclass(frozen=True)
 class Params:
-    """Parameters of ``lattice`` (lengths in world units).
+    """Parameters of ``lattice`` (lengths in world units); ``mitsnerf.config.doc_table(Params)`` lists them."""
 
-    | name          | type      | default         | meaning                                           |
-    |---------------|-----------|-----------------|---------------------------------------------------|
-    | cells         | int       | 6               | cells per axis, 1 to 64                           |
-    | fill_fraction | float     | 0.4             | fraction of cells holding a cube, (0, 1]          |
-    | cube_fraction | float     | 0.7             | cube side / cell side, (0, 1] (1: cubes touch)    |
-    | half_extent   | float     | 0.4             | half side of the lattice's sub-box, <= 0.45       |
-    | albedo        | 3 floats  | (0.8, 0.8, 0.8) | constant single-scattering albedo                 |
-    """
+    config_noun: ClassVar[str] = "parameter of volume family 'lattice'"
 
-    cells: int = 6
-    fill_fraction: float = 0.4
-    cube_fraction: float = 0.7
-    half_extent: float = 0.4
-    albedo: tuple[float, float, float] = (0.8, 0.8, 0.8)
-
-    def __post_init__(self) -> None:
-        normalise(
-            self,
-            cells=check_int("cells", self.cells, lo=1, hi=64),
-            fill_fraction=check_float("fill_fraction", self.fill_fraction, 0.0, 1.0, lo_open=True),
-            cube_fraction=check_float("cube_fraction", self.cube_fraction, 0.0, 1.0, lo_open=True),
-            half_extent=check_float("half_extent", self.half_extent, 0.05, MARGIN),
-            albedo=check_rgb("albedo", self.albedo),
-        )
+    cells: int = param(6, lo=1, hi=64, doc="cells per axis")
+    fill_fraction: float = param(0.4, lo=0.0, hi=1.0, lo_open=True, doc="fraction of cells holding a cube")
+    cube_fraction: float = param(0.7, lo=0.0, hi=1.0, lo_open=True, doc="cube side / cell side (1: cubes touch)")
+    half_extent: float = param(0.4, lo=0.05, hi=MARGIN, doc="half side of the lattice's sub-box")
+    albedo: tuple[float, float, float] = common.albedo((0.8, 0.8, 0.8))
 
 
 def filled_cells(params: Params, rng: np.random.Generator) -> np.ndarray:

@@ -19,67 +19,46 @@ palette::
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import ClassVar
 
 import numpy as np
 
+from mitsnerf.config import param
+from mitsnerf.volumes import params as common
 from mitsnerf.volumes.base import (
     MARGIN, Family, VolumeGrids, finish, smoothstep, voxel_centres, voxels_in_ball,
 )
 from mitsnerf.volumes.noise import GradientNoise, fbm
-from mitsnerf.volumes.params import check_fbm, check_float, check_rgb, normalise
 
 DEFAULT_PALETTE = ((0.25, 0.45, 0.95), (0.9, 0.35, 0.7), (0.98, 0.8, 0.45))
 
 
 @dataclass(frozen=True)
 class Params:
-    """Parameters of ``nebula`` (lengths in world units).
+    """Parameters of ``nebula`` (lengths in world units); ``mitsnerf.config.doc_table(Params)`` lists them.
 
-    | name             | type           | default          | meaning                                    |
-    |------------------|----------------|------------------|--------------------------------------------|
-    | octaves          | int >= 1       | 5                | fBm octaves of the density noise           |
-    | base_frequency   | float          | 2.5              | lowest octave, cells per unit length       |
-    | persistence      | float (0, 1]   | 0.55             | amplitude ratio between octaves            |
-    | lacunarity       | float [1.5, 4] | 2.0              | frequency ratio between octaves            |
-    | sheet_width      | float          | 0.12             | half-width of a sheet, in noise units      |
-    | radius           | float          | 0.42             | envelope radius (density 0 beyond it)      |
-    | edge_softness    | float          | 0.2              | width of the envelope's fall-off           |
-    | colour_frequency | float          | 1.5              | frequency of the colour noise              |
-    | colour_contrast  | float          | 4.0              | palette position change per noise unit     |
-    | palette          | K >= 2 RGBs    | blue, pink, gold | albedo colours, in [0, 1]                  |
-
-    Default palette: ``((0.25, 0.45, 0.95), (0.9, 0.35, 0.7), (0.98, 0.8, 0.45))``.
+    Default palette: ``((0.25, 0.45, 0.95), (0.9, 0.35, 0.7), (0.98, 0.8, 0.45))`` (blue, pink, gold).
     """
 
-    octaves: int = 5
-    base_frequency: float = 2.5
-    persistence: float = 0.55
-    lacunarity: float = 2.0
-    sheet_width: float = 0.12
-    radius: float = 0.42
-    edge_softness: float = 0.2
-    colour_frequency: float = 1.5
-    colour_contrast: float = 4.0
-    palette: tuple[tuple[float, float, float], ...] = DEFAULT_PALETTE
+    config_noun: ClassVar[str] = "parameter of volume family 'nebula'"
+
+    octaves: int = common.octaves(5, doc="fBm octaves of the density noise")
+    base_frequency: float = common.base_frequency(2.5)
+    persistence: float = common.persistence(0.55)
+    lacunarity: float = common.lacunarity(2.0)
+    sheet_width: float = param(0.12, lo=0.0, hi=1.0, lo_open=True, doc="half-width of a sheet, in noise units")
+    radius: float = param(0.42, lo=0.05, hi=MARGIN, doc="envelope radius (density 0 beyond it)")
+    edge_softness: float = param(0.2, lo=0.0, hi=0.5, lo_open=True, doc="width of the envelope's fall-off")
+    colour_frequency: float = param(1.5, lo=0.0, hi=16.0, lo_open=True, doc="frequency of the colour noise")
+    colour_contrast: float = param(4.0, lo=0.0, hi=100.0, doc="palette position change per unit of noise")
+    palette: tuple[tuple[float, float, float], ...] = param(
+        DEFAULT_PALETTE, lo=0.0, hi=1.0, doc="K >= 2 albedo colours (RGB), placed at s = k / (K - 1)")
 
     def __post_init__(self) -> None:
-        normalise(self, **check_fbm(self.octaves, self.base_frequency, self.persistence, self.lacunarity))
-        palette = self.palette
-        if isinstance(palette, (str, bytes)) or not hasattr(palette, "__len__") or len(palette) < 2:
-            raise ValueError(f"palette: must be a list of at least 2 RGB colours in [0, 1], got {palette!r}")
-        normalise(
-            self,
-            sheet_width=check_float("sheet_width", self.sheet_width, 0.0, 1.0, lo_open=True),
-            radius=check_float("radius", self.radius, 0.05, MARGIN),
-            edge_softness=check_float("edge_softness", self.edge_softness, 0.0, 0.5, lo_open=True),
-            colour_frequency=check_float("colour_frequency", self.colour_frequency, 0.0, 16.0, lo_open=True),
-            colour_contrast=check_float("colour_contrast", self.colour_contrast, 0.0, 100.0),
-            palette=tuple(check_rgb(f"palette[{k}]", c) for k, c in enumerate(palette)),
-        )
-        if self.edge_softness > self.radius:
-            raise ValueError(
-                f"edge_softness: must be <= radius ({self.radius:g}), got {self.edge_softness:g}"
-            )
+        common.check_fbm(self)
+        if len(self.palette) < 2:
+            raise ValueError(f"palette: must be a list of at least 2 RGB colours in [0, 1], got {[list(c) for c in self.palette]}")
+        common.check_edge_softness(self)
 
 
 def apply_palette(s: np.ndarray, palette) -> np.ndarray:

@@ -26,66 +26,42 @@ Each ridge is a thin sheet around a zero set of noise, vertical because the nois
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import ClassVar
 
 import numpy as np
 
+from mitsnerf.config import param
+from mitsnerf.volumes import params as common
 from mitsnerf.volumes.base import (
     MARGIN, Family, VolumeGrids, constant_albedo, finish, smoothstep, voxel_centres,
 )
 from mitsnerf.volumes.noise import NOISE_BOUND, GradientNoise, fbm
-from mitsnerf.volumes.params import check_fbm, check_float, check_rgb, normalise
 
 _Z_BOTTOM, _Z_TOP = -0.4, 0.4
 
 
 @dataclass(frozen=True)
 class Params:
-    """Parameters of ``plume`` (lengths in world units).
+    """Parameters of ``plume`` (lengths in world units); ``mitsnerf.config.doc_table(Params)`` lists them."""
 
-    | name                  | type           | default         | meaning                                     |
-    |-----------------------|----------------|-----------------|---------------------------------------------|
-    | octaves               | int >= 1       | 3               | fBm octaves of the filament noise           |
-    | base_frequency        | float          | 7.0             | horizontal frequency, cells per unit length |
-    | persistence           | float (0, 1]   | 0.5             | amplitude ratio between octaves             |
-    | lacunarity            | float [1.5, 4] | 2.0             | frequency ratio between octaves             |
-    | stretch               | float [1, 16]  | 5.0             | vertical / horizontal feature length        |
-    | width                 | float          | 0.15            | half-width of a ridge, in noise units       |
-    | turbulence            | float          | 0.1             | sideways displacement amplitude             |
-    | turbulence_frequency  | float          | 2.0             | frequency of the displacement field         |
-    | twist                 | float          | 1.5             | rotation about z from bottom to top, radians|
-    | radius_bottom         | float          | 0.06            | plume radius at the bottom                  |
-    | radius_top            | float          | 0.32            | plume radius at the top                     |
-    | albedo                | 3 floats       | (0.9, 0.9, 0.9) | constant single-scattering albedo           |
-    """
+    config_noun: ClassVar[str] = "parameter of volume family 'plume'"
 
-    octaves: int = 3
-    base_frequency: float = 7.0
-    persistence: float = 0.5
-    lacunarity: float = 2.0
-    stretch: float = 5.0
-    width: float = 0.15
-    turbulence: float = 0.1
-    turbulence_frequency: float = 2.0
-    twist: float = 1.5
-    radius_bottom: float = 0.06
-    radius_top: float = 0.32
-    albedo: tuple[float, float, float] = (0.9, 0.9, 0.9)
+    octaves: int = common.octaves(3, doc="fBm octaves of the filament noise")
+    base_frequency: float = common.base_frequency(7.0, doc="horizontal frequency, lattice cells per unit length")
+    persistence: float = common.persistence(0.5)
+    lacunarity: float = common.lacunarity(2.0)
+    stretch: float = param(5.0, lo=1.0, hi=16.0, doc="vertical / horizontal feature length")
+    width: float = param(0.15, lo=0.0, hi=1.0, lo_open=True, doc="half-width of a ridge, in noise units")
+    turbulence: float = param(0.1, lo=0.0, hi=0.3, doc="sideways displacement amplitude")
+    turbulence_frequency: float = param(2.0, lo=0.0, hi=16.0, lo_open=True,
+                                        doc="frequency of the displacement field")
+    twist: float = param(1.5, lo=-12.0, hi=12.0, doc="rotation about z from bottom to top, radians")
+    radius_bottom: float = param(0.06, lo=0.0, hi=MARGIN, lo_open=True, doc="plume radius at the bottom")
+    radius_top: float = param(0.32, lo=0.0, hi=MARGIN, lo_open=True, doc="plume radius at the top")
+    albedo: tuple[float, float, float] = common.albedo((0.9, 0.9, 0.9))
 
     def __post_init__(self) -> None:
-        normalise(self, **check_fbm(self.octaves, self.base_frequency, self.persistence, self.lacunarity))
-        normalise(
-            self,
-            stretch=check_float("stretch", self.stretch, 1.0, 16.0),
-            width=check_float("width", self.width, 0.0, 1.0, lo_open=True),
-            turbulence=check_float("turbulence", self.turbulence, 0.0, 0.3),
-            turbulence_frequency=check_float(
-                "turbulence_frequency", self.turbulence_frequency, 0.0, 16.0, lo_open=True
-            ),
-            twist=check_float("twist", self.twist, -12.0, 12.0),
-            radius_bottom=check_float("radius_bottom", self.radius_bottom, 0.0, MARGIN, lo_open=True),
-            radius_top=check_float("radius_top", self.radius_top, 0.0, MARGIN, lo_open=True),
-            albedo=check_rgb("albedo", self.albedo),
-        )
+        common.check_fbm(self)
         widest = max(self.radius_bottom, self.radius_top)
         if widest + self.turbulence * NOISE_BOUND > MARGIN:
             raise ValueError(

@@ -23,43 +23,31 @@ fully determined by the parameters.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import ClassVar
 
 import numpy as np
 
+from mitsnerf.config import param
+from mitsnerf.volumes import params as common
 from mitsnerf.volumes.base import MARGIN, Family, VolumeGrids, constant_albedo, finish, voxel_centres
-from mitsnerf.volumes.params import check_choice, check_float, check_rgb, normalise
 
 SHAPES = ("sphere", "torus")
 
 
 @dataclass(frozen=True)
 class Params:
-    """Parameters of ``shell`` (lengths in world units).
+    """Parameters of ``shell`` (lengths in world units); ``mitsnerf.config.doc_table(Params)`` lists them."""
 
-    | name        | type     | default         | meaning                                          |
-    |-------------|----------|-----------------|--------------------------------------------------|
-    | shape       | str      | "sphere"        | "sphere" or "torus" (torus axis is y)            |
-    | radius      | float    | 0.3             | sphere radius, or the torus's major radius       |
-    | tube_radius | float    | 0.12            | the torus's minor radius (unused by "sphere")    |
-    | thickness   | float    | 0.03            | wall thickness                                   |
-    | albedo      | 3 floats | (0.7, 0.7, 0.7) | constant single-scattering albedo                |
-    """
+    config_noun: ClassVar[str] = "parameter of volume family 'shell'"
 
-    shape: str = "sphere"
-    radius: float = 0.3
-    tube_radius: float = 0.12
-    thickness: float = 0.03
-    albedo: tuple[float, float, float] = (0.7, 0.7, 0.7)
+    shape: str = param("sphere", choices=SHAPES, doc="a hollow sphere or a torus (axis y)")
+    radius: float = param(0.3, lo=0.0, hi=MARGIN, lo_open=True, doc="sphere radius, or the torus's major radius")
+    tube_radius: float = param(0.12, lo=0.0, hi=MARGIN, lo_open=True,
+                               doc="the torus's minor radius (unused by a sphere)")
+    thickness: float = param(0.03, lo=0.0, hi=0.2, lo_open=True, doc="wall thickness")
+    albedo: tuple[float, float, float] = common.albedo((0.7, 0.7, 0.7))
 
     def __post_init__(self) -> None:
-        normalise(
-            self,
-            shape=check_choice("shape", self.shape, SHAPES),
-            radius=check_float("radius", self.radius, 0.0, MARGIN, lo_open=True),
-            tube_radius=check_float("tube_radius", self.tube_radius, 0.0, MARGIN, lo_open=True),
-            thickness=check_float("thickness", self.thickness, 0.0, 0.2, lo_open=True),
-            albedo=check_rgb("albedo", self.albedo),
-        )
         outer = self.radius + self.thickness / 2
         if self.shape == "torus":
             if self.tube_radius + self.thickness / 2 >= self.radius:

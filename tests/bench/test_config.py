@@ -51,7 +51,7 @@ def _config(**kw):
 
 
 @pytest.mark.parametrize("change, field", [
-    ({"methods": [{"name": "nope"}]}, "methods[0].name"),
+    ({"methods": [{"name": "nope"}]}, "methods.0.name"),  # list items by index, as in overrides
     ({"methods": [{"name": "nerf"}, {"name": "nerf"}]}, "methods"),
     ({"seeds": []}, "seeds"),
     ({"scenes": "some"}, "scenes"),
@@ -74,7 +74,7 @@ def test_methods_all_with_settings_for_a_method_not_registered_yet_warns():
 
 def test_plan_validates_method_settings_before_running(tmp_path):
     options = BenchOptions(data_root=tmp_path, results_root=tmp_path, code_version="t")
-    with pytest.raises(ValueError, match="method nerf: config.n_samples"):
+    with pytest.raises(ValueError, match=r"^t\.toml: methods\.0\.config\.n_samples: .*\(method nerf\)"):
         plan_cells(_config(methods=[{"name": "nerf", "config": {"n_samples": 0}}]), options)
     with pytest.raises(ValueError, match="train.seed"):
         plan_cells(_config(methods=[{"name": "nerf", "train": {"seed": 3}}]), options)
@@ -98,3 +98,55 @@ def test_cli_rejects_executor_options_that_do_not_fit(capsys):
     assert "--address: only with --executor ray" in capsys.readouterr().err
     assert main(["bench", "default", "--quick", "--workers", "3"]) == 2
     assert "--workers" in capsys.readouterr().err
+
+
+def _plan(raw: dict, source: str = "benchmarks/x.toml", quick: bool = False, tmp=None):
+    options = BenchOptions(quick=quick, data_root=tmp, results_root=tmp, code_version="t")
+    return plan_cells(parse_bench_config(raw, source), options)
+
+
+NERF = [{"name": "nerf"}]
+BAD_BENCH = [  # (raw config, quick, field, message); every error names benchmarks/x.toml
+    ({}, False, "scenes", "missing field (a list)"),
+    ({"scenes": ["cloud"]}, False, "methods", "missing field (a list)"),
+    ({"scenes": ["cloud"], "methods": NERF, "seeds": [0, -1]}, False, "seeds.1", "must be an integer >= 0, got -1"),
+    ({"scenes": ["cloud"], "methods": NERF, "train": 3}, False, "train", "must be a table, got an integer"),
+    ({"scenes": ["cloud"], "methods": [{"name": "nerf", "confg": {}}]}, False, "methods.0.confg",
+     "unknown field (did you mean 'config'?)"),
+    ({"scenes": ["cloud"], "methods": NERF, "train": {"steps": 0}}, False, "train.steps",
+     "must be an integer in [1, 100000000], got 0 (method nerf)"),
+    ({"scenes": ["cloud"], "methods": [{"name": "nerf", "train": {"stepz": 5}}]}, False, "methods.0.train.stepz",
+     "unknown field (did you mean 'steps'?) (method nerf)"),
+    ({"scenes": ["cloud"], "methods": NERF, "quick": {"train": {"steps": -3}}}, True, "quick.train.steps",
+     "must be an integer in [1, 100000000], got -3 (method nerf)"),
+    ({"scenes": ["cloud"], "methods": [{"name": "nerf", "quick": {"config": {"n_samples": 0}}}]}, True,
+     "methods.0.quick.config.n_samples", "must be >= 1, got 0 (method nerf)"),
+    ({"scenes": ["cloud"], "methods": NERF, "quick": {"scene": {"cameras.width": 0}}}, True,
+     "quick.scene.cameras.width", "must be an integer in [1, 8192], got 0 (scene cloud)"),
+    ({"scenes": ["cloud"], "methods": NERF, "quick": {"scene": {"lights.5.radiance": [1, 1, 1]}}}, True,
+     "quick.scene.lights.5.radiance", "no item '5' (there are 2) (scene cloud)"),
+    ({"scenes": ["cloud"], "methods": NERF, "quick": {"eval": {"curve_pionts": 1}}}, True, "quick.eval.curve_pionts",
+     "unknown field (did you mean 'curve_points'?)"),
+    ({"scenes": ["cloud"], "methods": "all", "method_settings": {"nerf": {"config": {"n_samples": 0}}}}, False,
+     "method_settings.nerf.config.n_samples", "must be >= 1, got 0 (method nerf)"),
+    ({"scenes": ["cloud"], "methods": "all", "method_settings": {"nerf": {"label": "a/b"}}}, False,
+     "method_settings.nerf.label", "must not contain '/' or start with '.', got 'a/b'"),
+]
+
+
+@pytest.mark.parametrize("raw, quick, field, message", BAD_BENCH, ids=[b[2] for b in BAD_BENCH])
+def test_bench_errors_name_the_bench_file_and_the_field(tmp_path, raw, quick, field, message):
+    with pytest.raises(SpecError) as info:
+        _plan(raw, quick=quick, tmp=tmp_path)
+    assert (info.value.where, info.value.field, info.value.message) == ("benchmarks/x.toml", field, message)
+
+
+def test_an_undecodable_or_empty_bench_file_is_named(tmp_path, capsys):
+    from mitsnerf.cli import main
+
+    (tmp_path / "empty.toml").write_text("")
+    assert main(["bench", str(tmp_path / "empty.toml")]) == 2
+    assert capsys.readouterr().err == f"mitsnerf: error: {tmp_path / 'empty.toml'}: scenes: missing field (a list)\n"
+    (tmp_path / "binary.toml").write_bytes(b"\xc3\x28")
+    assert main(["bench", str(tmp_path / "binary.toml")]) == 2
+    assert capsys.readouterr().err == f"mitsnerf: error: {tmp_path / 'binary.toml'}: not a text file (invalid UTF-8 at byte 0)\n"

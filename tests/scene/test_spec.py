@@ -196,3 +196,88 @@ def test_malformed_file_reports_the_file(tmp_path):
     with pytest.raises(SpecError) as e:
         load_scene(path)
     assert (e.value.where, e.value.field) == (str(path), "volume.resolution")
+
+
+# Datasets on disk are keyed by these: a change to SceneSpec.to_dict() or to a default must not move them
+# (computed with the spec reader before the config mechanism was unified, commit 04756f5).
+SHIPPED_HASHES = {
+    "blobs": "d8b5f2dce212d206da87a41984589eb668d90d714f5b7ba7e355253c41bf08c2",
+    "cloud": "29f8e19170f27107730e1a8e70b4ecd95900857801130baa04f93f74c46249d4",
+    "cloud_thick": "6604073a66e2b4cab6ffe2cd7717180767f69aa6aad0a68d1a7d402eacac5865",
+    "lattice": "b48e19b0df38a335720c68d55ce691b03deeb7c560a6dabdddb303e29bcc21de",
+    "nebula": "284852ca52707c7a2b65e0edb8f64ed4928a42febe68247b9648e7ee63bb77d1",
+    "plume": "fe761b1d90d80230f45dfade73336fe351a07da7de551495248d0696a9331d80",
+    "shell": "a165950a91f8eeae7c658274c1d2cf987230960e3e32143437b75626c09ecf76",
+}
+
+
+@pytest.mark.parametrize("name", sorted(SHIPPED_HASHES))
+def test_shipped_scene_content_hashes_are_pinned(name):
+    spec = load_scene(name)
+    assert spec.content_hash() == SHIPPED_HASHES[name]
+    assert parse_scene(spec.to_dict(), "again").content_hash() == SHIPPED_HASHES[name]
+
+
+MORE_MALFORMED = [  # (path, value, field, exact message)
+    ("render.spp_test", 2**21, "render.spp_test", "must be an integer in [1, 1048576], got 2097152"),
+    ("render.seed", -1, "render.seed", "must be an integer in [0, 4294967295], got -1"),
+    ("cameras.radius", float("inf"), "cameras.radius", "must be a number in (0, 10000], got inf"),
+    ("volume.sigma_t_scale", float("nan"), "volume.sigma_t_scale", "must be a number > 0, got nan"),
+    ("volume.params", [1], "volume.params", "must be a table, got a list"),
+    ("volume.params.albedo", [1, 1], "volume.params.albedo", "must be 3 numbers in [0, 1], got 2 values"),
+    ("volume.params.radius", 0.4, "volume.params.displacement",
+     "radius + displacement * 0.866 must be <= 0.45, got 0.4 + 0.15 * 0.866"),
+    ("volume.params.octavs", 2, "volume.params.octavs", "unknown parameter of volume family 'cloud' (did you mean 'octaves'?)"),
+    ("lights.1", {"type": "point", "position": [1, 1, 1]}, "lights.1.intensity", "missing field (3 numbers >= 0)"),
+    ("lights.0", {"type": "sky", "zenith": [1, 1, 1], "horizon": [1, 1, 1], "ground": [1, 1, 1], "resolution": 4},
+     "lights.0.resolution", "must be an integer in [8, 4096], got 4"),
+    ("lights.0", {"type": "sky", "zenith": [1, 1, 1], "horizon": [1, 1, 1], "ground": [1, 1, 1], "sun_direction": [0, 0, 0]},
+     "lights.0.sun_direction", "must be 3 numbers, not all zero, got [0.0, 0.0, 0.0]"),
+    ("cameras", {}, "cameras.rig", "missing field (one of 'sphere', 'hemisphere', 'ring')"),
+    ("name", 3, "name", "must be a string, got 3"),
+]
+
+
+@pytest.mark.parametrize("path,value,field,message", MORE_MALFORMED, ids=[m[2] for m in MORE_MALFORMED])
+def test_malformed_spec_exact_messages(tiny_dict, path, value, field, message):
+    _set(tiny_dict, path, value)
+    with pytest.raises(SpecError) as e:
+        parse_scene(tiny_dict, "scenes/bad.toml")
+    assert str(e.value) == f"scenes/bad.toml: {field}: {message}"
+
+
+def test_override_errors_name_the_overridden_spec(tiny_spec):
+    with pytest.raises(SpecError) as e:
+        tiny_spec.with_overrides({"cameras.width.x": 1})
+    assert (e.value.where, e.value.field) == ("tiny.toml (with overrides)", "cameras.width.x")
+    assert e.value.message == "cannot override inside 'cameras.width': not a table"
+
+
+def test_undecodable_spec_and_directory_are_one_line_naming_the_file(tmp_path, monkeypatch, capsys):
+    from mitsnerf.cli import main
+
+    binary = tmp_path / "binary.toml"
+    binary.write_bytes(b'name = "x"\n\xff\xfe\x00')
+    assert main(["generate", str(binary), "--out", str(tmp_path / "out")]) == 2
+    assert capsys.readouterr().err == f"mitsnerf: error: {binary}: not a text file (invalid UTF-8 at byte 11)\n"
+    with pytest.raises(SpecError, match=r": is a directory, not a spec file$") as e:
+        load_scene(tmp_path)
+    assert e.value.where == str(tmp_path)
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "somedir").mkdir()
+    with pytest.raises(SpecError, match=r"^somedir: is a directory, not a scene name or spec file$"):
+        load_scene("somedir")
+
+
+def test_scenes_and_generate_all_name_a_broken_spec(tmp_path, monkeypatch, capsys):
+    from mitsnerf.cli import main
+
+    (tmp_path / "cloud.toml").write_text((scenes_dir() / "cloud.toml").read_text())
+    (tmp_path / "broken.toml").write_bytes(b"\x80\x81")
+    monkeypatch.setenv("MITSNERF_SCENES", str(tmp_path))
+    assert main(["scenes"]) == 2
+    out, err = capsys.readouterr()
+    assert out.startswith("cloud ") and err == f"mitsnerf: error: {tmp_path / 'broken.toml'}: not a text file (invalid UTF-8 at byte 0)\n"
+    assert main(["generate", "--all", "--out", str(tmp_path / "data")]) == 2  # checked before anything renders
+    assert str(tmp_path / "broken.toml") in capsys.readouterr().err
+    assert not (tmp_path / "data").exists()
