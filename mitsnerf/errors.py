@@ -40,6 +40,23 @@ class TrainingError(MitsnerfError):
     """Training cannot go on (NaN or diverging loss; the last good checkpoint is kept)."""
 
 
+class UsageError(MitsnerfError, ValueError):
+    """A command-line option or argument is wrong: ``--box: X1 must exceed X0``.
+
+    >>> str(UsageError("--method", "unknown method 'nope' (known: nerf, ngp)"))
+    "--method: unknown method 'nope' (known: nerf, ngp)"
+    """
+
+    def __init__(self, option: str, message: str) -> None:
+        super().__init__(option, None, message)
+
+
+class OutputError(MitsnerfError):
+    """An output location cannot be used: not writable, a file where a directory goes, a finished
+    run that would be replaced, or a run directory another process is writing. Raised before any
+    work starts."""
+
+
 class Interrupted(KeyboardInterrupt):
     """Work stopped by a signal: SIGINT (Ctrl-C), or SIGTERM/SIGHUP (``timeout``, systemd, Slurm, Ray).
 
