@@ -1,12 +1,16 @@
 """``mitsnerf``: the command line. Argument parsing only; each command calls into the package.
 
-Errors the user can act on (bad spec, missing data, no LLVM, NaN loss) print one line
-``mitsnerf: error: FILE: FIELD: what`` and exit with status 2.
+Errors the user can act on (bad spec, missing or corrupt data, an unusable output location, no LLVM,
+NaN loss) print one line ``mitsnerf: error: FILE: FIELD: what`` and exit with status 2 (``--debug``
+shows their traceback); anything else is a bug and keeps its traceback. SIGINT, SIGTERM and SIGHUP
+stop a command: training saves a checkpoint and says how to continue; the exit status is 128 + the
+signal's number (130, 143, 129).
 """
 
 from __future__ import annotations
 
 import argparse
+import errno
 import json
 import sys
 from pathlib import Path
@@ -15,12 +19,13 @@ from pathlib import Path
 def _overrides(pairs: list[str] | None) -> dict:
     """``--set KEY=VALUE`` pairs as ``{dotted key: value}`` (values read by :func:`mitsnerf.config.parse_value`)."""
     from mitsnerf.config import parse_value
+    from mitsnerf.errors import UsageError
 
     out = {}
     for pair in pairs or []:
         key, sep, value = pair.partition("=")
         if not sep or not key:
-            raise ValueError(f"--set {pair!r}: expected KEY=VALUE")
+            raise UsageError("--set", f"expected KEY=VALUE, got {pair!r}")
         out[key.strip()] = parse_value(value)
     return out
 
@@ -55,7 +60,9 @@ def cmd_generate(args) -> int:
             print(path)
         return 0
     if not args.scene:
-        raise ValueError("generate: name a SCENE or pass --all")
+        from mitsnerf.errors import UsageError
+
+        raise UsageError("generate", "name a SCENE or pass --all")
     spec = load_scene(args.scene)
     if args.set:
         spec = spec.with_overrides(_overrides(args.set))
@@ -75,51 +82,100 @@ def _train_values(args) -> dict:
     return {k: v for k, v in values.items() if v is not None}
 
 
+def _train_config(values: dict):
+    """The TrainConfig of the command-line values; a bad one is blamed on its flag (``--batch-rays``)."""
+    from mitsnerf.config import from_dict
+    from mitsnerf.errors import SpecError, UsageError
+    from mitsnerf.train import TrainConfig
+
+    try:
+        return from_dict(TrainConfig, values)
+    except SpecError as exc:
+        raise UsageError(f"--{exc.field.replace('_', '-')}" if exc.field else "train", exc.message) from None
+
+
 def _load(args, path):
+    """The dataset at ``path`` with the command's load options, verified (``--no-verify``: no hashes)."""
+    import time
+
     from mitsnerf.data.dataset import load_dataset
+    from mitsnerf.data.verify import verify_dataset
+    from mitsnerf.errors import UsageError
     from mitsnerf.math.box import Box
 
     box = None
     if args.box:
         try:
             box = Box(tuple(args.box[:3]), tuple(args.box[3:]))
-        except ValueError as exc:
-            raise ValueError(f"--box: {str(exc).removeprefix('box: ')}") from None
-    return load_dataset(Path(path), box=box, pixel_center=args.pixel_center, background=args.background)
+        except ValueError as exc:  # the box's own check, of the user's numbers
+            raise UsageError("--box", str(exc).removeprefix("box: ")) from None
+    dataset = load_dataset(Path(path), box=box, pixel_center=args.pixel_center, background=args.background)
+    v = verify_dataset(dataset, hashes=not args.no_verify)
+    hashed = f"{v.hashed_files} files hashed ({v.hashed_bytes / 1e6:.1f} MB), " if v.hashed_files else ""
+    print(f"mitsnerf: dataset verified: {hashed}{v.views} views checked in {v.seconds:.2f} s", flush=True)
+    return dataset
+
+
+def _fresh_settings(args) -> tuple[str, dict, object]:
+    """``(method, method overrides, EvalConfig)`` of a new run, checked before anything runs."""
+    from mitsnerf.config import apply_overrides, from_dict
+    from mitsnerf.errors import UsageError
+    from mitsnerf.evaluate import EvalConfig
+    from mitsnerf.methods import METHODS
+
+    if not args.dataset:
+        raise UsageError("train", "name a DATASET directory (or pass --resume to continue the run in --out)")
+    method = args.method or DEFAULT_METHOD
+    if method not in METHODS:
+        raise UsageError("--method", f"unknown method {method!r} (known: {', '.join(sorted(METHODS))})")
+    overrides = apply_overrides({}, _overrides(args.set), "--set")
+    if args.lr is not None:
+        overrides["lr"] = args.lr
+    from_dict(METHODS[method].config_type, overrides, source="--set")
+    eval_config = from_dict(EvalConfig, {} if args.footprint is None else {"footprint": args.footprint})
+    return method, overrides, eval_config
+
+
+def _check_resume_flags(args) -> None:
+    from mitsnerf.errors import UsageError
+
+    fixed = [flag for flag, value in (("--method", args.method), ("--set", args.set), ("--batch-rays", args.batch_rays),
+                                       ("--lr", args.lr), ("--seed", args.seed), ("--box", args.box),
+                                       ("--footprint", args.footprint), ("--no-pixel-jitter", args.no_pixel_jitter),
+                                       ("--deterministic", args.deterministic)) if value]
+    if args.force:
+        raise UsageError("--force", "starts the run over; --resume continues it: pass one of them")
+    if fixed:
+        raise UsageError("train --resume", f"{', '.join(fixed)} come from the checkpoint; "
+                                           "only --steps, --seconds and --checkpoint-every may change")
 
 
 def cmd_train(args) -> int:
-    from mitsnerf.config import apply_overrides, from_dict
-    from mitsnerf.evaluate import EvalConfig
     from mitsnerf.run import fit, resume_run
-    from mitsnerf.train import TrainConfig
+    from mitsnerf.run_dir import claim_run_dir
 
     train_values = _train_values(args)
+    train_config = _train_config(train_values)  # every setting checked before anything runs
     if args.resume:
-        fixed = [flag for flag, value in (("--method", args.method), ("--set", args.set), ("--batch-rays", args.batch_rays),
-                                           ("--lr", args.lr), ("--seed", args.seed), ("--box", args.box),
-                                           ("--footprint", args.footprint), ("--no-pixel-jitter", args.no_pixel_jitter))
-                 if value]
-        if fixed:
-            raise ValueError(f"train --resume: {', '.join(fixed)} come from the checkpoint; "
-                             "only --steps, --seconds and --checkpoint-every may change")
-        run = resume_run(Path(args.out), train_values, dataset=_load(args, args.dataset) if args.dataset else None)
+        _check_resume_flags(args)
     else:
-        if not args.dataset:
-            raise ValueError("train: name a DATASET directory (or pass --resume to continue the run in --out)")
-        dataset = _load(args, args.dataset)
-        print(f"mitsnerf: scene box {dataset.box.to_list()} ({dataset.box_source})", flush=True)
-        overrides = apply_overrides({}, _overrides(args.set), "--set")
-        if args.lr is not None:
-            overrides["lr"] = args.lr
-        eval_config = from_dict(EvalConfig, {} if args.footprint is None else {"footprint": args.footprint})
-        run = fit(dataset, args.method or DEFAULT_METHOD, overrides, from_dict(TrainConfig, train_values),
-                  Path(args.out), eval_config=eval_config)
+        method, overrides, eval_config = _fresh_settings(args)
+    out = Path(args.out)
+    with claim_run_dir(out, resume=args.resume, force=args.force):
+        if args.resume:
+            run = resume_run(out, train_values, dataset=_load(args, args.dataset) if args.dataset else None,
+                             verify_hashes=not args.no_verify)
+        else:
+            dataset = _load(args, args.dataset)
+            print(f"mitsnerf: scene box {dataset.box.to_list()} ({dataset.box_source})", flush=True)
+            run = fit(dataset, method, overrides, train_config, out, eval_config=eval_config,
+                      deterministic=args.deterministic)
     m = run.metrics()
     medium = "" if m.get("psnr_test_medium") is None else f" ({m['psnr_test_medium']:.2f} dB on medium pixels)"
+    rate = "no steps run" if m["rays_per_s"] is None else f"{m['rays_per_s']:.0f} rays/s"
     print(f"{run.method}: test PSNR {m['psnr_test']:.2f} dB{medium}, footprint {m['footprint']}x{m['footprint']}, "
           f"train PSNR {m['psnr_train']:.2f} dB, {m['steps']} steps in {m['train_seconds']:.1f} s, "
-          f"{m['rays_per_s']:.0f} rays/s -> {args.out}")
+          f"{rate} -> {args.out}")
     return 0
 
 
@@ -129,7 +185,9 @@ def cmd_render(args) -> int:
     size = None
     if args.size:
         if len(args.size) > 2:
-            raise ValueError(f"--size: give W or W H, got {len(args.size)} numbers")
+            from mitsnerf.errors import UsageError
+
+            raise UsageError("--size", f"give W or W H, got {len(args.size)} numbers")
         size = (args.size[0], args.size[-1])
     request = ViewRequest(split=args.split, index=args.index,
                           look_from=tuple(args.look_from) if args.look_from else None,
@@ -215,6 +273,8 @@ def build_parser() -> argparse.ArgumentParser:
         prog="mitsnerf",
         description="Mitsuba 3 ground truth for participating media, Dr.Jit NeRFs fitted to it, and the benchmarks between them.",
     )
+    parser.add_argument("--debug", action="store_true",
+                        help="show the traceback of a user error too (bad input, data, output location)")
     parser.add_argument("--variant", help="Mitsuba variant (default: $MITSNERF_VARIANT, else cuda_ad_rgb if a GPU is usable, else llvm_ad_rgb)")
     sub = parser.add_subparsers(dest="command", required=True)
 
@@ -239,6 +299,14 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--method", help=f"default: {DEFAULT_METHOD}")
     p.add_argument("--resume", action="store_true",
                    help="continue the run in --out from its checkpoint.npz, bit-for-bit (settings come from it)")
+    p.add_argument("--force", action="store_true",
+                   help="replace the run already in --out (finished or interrupted); without it such a run is refused")
+    p.add_argument("--no-verify", action="store_true",
+                   help="skip checking the dataset's files against the sha256 hashes in its manifest "
+                        "(grids and images are still checked)")
+    p.add_argument("--deterministic", action="store_true",
+                   help="train on one thread: every method bit-identical run to run (multi-threaded, the grid "
+                        "methods' scatter-add gradients round in thread order; slower)")
     p.add_argument("--checkpoint-every", type=int, metavar="N",
                    help="write a checkpoint every N steps (default 0: only at the end and on Ctrl-C)")
     p.add_argument("--steps", type=int, help="the budget: optimiser steps (default 3000); schedules follow the step")
@@ -318,6 +386,30 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+#: OSErrors of the machine rather than of the code (full disk, read-only or forbidden place), reported in
+#: one line naming the file; every other exception that is not a MitsnerfError is a bug and keeps its traceback.
+ENVIRONMENT_ERRNOS = frozenset({errno.ENOSPC, errno.EDQUOT, errno.EROFS, errno.EACCES, errno.EPERM})
+
+
+def user_error_line(exc: BaseException) -> str | None:
+    """The one line a user error prints (``FILE: FIELD: problem``), None for a bug.
+
+    User errors are matched by class: :class:`mitsnerf.errors.MitsnerfError` (bad input, data, output
+    location; command-line options as :class:`~mitsnerf.errors.UsageError`), the environment's
+    :class:`~mitsnerf._llvm.LLVMError` and :class:`~mitsnerf.env.EnvironmentError_`, and an OSError of
+    :data:`ENVIRONMENT_ERRNOS` with its file. A plain ValueError from the package's own code is a bug.
+    """
+    from mitsnerf._llvm import LLVMError
+    from mitsnerf.env import EnvironmentError_
+    from mitsnerf.errors import MitsnerfError
+
+    if isinstance(exc, (MitsnerfError, LLVMError, EnvironmentError_)):
+        return str(exc)
+    if isinstance(exc, OSError) and exc.errno in ENVIRONMENT_ERRNOS and exc.filename is not None:
+        return f"{exc.filename}: {exc.strerror}"
+    return None
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
@@ -326,18 +418,21 @@ def main(argv: list[str] | None = None) -> int:
         from mitsnerf import env
 
         env.set_variant(args.variant)
-        return int(args.func(args) or 0)
-    except KeyboardInterrupt as exc:
-        print("mitsnerf: interrupted" + (f"; {exc}" if str(exc) else ""), file=sys.stderr)
-        return 130
-    except Exception as exc:  # one line for errors a user can act on; tracebacks for bugs
-        from mitsnerf._llvm import LLVMError
-        from mitsnerf.errors import MitsnerfError
+        from mitsnerf.train.checkpointing import stop_signals
 
-        if isinstance(exc, (MitsnerfError, LLVMError, ValueError, FileNotFoundError)) or type(exc).__name__ == "EnvironmentError_":
-            print(f"mitsnerf: error: {exc}", file=sys.stderr)
-            return 2
-        raise
+        with stop_signals():  # SIGTERM and SIGHUP stop a command as Ctrl-C does
+            return int(args.func(args) or 0)
+    except KeyboardInterrupt as exc:
+        from mitsnerf.errors import Interrupted
+
+        print("mitsnerf: interrupted" + (f"; {exc}" if str(exc) else ""), file=sys.stderr)
+        return exc.exit_status if isinstance(exc, Interrupted) else 130
+    except Exception as exc:  # one line for errors a user can act on; tracebacks for bugs
+        line = user_error_line(exc)
+        if line is None or args.debug:
+            raise
+        print(f"mitsnerf: error: {line}", file=sys.stderr)
+        return 2
 
 
 if __name__ == "__main__":  # pragma: no cover
