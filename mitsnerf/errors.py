@@ -68,6 +68,9 @@ class Interrupted(KeyboardInterrupt):
         super().__init__(message)
         self.signum = int(signum)
 
+    def __reduce__(self):  # through a process pool: the signal travels with the message
+        return (type(self), (self.signum, str(self)))
+
     @property
     def exit_status(self) -> int:
         return 128 + self.signum

@@ -173,7 +173,9 @@ def fit(
     first removes an old one there); ``resume=True`` continues from it instead, which must be of
     the same method, method settings and training settings (except :data:`RESUMABLE_CHANGES`).
     ``on_log(entry, model)`` runs after each history entry, off the training clock (e.g. a
-    held-out curve, :class:`mitsnerf.bench.worker.CurveRecorder`). ``deterministic``: train on one
+    held-out curve, :class:`mitsnerf.bench.worker.CurveRecorder`); a resumed run calls it again on
+    the checkpoint's last entry when that is the checkpoint's step (a signal may have stopped it
+    there), so it must do nothing the second time for an entry it finished. ``deterministic``: train on one
     thread (:mod:`mitsnerf.train.threads`), recorded in the run config so a resume does too.
     The caller holds the run directory (:func:`mitsnerf.run_dir.claim_run_dir`).
     """
@@ -184,6 +186,8 @@ def fit(
                   "eval": to_dict(eval_config), "deterministic": bool(deterministic), **dataset_config(dataset)}
     checkpointer, state = _start(out_dir, run_config, model, config.lr, resume)
     data = PixelData.from_views(train_views.images, train_views.cameras, train_views.pixel_center)
+    if state is not None and on_log is not None and state.history and state.history[-1].get("step") == state.step:
+        on_log(state.history[-1], model)  # a signal may have stopped the hook on the checkpoint's own entry
     with one_thread(deterministic):
         result, _ = train(model, data, train_config, config.lr, state=state, progress=progress,
                           checkpointer=checkpointer, on_log=None if on_log is None else (lambda entry: on_log(entry, model)))
