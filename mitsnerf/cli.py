@@ -52,21 +52,22 @@ def cmd_scenes(args) -> int:
 
 
 def cmd_generate(args) -> int:
+    from mitsnerf.errors import UsageError
     from mitsnerf.generate import generate_all, generate_dataset
+    from mitsnerf.outputs import check_output_dir
     from mitsnerf.scene.spec import load_scene
 
+    if not args.all and not args.scene:
+        raise UsageError("generate", "name a SCENE or pass --all")
+    check_output_dir(Path(args.out), "--out")
     if args.all:
-        for path in generate_all(Path(args.out), force=args.force):
+        for path in generate_all(Path(args.out), force=args.force, verify_hashes=not args.no_verify):
             print(path)
         return 0
-    if not args.scene:
-        from mitsnerf.errors import UsageError
-
-        raise UsageError("generate", "name a SCENE or pass --all")
     spec = load_scene(args.scene)
     if args.set:
         spec = spec.with_overrides(_overrides(args.set))
-    print(generate_dataset(spec, Path(args.out), force=args.force))
+    print(generate_dataset(spec, Path(args.out), force=args.force, verify_hashes=not args.no_verify))
     return 0
 
 
@@ -103,6 +104,8 @@ def _load(args, path):
     from mitsnerf.errors import UsageError
     from mitsnerf.math.box import Box
 
+    _check_numbers([("--pixel-center", args.pixel_center, lambda v: True, "finite"),
+                    ("--background", args.background, lambda v: v >= 0, "finite and >= 0")])
     box = None
     if args.box:
         try:
@@ -179,21 +182,45 @@ def cmd_train(args) -> int:
     return 0
 
 
+def _check_numbers(checks) -> None:
+    """A :class:`~mitsnerf.errors.UsageError` for the first ``(flag, values, ok, what)`` whose values
+    (None: not given) are not all finite and ``ok``."""
+    import math
+
+    from mitsnerf.errors import UsageError
+
+    for flag, values, ok, what in checks:
+        if values is None:
+            continue
+        values = values if isinstance(values, (list, tuple)) else [values]
+        if not all(math.isfinite(v) and ok(v) for v in values):
+            shown = " ".join(f"{v:g}" for v in values)
+            raise UsageError(flag, f"must be {what}, got {shown}")
+
+
 def cmd_render(args) -> int:
+    from mitsnerf.errors import UsageError
     from mitsnerf.novel import ViewRequest, render_run
+    from mitsnerf.outputs import check_output_dir
 
-    size = None
-    if args.size:
-        if len(args.size) > 2:
-            from mitsnerf.errors import UsageError
-
-            raise UsageError("--size", f"give W or W H, got {len(args.size)} numbers")
-        size = (args.size[0], args.size[-1])
+    if args.size and len(args.size) > 2:
+        raise UsageError("--size", f"give W or W H, got {len(args.size)} numbers")
+    _check_numbers([("--size", args.size, lambda v: v >= 1, "whole numbers >= 1"),
+                    ("--fov", args.fov, lambda v: 0 < v < 180, "in (0, 180) degrees"),
+                    ("--orbit", args.orbit, lambda v: v >= 0, ">= 0"),
+                    ("--index", args.index, lambda v: v >= 0, ">= 0"),
+                    ("--radius", args.radius, lambda v: v > 0, "> 0"),
+                    ("--elevation", args.elevation, lambda v: -90 <= v <= 90, "in [-90, 90] degrees"),
+                    ("--fps", args.fps, lambda v: v > 0, "> 0"),
+                    ("--look-from", args.look_from, lambda v: True, "finite"),
+                    ("--look-at", list(args.look_at), lambda v: True, "finite")])
+    size = (args.size[0], args.size[-1]) if args.size else None
     request = ViewRequest(split=args.split, index=args.index,
                           look_from=tuple(args.look_from) if args.look_from else None,
                           look_at=tuple(args.look_at), fov=args.fov, size=size, orbit=args.orbit,
                           elevation=args.elevation, radius=args.radius, fps=args.fps)
     out = Path(args.out) if args.out else Path(args.run) / "renders"
+    check_output_dir(out, "--out")
     files = render_run(Path(args.run), out, request)
     print(f"{len(files)} files -> {out}")
     return 0
@@ -201,7 +228,16 @@ def cmd_render(args) -> int:
 
 def cmd_export(args) -> int:
     from mitsnerf.export import export_run
+    from mitsnerf.outputs import check_output_dir
 
+    _check_numbers([("--resolution", args.resolution, lambda v: v >= 1, ">= 1"),
+                    ("--directions", args.directions, lambda v: v >= 1, ">= 1"),
+                    ("--direction", args.direction, lambda v: True, "finite")])
+    if args.direction is not None and not any(args.direction):
+        from mitsnerf.errors import UsageError
+
+        raise UsageError("--direction", "must not be 0 0 0")
+    check_output_dir(Path(args.out) if args.out else Path(args.run) / "export", "--out")
     paths = export_run(Path(args.run), Path(args.out) if args.out else None, args.resolution,
                        args.direction, args.directions)
     print(f"{args.resolution}^3 medium -> {paths['sigma_t.vol'].parent} ({', '.join(paths)})")
@@ -230,8 +266,11 @@ Use it in Mitsuba (gridvolume maps [0, 1]^3 onto the box; here mitsnerf's unit b
 def cmd_bench(args) -> int:
     from mitsnerf.bench.config import load_bench_config
     from mitsnerf.bench.runner import BenchOptions, default_data_root, run_benchmark
+    from mitsnerf.errors import UsageError
+    from mitsnerf.outputs import check_output_dir
 
-    config = load_bench_config(args.config)
+    if args.deterministic and args.cpus_per_cell not in (0, 1):
+        raise UsageError("--deterministic", f"runs each cell on one thread; --cpus-per-cell {args.cpus_per_cell} contradicts it")
     options = BenchOptions(
         quick=args.quick,
         data_root=Path(args.data) if args.data else default_data_root(),
@@ -240,9 +279,13 @@ def cmd_bench(args) -> int:
         executor=args.executor,
         workers=args.workers,
         address=args.address,
-        cpus_per_cell=args.cpus_per_cell,
+        cpus_per_cell=1 if args.deterministic else args.cpus_per_cell,
         force=args.force,
+        verify_hashes=not args.no_verify,
     )
+    check_output_dir(options.results_root, "--results")
+    check_output_dir(options.data_root, "--data" if args.data else "dataset cache ($MITSNERF_DATA or ./data)")
+    config = load_bench_config(args.config)
     result = run_benchmark(config, options)
     print(result.markdown)
     print(f"\n{len(result.computed)} cells run, {len(result.skipped)} already done -> {result.out_root} "
@@ -255,8 +298,11 @@ def cmd_bench(args) -> int:
 
 
 def cmd_check(args) -> int:
+    from mitsnerf.outputs import check_output_dir
     from mitsnerf.verify.runner import format_table, run_checks
 
+    if args.out:
+        check_output_dir(Path(args.out), "--out")
     progress = None if args.no_progress else (
         lambda r: print(f"  {r.name}: {r.status} ({r.seconds:.1f} s)", file=sys.stderr, flush=True))
     results = run_checks(args.quality, out=args.out, only=args.case, progress=progress)
@@ -289,6 +335,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--out", default="data", help="dataset root; the dataset goes to OUT/NAME-HASH (default: data)")
     p.add_argument("--all", action="store_true", help="render every scene of the library")
     p.add_argument("--force", action="store_true", help="render again even if cached")
+    p.add_argument("--no-verify", action="store_true",
+                   help="on a cache hit, skip checking the files against the manifest's sha256 hashes")
     p.add_argument("--set", action="append", metavar="KEY=VALUE", help="override a spec field, e.g. cameras.width=32")
     p.set_defaults(func=cmd_generate)
 
@@ -372,6 +420,10 @@ def build_parser() -> argparse.ArgumentParser:
                    help="Dr.Jit threads (Ray: CPUs) per cell (default: all cores; cores/workers in a pool; 1 on Ray)")
     p.add_argument("--force", action="store_true",
                    help="recompute every cell (default: skip cells with a result for the same config and code)")
+    p.add_argument("--no-verify", action="store_true",
+                   help="skip checking cached datasets against their manifests' sha256 hashes")
+    p.add_argument("--deterministic", action="store_true",
+                   help="one Dr.Jit thread per cell (--cpus-per-cell 1): every method bit-identical run to run")
     p.set_defaults(func=cmd_bench)
 
     p = sub.add_parser("check", help="verify the integrator against Mitsuba's volpath, closed forms and finite differences",

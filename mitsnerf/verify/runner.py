@@ -274,15 +274,17 @@ def run_checks(quality: C.Quality | str = "quick", out: str | Path | None = None
                only: Iterable[str] | None = None, composite_fn=composite,
                progress: Callable[[CaseResult], None] | None = None) -> list[CaseResult]:
     """Run every case (or those named in ``only``); failing cases write images under ``out``."""
+    from mitsnerf.errors import UsageError  # a ValueError naming the command-line option
+
     if isinstance(quality, str):
         if quality not in C.QUALITIES:
-            raise ValueError(f"unknown quality {quality!r}; choose one of {', '.join(C.QUALITIES)}")
+            raise UsageError("--quality", f"unknown quality {quality!r}; choose one of {', '.join(C.QUALITIES)}")
         quality = C.QUALITIES[quality]
     wanted = set(only) if only else None
     if wanted:
         unknown = wanted - set(C.ALL_CASE_NAMES)
         if unknown:
-            raise ValueError(f"unknown case(s) {', '.join(sorted(unknown))}; known: {', '.join(C.ALL_CASE_NAMES)}")
+            raise UsageError("--case", f"unknown case(s) {', '.join(sorted(unknown))}; known: {', '.join(C.ALL_CASE_NAMES)}")
     artifacts = Artifacts(out)
     jobs: list[tuple[str, Callable[[], CaseResult]]] = [
         (C.CLOSED_FORM.name, lambda: closed_form_case(C.CLOSED_FORM, composite_fn))]
