@@ -314,8 +314,16 @@ def cmd_check(args) -> int:
     return 0
 
 
+class _Parser(argparse.ArgumentParser):
+    """argparse, with a mistake on the command line reported as every user error is: one line
+    ``mitsnerf: error: ...`` (and where to find the usage), exit status 2."""
+
+    def error(self, message: str):
+        self.exit(2, f"mitsnerf: error: {self.prog}: {message} (see {self.prog} --help)\n")
+
+
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(
+    parser = _Parser(
         prog="mitsnerf",
         description="Mitsuba 3 ground truth for participating media, Dr.Jit NeRFs fitted to it, and the benchmarks between them.",
     )

@@ -238,6 +238,9 @@ CASES = [
          ("--method", "nope", "known: "), None, (absent("r"), absent(".r.lock"))),
     Case("--batch-rays 1e9", 5, [*TRAIN, "--out", "{tmp}/r", "--batch-rays", "1000000000"], 2,
          ("--batch-rays", "[1, 4194304]"), None, (absent("r"),)),
+    Case("--batch-rays 1e9 as typed", 5, [*TRAIN, "--out", "{tmp}/r", "--batch-rays", "1e9"], 2,
+         ("--batch-rays", "invalid int value: '1e9'", "--help"), None, (absent("r"),)),
+    Case("unknown command", 5, ["trian", "{world.dataset}"], 2, ("invalid choice: 'trian'",), None, ()),
     Case("--steps 0", 5, [*TRAIN, "--out", "{tmp}/r", "--steps", "0"], 2, ("--steps", "[1, 100000000]"), None, (absent("r"),)),
     Case("truncated checkpoint --resume", 5, ["train", "--resume", "--out", "{rn}", "--steps", "4"], 2,
          ("{rn}/checkpoint.npz", "truncated"), truncated_checkpoint, (unchanged("rn"),)),
@@ -315,7 +318,10 @@ def test_battery(case: Case, world, tmp_path, capsys, monkeypatch):
         monkeypatch.setenv(key, _fill(value, ctx))
     before = {name: _snapshot(getattr(ctx, name)) for check in case.left for name in getattr(check, "snapshots", ())}
     capsys.readouterr()
-    code = main(cli_args(case.argv, ctx))
+    try:
+        code = main(cli_args(case.argv, ctx))
+    except SystemExit as exc:  # argparse's own checks
+        code = exc.code
     err = capsys.readouterr().err
     assert code == case.code, err
     assert "Traceback" not in err
