@@ -38,6 +38,7 @@ from mitsnerf.render.background import make_background
 from mitsnerf.render.camera import Rendered
 from mitsnerf.run_dir import RUN_FILES
 from mitsnerf.train import PixelData, TrainConfig, TrainResult, TrainState, make_optimizer, train
+from mitsnerf.train.checkpointing import interrupted_message
 from mitsnerf.train.threads import one_thread
 
 
@@ -191,9 +192,14 @@ def fit(
     with one_thread(deterministic):
         result, _ = train(model, data, train_config, config.lr, state=state, progress=progress,
                           checkpointer=checkpointer, on_log=None if on_log is None else (lambda entry: on_log(entry, model)))
-    run = evaluate_run(model, method, run_config, result, dataset, ref, eval_config, oracle)
-    if out_dir is not None:
-        write_run(run, dataset, out_dir, dataset.views("test").names)
+    try:
+        run = evaluate_run(model, method, run_config, result, dataset, ref, eval_config, oracle)
+        if out_dir is not None:
+            write_run(run, dataset, out_dir, dataset.views("test").names)
+    except KeyboardInterrupt as exc:  # trained and checkpointed: a resume only evaluates
+        if checkpointer is None:
+            raise
+        raise interrupted_message(exc, checkpointer.path, result.steps, " while evaluating") from None
     return run
 
 

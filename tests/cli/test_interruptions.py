@@ -181,3 +181,25 @@ def test_a_resume_runs_the_log_hook_again_on_the_entry_a_signal_stopped_it_on(wo
     fit(dataset, "nerf", overrides, config, tmp_path / "run", progress=False, resume=True,
         on_log=lambda entry, model: seen.append(entry["step"]))
     assert seen == [2, 4, 6, 8]
+
+
+def test_a_signal_while_evaluating_keeps_the_trained_checkpoint_and_the_resume_only_evaluates(world, tmp_path,
+                                                                                              monkeypatch, capsys):
+    import mitsnerf.run
+
+    run = tmp_path / "run"
+    evaluate = mitsnerf.run.evaluate_run
+
+    def stopped(*args, **kwargs):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(mitsnerf.run, "evaluate_run", stopped)
+    assert main(["train", str(world.dataset), "--out", str(run), "--steps", "3", *world.nerf]) == 130
+    assert capsys.readouterr().err.strip().splitlines()[-1] == (
+        f"mitsnerf: interrupted; stopped by SIGINT while evaluating; checkpoint of step 3 saved to "
+        f"{run / 'checkpoint.npz'}; continue with mitsnerf train --resume --out {run}")
+    monkeypatch.setattr(mitsnerf.run, "evaluate_run", evaluate)
+    assert main(["train", "--resume", "--out", str(run)]) == 0
+    metrics = json.loads((run / "metrics.json").read_text())
+    assert metrics["steps"] == 3 and metrics["rays_per_s"] is None  # no step ran in the session that evaluated
+    assert "3 steps in" in capsys.readouterr().out
