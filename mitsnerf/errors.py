@@ -61,7 +61,13 @@ class Interrupted(KeyboardInterrupt):
     """Work stopped by a signal: SIGINT (Ctrl-C), or SIGTERM/SIGHUP (``timeout``, systemd, Slurm, Ray).
 
     A :class:`KeyboardInterrupt`, so code that cleans up after Ctrl-C does the same here;
-    ``exit_status`` is the shell's ``128 + signal number`` (130, 143, 129).
+    ``exit_status`` is the shell's ``128 + signal number`` (130, 143, 129). It survives pickling
+    (a process pool hands it back to the sweep)::
+
+        >>> import pickle
+        >>> back = pickle.loads(pickle.dumps(Interrupted(15, "stopped by SIGTERM")))
+        >>> back.exit_status, str(back)
+        (143, 'stopped by SIGTERM')
     """
 
     def __init__(self, signum: int, message: str = "") -> None:

@@ -205,6 +205,8 @@ CASES = [
          (unchanged("file"),)),
     Case("generate --out is a file", 1, ["generate", "{world.spec}", "--out", "{file}"], 2, ("{file}", "--out"), a_file,
          (unchanged("file"),)),
+    Case("check --out is a file", 1, ["check", "--out", "{file}", "--case", "closed_form"], 2, ("{file}", "--out"),
+         a_file, (unchanged("file"),)),
     Case("bench --results is a file", 1, ["bench", "default", "--results", "{file}", "--data", "{tmp}/d"], 2,
          ("{file}", "--results"), a_file, (unchanged("file"), absent("d"))),
     # 3. corrupt data refused, naming the file and field
