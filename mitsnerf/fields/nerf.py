@@ -24,6 +24,7 @@ from typing import Any
 import drjit as dr
 import drjit.nn as nn
 
+from mitsnerf.config import check_fields, param
 from mitsnerf.math.activations import sigmoid, softplus
 from mitsnerf.math.box import Box
 
@@ -32,39 +33,30 @@ from mitsnerf.math.box import Box
 class NeRFConfig:
     """Sizes and output scalings of the NeRF network."""
 
-    pos_octaves: int = 10
+    pos_octaves: int = param(10, lo=0, hi=20)
     """Frequencies L_x of the positional encoding of x (NeRF: 10)."""
-    dir_octaves: int = 4
+    dir_octaves: int = param(4, lo=0, hi=20)
     """Frequencies L_d of the encoding of the view direction (NeRF: 4)."""
-    width: int = 64
+    width: int = param(64, lo=1, hi=4096)
     """Width W of the trunk (NeRF: 256)."""
-    depth: int = 4
+    depth: int = param(4, lo=1, hi=64)
     """Number of hidden layers D of the trunk (NeRF: 8)."""
-    skip: int | None = 2
+    skip: int | None = param(2, lo=0, hi=64)
     """Trunk layer index at which the encoded input is concatenated again (NeRF: 4, of 8); None or 0
     (TOML has no null), or an index >= depth (a trunk too shallow for it): no skip."""
-    features: int = 15
+    features: int = param(15, lo=1, hi=4096)
     """Position features passed from the trunk to the colour head."""
-    head_width: int = 32
+    head_width: int = param(32, lo=1, hi=4096)
     """Width of the colour head's hidden layer (NeRF: 128)."""
-    sigma_scale: float = 10.0
+    sigma_scale: float = param(10.0, lo=0.0, lo_open=True)
     """Output scale of sigma (world units^-1): softplus(h_0 + sigma_bias) * sigma_scale."""
-    sigma_bias: float = -2.0
+    sigma_bias: float = param(-2.0)
     """Initial bias of the density pre-activation (starts nearly transparent)."""
-    c_max: float = 1.0
+    c_max: float = param(1.0, lo=0.0, lo_open=True)
     """Largest colour (radiance) the head can output."""
 
     def __post_init__(self) -> None:
-        for name in ("pos_octaves", "dir_octaves"):
-            if getattr(self, name) < 0:
-                raise ValueError(f"{name}: must be >= 0, got {getattr(self, name)}")
-        for name in ("width", "depth", "features", "head_width"):
-            if getattr(self, name) < 1:
-                raise ValueError(f"{name}: must be >= 1, got {getattr(self, name)}")
-        if self.skip is not None and self.skip < 0:
-            raise ValueError(f"skip: must be None, 0 (no skip) or a layer index >= 1, got {self.skip}")
-        if not (self.sigma_scale > 0 and self.c_max > 0):
-            raise ValueError("sigma_scale, c_max: must be > 0")
+        check_fields(self)
 
 
 class _BroadcastColumns(dr.CustomOp):
