@@ -133,8 +133,9 @@ class NeRFNetwork(nn.Module):
         self.head = head
 
 
-def build_network(config: NeRFConfig, TensorXf, seed: int = 0) -> NeRFNetwork:
-    """Allocate a network for ``config`` with weights from a seeded generator."""
+def build_network(config: NeRFConfig, TensorXf, seed: int = 0, head: bool = True) -> NeRFNetwork:
+    """Allocate a network for ``config`` with weights from a seeded generator; ``head=False``: a
+    density-only network (one output, no colour head: ``config.features`` and the head's sizes unused)."""
     rng = dr.rng(seed=seed)
     in_pos = 3 * (1 + 2 * config.pos_octaves)
     in_dir = 3 * (1 + 2 * config.dir_octaves)
@@ -145,8 +146,11 @@ def build_network(config: NeRFConfig, TensorXf, seed: int = 0) -> NeRFNetwork:
             size += in_pos
         trunk.append(nn.Linear(size, config.width).alloc(TensorXf, size, rng))
         size = config.width
-    out = nn.Linear(size, 1 + config.features).alloc(TensorXf, size, rng)
-    out.bias = TensorXf([config.sigma_bias] + [0.0] * config.features)
+    features = config.features if head else 0
+    out = nn.Linear(size, 1 + features).alloc(TensorXf, size, rng)
+    out.bias = TensorXf([config.sigma_bias] + [0.0] * features)
+    if not head:
+        return NeRFNetwork(trunk, out, [])
     h1 = nn.Linear(config.features + in_dir, config.head_width).alloc(TensorXf, 0, rng)
     h2 = nn.Linear(config.head_width, 3).alloc(TensorXf, 0, rng)
     return NeRFNetwork(trunk, out, [h1, h2])
@@ -170,8 +174,9 @@ class NeRFField:
     box: Box
 
     @classmethod
-    def create(cls, config: NeRFConfig, TensorXf, box: Box, seed: int = 0) -> "NeRFField":
-        return cls(config, build_network(config, TensorXf, seed), box)
+    def create(cls, config: NeRFConfig, TensorXf, box: Box, seed: int = 0, head: bool = True) -> "NeRFField":
+        """A field of a freshly initialised network; ``head=False``: density only (:meth:`density`)."""
+        return cls(config, build_network(config, TensorXf, seed, head), box)
 
     def _tensor(self, v, width: int):
         """A (3, width) tensor of an Array3f (broadcast to ``width``)."""

@@ -137,7 +137,7 @@ def sample_pdf(bins, weights, n_bins: int, n: int, u=None, eps: float = 1e-5):
     return e0 + frac * (e1 - e0)
 
 
-def _count_before(values, n_values: int, queries, n_queries: int, inclusive: bool):
+def count_before(values, n_values: int, queries, n_queries: int, inclusive: bool):
     """Per ray, how many of the ray's (sorted) ``values`` lie before each of its ``queries``.
 
     Counts ``v < q`` (``inclusive=False``) or ``v <= q`` (``inclusive=True``) by a
@@ -196,10 +196,10 @@ def merge_sorted_t(t_a, n_a: int, t_b, n_b: int):
     out = dr.zeros(Float, n_rays * n)
     idx_a = dr.arange(UInt32, n_rays * n_a)
     ray_a = idx_a // n_a
-    pos_a = ray_a * n + (idx_a - ray_a * n_a) + _count_before(t_b, n_b, t_a, n_a, inclusive=False)
+    pos_a = ray_a * n + (idx_a - ray_a * n_a) + count_before(t_b, n_b, t_a, n_a, inclusive=False)
     idx_b = dr.arange(UInt32, n_rays * n_b)
     ray_b = idx_b // n_b
-    pos_b = ray_b * n + (idx_b - ray_b * n_b) + _count_before(t_a, n_a, t_b, n_b, inclusive=True)
+    pos_b = ray_b * n + (idx_b - ray_b * n_b) + count_before(t_a, n_a, t_b, n_b, inclusive=True)
     dr.scatter(out, t_a, pos_a)
     dr.scatter(out, t_b, pos_b)
     return out

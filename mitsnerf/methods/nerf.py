@@ -14,6 +14,13 @@ The coarse samples come from :func:`mitsnerf.render.volume.sample_rays` and both
 composite with :func:`mitsnerf.math.composite.composite`, as every method. ``n_importance = 0``
 is the single-pass method: one network, ``n_samples`` stratified samples.
 
+``sampler = "proposal"`` is mip-NeRF 360's and nerfacto's answer to two full networks: a small
+density-only *proposal* network on the N_c stratified samples gives weights ``w^p`` whose pdf
+places N_f samples, and only those go through the fine network; the proposal is trained by the
+interlevel loss (:func:`mitsnerf.math.proposal.interlevel_loss`, weight ``proposal_loss_weight``)
+to bound the fine weights from above, not by the photometric loss. The interval before the first
+fine sample counts as empty (the proposal says it is).
+
 Empty-space skipping (``use_occupancy``): the occupancy grid that ``ngp`` and ``voxel`` use
 (:mod:`mitsnerf.fields.occupancy`, refreshed from the fine network's density every
 ``occupancy.update_every`` steps) decides which samples reach a network in both passes; the
@@ -29,7 +36,7 @@ size (a 2 x 32 coarse network on 32 samples, the 4 x 64 fine network on 64).
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Any, Mapping
+from typing import Any, Literal, Mapping
 
 import drjit as dr
 import drjit.nn as nn
@@ -39,6 +46,7 @@ from mitsnerf.config import check_fields, param
 from mitsnerf.fields.nerf import NeRFConfig, NeRFField, NeRFNetwork
 from mitsnerf.fields.occupancy import OccupancyConfig, eval_masked
 from mitsnerf.math.composite import composite, weights
+from mitsnerf.math.proposal import interlevel_loss
 from mitsnerf.math.sampling import deltas_from_sorted_t, merge_sorted_t, sample_pdf
 from mitsnerf.methods.base import RenderOutput, SceneInfo, cover_radiance
 from mitsnerf.methods.occupancy import OccupancyModel
@@ -57,6 +65,13 @@ class NeRFMethodConfig:
     """Stratified (coarse) samples per ray N_c."""
     n_importance: int = param(32, lo=0, hi=4096)
     """Importance samples per ray N_f drawn from the coarse weights; 0: single pass, one network."""
+    sampler: Literal["hierarchical", "proposal"] = param("hierarchical", choices=("hierarchical", "proposal"))
+    """How the N_f samples are placed: NeRF's coarse network (``hierarchical``) or a density-only
+    proposal network trained by the interlevel loss (``proposal``)."""
+    proposal_network: NeRFConfig = param(default_factory=lambda: NeRFConfig(width=32, depth=2, pos_octaves=5, skip=0))
+    """The proposal network's trunk (``sampler = "proposal"``; its colour-head sizes are unused)."""
+    proposal_loss_weight: float = param(1.0, lo=0.0)
+    """Weight of the interlevel loss that trains the proposal network."""
     use_occupancy: bool = param(True)
     """Skip samples in empty cells of an occupancy grid, and behind an estimated transmittance of
     ``occupancy.early_stop_T`` (the networks are not evaluated there)."""
@@ -130,6 +145,7 @@ class NeRFNetworks(nn.Module):
     def __init__(self, fine: NeRFNetwork, coarse: NeRFNetwork | None) -> None:
         self.fine = fine
         self.coarse = coarse
+        """The hierarchical pass's coarse network, or the proposal network (density only)."""
 
 
 class NeRFModel(OccupancyModel):
@@ -140,7 +156,9 @@ class NeRFModel(OccupancyModel):
         fine = NeRFField.create(cover_radiance(config.network, scene), mi.TensorXf, scene.box, seed)
         super().__init__(fine, config.occupancy if config.use_occupancy else None, scene, seed, config.n_samples)
         self._coarse = None
-        if config.n_importance > 0:
+        if config.n_importance > 0 and config.sampler == "proposal":
+            self._coarse = NeRFField.create(config.proposal_network, mi.TensorXf, scene.box, seed + 1, head=False)
+        elif config.n_importance > 0:
             coarse = cover_radiance(config.coarse_network or config.network, scene)
             self._coarse = NeRFField.create(coarse, mi.TensorXf, scene.box, seed + 1)
         self.networks = NeRFNetworks(fine.net, self._coarse.net if self._coarse is not None else None)
@@ -156,9 +174,11 @@ class NeRFModel(OccupancyModel):
         self.networks.update(values)
 
     def samples_per_ray(self) -> int:
-        """Network evaluations per ray before skipping: N_c (+ N_c + N_f for the fine pass)."""
+        """Network evaluations per ray before skipping: N_c (+ N_c + N_f for the fine pass, + N_f with proposals)."""
         c = self.config
-        return c.n_samples + (c.n_samples + c.n_importance if self.hierarchical else 0)
+        if not self.hierarchical:
+            return c.n_samples
+        return c.n_samples + c.n_importance + (0 if c.sampler == "proposal" else c.n_samples)
 
     def jitter_size(self) -> int:
         return self.config.n_samples + (self.config.n_importance if self.hierarchical else 0)
@@ -173,6 +193,8 @@ class NeRFModel(OccupancyModel):
     def render_rays(self, o, d, *, u=None, training: bool = False) -> RenderOutput:
         if not self.hierarchical:
             return RenderOutput(self.composite(o, d, u, training))
+        if self.config.sampler == "proposal":
+            return self._render_proposal(o, d, u, training)
         cfg, scene = self.config, self.scene
         n_c, n_f, n_rays = cfg.n_samples, cfg.n_importance, dr.width(o)
         u_c, u_f = _split_jitter(u, n_rays, n_c, n_f)
@@ -197,3 +219,28 @@ class NeRFModel(OccupancyModel):
         rgb, sigma = self._evaluate(self.base_field, x, d_s, delta, n)
         comp = composite(sigma, delta, rgb, n, background=bg, t=t)
         return RenderOutput(comp, aux_rgb={"coarse": comp_c.rgb} if training else None)
+
+    def _render_proposal(self, o, d, u, training: bool) -> RenderOutput:
+        """The proposal network's weights place N_f samples; only those go through the fine network."""
+        cfg, scene = self.config, self.scene
+        n_p, n_f, n_rays = cfg.n_samples, cfg.n_importance, dr.width(o)
+        u_p, u_f = _split_jitter(u, n_rays, n_p, n_f)
+        Float = type(o.x)
+        s, _ = sample_rays(o, d, n_p, scene.box, u_p)
+        _, sigma_p = self._evaluate(self._coarse, s.x, s.d, s.delta, n_p, density_only=True)
+        w_p, _ = weights(sigma_p if training else dr.detach(sigma_p), s.delta, n_p)
+        _, t_exit, _ = scene.box.intersect(o, d)
+        s_edges = coarse_edges(s.t, t_exit, n_p)
+        t = sample_pdf(s_edges, w_p, n_p, n_f, importance_strata(n_rays, n_f, u_f, Float))
+        delta = deltas_from_sorted_t(t, t_exit, n_f)
+        ray = dr.arange(dr.uint32_array_t(Float), n_rays * n_f) // n_f
+        d_s = dr.gather(type(d), d, ray)
+        x = dr.gather(type(o), o, ray) + t * d_s
+        rgb, sigma = self._evaluate(self.base_field, x, d_s, delta, n_f)
+        comp = composite(sigma, delta, rgb, n_f, background=background_radiance(scene.background, d), t=t)
+        extra = {}
+        if training and cfg.proposal_loss_weight > 0:
+            w_f, _ = weights(sigma, delta, n_f)
+            loss = interlevel_loss(w_f, coarse_edges(t, t_exit, n_f), n_f, s_edges, w_p, n_p)
+            extra["proposal"] = cfg.proposal_loss_weight * loss
+        return RenderOutput(comp, extra)

@@ -153,3 +153,21 @@ def _fine_samples(model, rays):
 
     s, _ = sample_rays(rays.o, rays.d, 64, UNIT_BOX)
     return s.x, s.delta, 64
+
+
+def test_proposal_sampling_trains_the_fine_network_and_the_proposal(tiny_views):
+    data, info = tiny_views()
+    config = NeRFMethodConfig(network=SMALL, sampler="proposal", n_samples=16, n_importance=16)
+    model = NeRFModel(config, info)
+    params = model.parameters()
+    assert "coarse.trunk.0.weights" in params and "coarse.head.0.weights" not in params  # density only
+    assert model.samples_per_ray() == 32 and model.jitter_size() == 32
+    before = {k: np.array(v) for k, v in params.items() if k.startswith("coarse.")}
+    result, _ = train(model, data, TrainConfig(steps=60, batch_rays=256, log_every=10), 2e-2, progress=False)
+    losses = [h["loss"] for h in result.history]
+    assert np.mean(losses[-2:]) < 0.5 * losses[0]
+    moved = [k for k, v in before.items() if not np.array_equal(v, np.array(model.parameters()[k]))]
+    assert moved  # the interlevel loss reaches the proposal network
+    rays = RayBatch(*data.pixels.rays(mi.UInt32(np.arange(64, dtype=np.uint32)), mi.Float(0.5), mi.Float(0.5)))
+    out = model.render_rays(rays.o, rays.d)
+    assert not out.extra_losses and dr.all(dr.isfinite(out.rgb.x))
