@@ -16,8 +16,9 @@ The correct quadrature, for reference (:mod:`mitsnerf.math.composite`,
     t_i = t_n + (i + u_i) h,   delta_i = t_{i+1} - t_i (last: t_f - t_{N-1})
     T_i = exp(-sum_{j<i} sigma_j delta_j),   C = sum_i T_i (1 - exp(-sigma_i delta_i)) c_i + T_N bg
 
-Value mutations change what is rendered; gradient mutations change only derivatives
-(``x s - detach(x) (s - 1)`` has the value of ``x`` and the gradient ``s dx``).
+Value mutations change what is rendered; training mutations only what training renders
+(jittered samples); gradient mutations only derivatives (``x s - detach(x) (s - 1)`` has the
+value of ``x`` and the gradient ``s dx``).
 
 >>> from drjit.llvm import Float
 >>> from mitsnerf.math.composite import weights
@@ -51,7 +52,8 @@ class Mutation:
     snippet: str
     replacement: str
     kind: str = "value"
-    """``"value"`` (changes what is rendered) or ``"gradient"`` (only derivatives)."""
+    """``"value"`` (changes what is rendered), ``"training"`` (only jittered, training-mode
+    rendering) or ``"gradient"`` (only derivatives)."""
 
     @property
     def where(self) -> str:
@@ -155,11 +157,13 @@ MUTATION_LIST: tuple[Mutation, ...] = (
         _SAMPLING, "stratified_t",
         "        u_next = dr.gather(Float, u, idx + 1, i + 1 < n)\n",
         "        u = dr.zeros(Float, n_rays * n)\n        u_next = u\n",
+        kind="training",
     ),
     Mutation(
         "jitter_frozen", "the same training jitter at every step (the step's generator ignores the step)",
         "mitsnerf.train.schedule", "step_rng",
         "| (int(step) & 0xFFFFFFFF)", "| 0",
+        kind="training",
     ),
     Mutation(
         "T_detached", "T_i cut from the AD graph (gradients through alpha and T_N only)",
