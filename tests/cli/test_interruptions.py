@@ -203,3 +203,19 @@ def test_a_signal_while_evaluating_keeps_the_trained_checkpoint_and_the_resume_o
     metrics = json.loads((run / "metrics.json").read_text())
     assert metrics["steps"] == 3 and metrics["rays_per_s"] is None  # no step ran in the session that evaluated
     assert "3 steps in" in capsys.readouterr().out
+
+
+def test_a_signal_that_an_import_turned_into_another_error_still_exits_as_the_signal(world, tmp_path, monkeypatch,
+                                                                                    capsys):
+    import mitsnerf.run
+    from mitsnerf.errors import Interrupted
+
+    def import_stopped(*args, **kwargs):
+        try:
+            raise Interrupted(15, "stopped by SIGTERM")
+        except Interrupted as exc:
+            raise ImportError("initialization failed") from exc  # what a C extension's import makes of it
+
+    monkeypatch.setattr(mitsnerf.run, "fit", import_stopped)
+    assert main(["train", str(world.dataset), "--out", str(tmp_path / "r"), *world.nerf]) == 143
+    assert capsys.readouterr().err.strip().splitlines()[-1] == "mitsnerf: interrupted; stopped by SIGTERM"
