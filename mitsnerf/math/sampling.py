@@ -16,7 +16,7 @@ import drjit as dr
 def stratified_t(t_n, t_f, n: int, u=None):
     """Stratified sample distances and their interval lengths along each ray.
 
-    Formula (0-based ``i = 0 .. N-1``; DEVELOPERS.md writes it 1-based)::
+    Formula (0-based ``i = 0 .. N-1``; docs/conventions.md writes it 1-based)::
 
         t_i     = t_n + (i + u_i) / N * (t_f - t_n),     u_i ~ U[0, 1)
         delta_i = t_{i+1} - t_i,   delta_{N-1} = t_f - t_{N-1}
