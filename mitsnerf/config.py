@@ -29,7 +29,8 @@ nested dataclasses (a table; over the field's own default key by key), ``X | Non
 ``Mapping`` and unions of dataclasses tagged by a ``type`` class attribute (dispatched on the
 table's ``type`` key) are understood. :func:`to_dict` turns a config back into plain data,
 :func:`apply_overrides` applies dotted overrides (``{"lights.0.radiance": [1, 1, 1]}``) to plain
-data, :func:`parse_value` reads a command-line value, :func:`read_toml` reads a file.
+data, :func:`parse_value` reads a command-line value, :func:`read_toml` reads a file, and
+:func:`search_dirs` / :func:`named_files` find files by name (the user's directories, then the package's).
 
 Fields declared without :func:`param` (the method and training configs) keep their older wording:
 ``expected an integer`` and ``unknown key``.
@@ -44,6 +45,7 @@ import difflib
 import inspect
 import json
 import math
+import os
 import re
 import sys
 import textwrap
@@ -539,6 +541,28 @@ def parse_value(text: str) -> Any:
         return json.loads(text)
     except json.JSONDecodeError:
         return text
+
+
+def search_dirs(env_var: str, shipped: Path) -> list[Path]:
+    """Where named files are looked up, first match first: the user's directories listed in
+    ``$env_var`` (``os.pathsep``-separated), then the ``shipped`` one (package data).
+
+    >>> import os
+    >>> os.environ["MITSNERF_DOCTEST_DIRS"] = os.pathsep.join(["mine", "ours"])
+    >>> [p.name for p in search_dirs("MITSNERF_DOCTEST_DIRS", Path("lib"))]
+    ['mine', 'ours', 'lib']
+    >>> del os.environ["MITSNERF_DOCTEST_DIRS"]
+    """
+    return [Path(p) for p in os.environ.get(env_var, "").split(os.pathsep) if p] + [Path(shipped)]
+
+
+def named_files(dirs: list[Path], suffix: str = ".toml") -> dict[str, Path]:
+    """Each name (a file's stem) found in ``dirs`` -> its file in the first directory that has one, by name."""
+    out: dict[str, Path] = {}
+    for d in dirs:
+        for path in sorted(d.glob(f"*{suffix}")) if d.is_dir() else ():
+            out.setdefault(path.stem, path)
+    return dict(sorted(out.items()))
 
 
 def read_toml(path: str | Path, what: str = "a TOML file") -> dict:
