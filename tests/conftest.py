@@ -2,10 +2,13 @@
 
 from __future__ import annotations
 
+import subprocess
+from pathlib import Path
+
 import numpy as np
 import pytest
 
-import mitsnerf  # noqa: F401  (configures libLLVM before drjit loads)
+import mitsnerf  # (configures libLLVM before drjit loads)
 from mitsnerf import env
 
 
@@ -13,6 +16,18 @@ from mitsnerf import env
 def variant() -> str:
     """Every test runs on the variant the package would choose here (override: MITSNERF_VARIANT)."""
     return env.set_variant()
+
+
+@pytest.fixture(scope="session")
+def checkout_files() -> tuple[Path, list[str]]:
+    """The checkout's root and the files git would commit (tracked, and untracked ones it does not ignore)."""
+    root = Path(mitsnerf.__file__).resolve().parents[1]
+    try:
+        out = subprocess.run(["git", "ls-files", "-z", "--cached", "--others", "--exclude-standard"], cwd=root,
+                             capture_output=True, check=True).stdout.decode()
+    except (OSError, subprocess.CalledProcessError):
+        pytest.skip("not a git checkout")
+    return root, [name for name in out.split("\0") if name and (root / name).exists()]
 
 
 @pytest.fixture

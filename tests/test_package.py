@@ -26,26 +26,20 @@ CLEAN_ENV = {k: v for k, v in os.environ.items() if k not in (SCENES_ENV, BENCHM
 PACKAGE_DATA = [(scenes_dir(), "mitsnerf/scene/library"), (benchmarks_dir(), "mitsnerf/bench/configs")]
 
 
-def _checkout_copy(dest: Path) -> Path:
-    """The files git would commit (tracked, and untracked ones it does not ignore), as they are now, in ``dest``."""
-    try:
-        listed = subprocess.run(["git", "ls-files", "-z", "--cached", "--others", "--exclude-standard"], cwd=ROOT,
-                                capture_output=True, check=True).stdout.decode().split("\0")
-    except (OSError, subprocess.CalledProcessError):
-        pytest.skip("not a git checkout: nothing to build a wheel from")
-    for name in filter(None, listed):
-        src, out = ROOT / name, dest / name
-        if src.is_symlink() or src.is_file():
-            out.parent.mkdir(parents=True, exist_ok=True)
-            shutil.copy2(src, out, follow_symlinks=False)
+def _checkout_copy(checkout_files, dest: Path) -> Path:
+    """The files git would commit, as they are now, in ``dest``."""
+    root, names = checkout_files
+    for name in names:
+        (dest / name).parent.mkdir(parents=True, exist_ok=True)
+        shutil.copy2(root / name, dest / name, follow_symlinks=False)
     return dest
 
 
 @pytest.fixture(scope="module")
-def wheel(tmp_path_factory) -> Path:
+def wheel(tmp_path_factory, checkout_files) -> Path:
     """A wheel built from the working tree by pip, as a user's ``pip install .`` builds it."""
     tmp = tmp_path_factory.mktemp("wheel")
-    src = _checkout_copy(tmp / "src")
+    src = _checkout_copy(checkout_files, tmp / "src")
     proc = subprocess.run([sys.executable, "-m", "pip", "wheel", "--no-deps", "-q", "-w", str(tmp / "dist"), str(src)],
                           capture_output=True, text=True, env=CLEAN_ENV)
     if proc.returncode and "No matching distribution found for setuptools" in proc.stderr:
