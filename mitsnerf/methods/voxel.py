@@ -132,7 +132,7 @@ class VoxelModel(OccupancyModel):
         ``occupancy.update_every`` steps."""
         new = {}
         if step in self.config.upsample_steps:
-            r = 2 * self.resolution
+            r = self.config.resolution_at(step + 1)
             new = {key: upsample(params[key], r) for key in (SIGMA_KEY, SH_KEY)}
             self.set_parameters(new)
         super().after_step(step, params)
