@@ -81,6 +81,24 @@ def cmd_scenes(args) -> int:
     return status
 
 
+def cmd_methods(args) -> int:
+    from mitsnerf.config import doc_table
+    from mitsnerf.errors import SpecError
+    from mitsnerf.methods import METHODS
+
+    if not args.name:
+        for name, entry in METHODS.items():
+            print(f"{name:16s} {entry.description}")
+        return 0
+    if args.name not in METHODS:
+        raise SpecError(None, "NAME", f"unknown method {args.name!r} (known: {', '.join(METHODS)})")
+    entry = METHODS[args.name]
+    print(f"{entry.name}: {entry.description}\n\n{doc_table(entry.config_type, nested=True)}\n\n"
+          f"Set with: mitsnerf train DATASET --method {entry.name} --set KEY=VALUE "
+          "(or in a bench file's [[methods]] config table).")
+    return 0
+
+
 @_with_user_dirs
 def cmd_generate(args) -> int:
     from mitsnerf.generate import generate_all, generate_dataset
@@ -274,6 +292,12 @@ def _scenes_parser(sub) -> None:
     p.set_defaults(func=cmd_scenes)
 
 
+def _methods_parser(sub) -> None:
+    p = sub.add_parser("methods", help="list the methods, or one method's settings (what --set takes)")
+    p.add_argument("name", nargs="?", metavar="NAME", help="a method: print its settings, ranges and defaults")
+    p.set_defaults(func=cmd_methods)
+
+
 def _generate_parser(sub) -> None:
     p = sub.add_parser("generate", help="render a scene's ground-truth dataset with Mitsuba's volpath")
     p.add_argument("scene", nargs="?", help="a scene name (mitsnerf scenes lists them) or the path of a spec")
@@ -385,7 +409,7 @@ def _check_parser(sub) -> None:
     p.set_defaults(func=cmd_check)
 
 
-COMMANDS = (_env_parser, _scenes_parser, _generate_parser, _train_parser, _render_parser, _export_parser,
+COMMANDS = (_env_parser, _scenes_parser, _methods_parser, _generate_parser, _train_parser, _render_parser, _export_parser,
             _bench_parser, _check_parser)
 """Each adds its command's parser to the subparsers; in the order ``mitsnerf --help`` lists them."""
 

@@ -241,8 +241,11 @@ def _attribute_docstrings(klass) -> dict[str, str]:
     return out
 
 
-def doc_table(cls) -> str:
+def doc_table(cls, nested: bool = False) -> str:
     """The fields of config ``cls`` as a markdown table: name, what it must be, default, meaning.
+
+    With ``nested``, a field holding a config of its own is listed field by field under dotted
+    names (``network.width``, the keys ``--set`` takes), with that field's own defaults.
 
     >>> @dataclasses.dataclass(frozen=True)
     ... class Rig:
@@ -254,16 +257,25 @@ def doc_table(cls) -> str:
     | fov | a number in (0, 180) | required | field of view, degrees |
     | seed | an integer >= 0 | 0 | rig randomisation |
     """
+    rows = ["| field | must be | default | meaning |", "|---|---|---|---|"]
+    return "\n".join(rows + _doc_rows(cls, None, "", nested))
+
+
+def _doc_rows(cls, defaults: Any, prefix: str, nested: bool) -> list[str]:
+    """Table rows of ``cls``'s fields named ``prefix + name``; defaults from the instance ``defaults`` if given."""
     hints = typing.get_type_hints(cls)
     docs = field_docs(cls)
-    rows = ["| field | must be | default | meaning |", "|---|---|---|---|"]
+    rows = []
     for f in dataclasses.fields(cls):
         if f.name not in docs:
             continue
-        default = _default(f)
+        default = _default(f) if defaults is None else getattr(defaults, f.name)
+        if nested and dataclasses.is_dataclass(hints[f.name]) and dataclasses.is_dataclass(default):
+            rows += _doc_rows(hints[f.name], default, f"{prefix}{f.name}.", nested)
+            continue
         shown = "required" if default is dataclasses.MISSING else json.dumps(plain(default))
-        rows.append(f"| {f.name} | {describe(hints[f.name], _bounds(f))} | {shown} | {docs[f.name] or '...'} |")
-    return "\n".join(rows)
+        rows.append(f"| {prefix}{f.name} | {describe(hints[f.name], _bounds(f))} | {shown} | {docs[f.name] or '...'} |")
+    return rows
 
 
 # --------------------------------------------------------------------------- from_dict

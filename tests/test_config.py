@@ -288,6 +288,30 @@ def test_configs_built_in_code_are_checked(name, kwargs, message):
     assert str(info.value) == f"m.toml: {message}"
 
 
+def test_a_nested_table_lists_the_dotted_keys_with_the_fields_own_defaults():
+    from mitsnerf.methods.voxel import VoxelMethodConfig
+
+    table = doc_table(VoxelMethodConfig, nested=True)
+    assert "| grid.sh_degree | an integer in [0, 3] | 1 | Highest SH band L" in table
+    assert "| occupancy.early_stop_T | a number in [0, 1) | 0.0001 |" in table
+    assert "| grid |" not in table and "| grid | a table |" in doc_table(VoxelMethodConfig)
+    small = doc_table(Outer, nested=True)  # Outer.small's default is Inner(width=32, depth=2), not Inner()
+    assert "| small.width | an integer | 32 |" in small and "| main.width | an integer | 64 |" in small
+
+
+def test_the_methods_command_prints_a_methods_settings(capsys):
+    from mitsnerf.cli import main
+    from mitsnerf.methods import METHODS
+
+    assert main(["methods"]) == 0
+    assert [line.split()[0] for line in capsys.readouterr().out.splitlines()] == list(METHODS)
+    assert main(["methods", "mitsuba-inverse"]) == 0
+    out = capsys.readouterr().out
+    assert "| max_depth | an integer >= -1 | 0 | prbvolpath path length" in out and "--method mitsuba-inverse" in out
+    assert main(["methods", "nope"]) == 2
+    assert capsys.readouterr().err.startswith("mitsnerf: error: NAME: unknown method 'nope' (known: ")
+
+
 def test_a_nested_method_config_error_names_the_dotted_field():
     from mitsnerf.methods.ngp import NGPMethodConfig
 
