@@ -32,7 +32,7 @@ table's ``type`` key) are understood. :func:`to_dict` turns a config back into p
 data, :func:`parse_value` reads a command-line value, :func:`read_toml` reads a file, and
 :func:`search_dirs` / :func:`named_files` find files by name (the user's directories, then the package's).
 
-Fields declared without :func:`param` (the method and training configs) keep their older wording:
+Fields declared without :func:`param` (the ``nerf`` method's configs, for now) keep their older wording:
 ``expected an integer`` and ``unknown key``.
 """
 
