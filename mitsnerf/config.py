@@ -32,8 +32,8 @@ table's ``type`` key) are understood. :func:`to_dict` turns a config back into p
 data, :func:`parse_value` reads a command-line value, :func:`read_toml` reads a file, and
 :func:`search_dirs` / :func:`named_files` find files by name (the user's directories, then the package's).
 
-Fields declared without :func:`param` (the ``nerf`` method's configs, for now) keep their older wording:
-``expected an integer`` and ``unknown key``.
+Every config of the package declares its fields with :func:`param`; a dataclass whose fields are
+plain (``x: int = 1``) is read too, with the wording ``expected an integer`` and ``unknown key``.
 """
 
 from __future__ import annotations

@@ -131,7 +131,7 @@ BAD_BENCH = [  # (raw config, quick, field, message); every error names benchmar
     ({"scenes": ["cloud"], "methods": NERF, "quick": {"train": {"steps": -3}}}, True, "quick.train.steps",
      "must be an integer in [1, 100000000], got -3 (method nerf)"),
     ({"scenes": ["cloud"], "methods": [{"name": "nerf", "quick": {"config": {"n_samples": 0}}}]}, True,
-     "methods.0.quick.config.n_samples", "must be >= 1, got 0 (method nerf)"),
+     "methods.0.quick.config.n_samples", "must be an integer in [1, 4096], got 0 (method nerf)"),
     ({"scenes": ["cloud"], "methods": NERF, "quick": {"scene": {"cameras.width": 0}}}, True,
      "quick.scene.cameras.width", "must be an integer in [1, 8192], got 0 (scene cloud)"),
     ({"scenes": ["cloud"], "methods": NERF, "quick": {"scene": {"lights.5.radiance": [1, 1, 1]}}}, True,
@@ -139,7 +139,7 @@ BAD_BENCH = [  # (raw config, quick, field, message); every error names benchmar
     ({"scenes": ["cloud"], "methods": NERF, "quick": {"eval": {"curve_pionts": 1}}}, True, "quick.eval.curve_pionts",
      "unknown field (did you mean 'curve_points'?)"),
     ({"scenes": ["cloud"], "methods": "all", "method_settings": {"nerf": {"config": {"n_samples": 0}}}}, False,
-     "method_settings.nerf.config.n_samples", "must be >= 1, got 0 (method nerf)"),
+     "method_settings.nerf.config.n_samples", "must be an integer in [1, 4096], got 0 (method nerf)"),
     ({"scenes": ["cloud"], "methods": "all", "method_settings": {"nerf": {"label": "a/b"}}}, False,
      "method_settings.nerf.label", "must not contain '/' or start with '.', got 'a/b'"),
 ]
