@@ -36,7 +36,7 @@ from mitsnerf.methods import get_method
 from mitsnerf.methods.base import Model, SceneInfo, num_parameters
 from mitsnerf.render.background import make_background
 from mitsnerf.render.camera import Rendered
-from mitsnerf.run_dir import RUN_FILES
+from mitsnerf.run_dir import RUN_FILES, remove_run_files
 from mitsnerf.train import PixelData, TrainConfig, TrainResult, TrainState, make_optimizer, train
 from mitsnerf.train.checkpointing import interrupted_message
 from mitsnerf.train.threads import one_thread
@@ -141,7 +141,7 @@ def _start(out_dir: Path | None, run_config: dict, model: Model, lr: float, resu
     path = Path(out_dir) / CHECKPOINT_FILE
     checkpointer = Checkpointer(path, run_config)
     if not resume:
-        path.unlink(missing_ok=True)
+        remove_run_files(Path(out_dir))  # a fresh run: the old one's files go now, when training starts
         return checkpointer, None
     ckpt = load_checkpoint(path)
     _check_resumable(ckpt.config, run_config, path)
@@ -171,7 +171,7 @@ def fit(
     ``reference``: the test views' :class:`mitsnerf.scoring.Reference` if the caller has it
     (else built here); ``oracle``: the oracle's test metrics at the same footprint, for the
     error budget. With ``out_dir``, checkpoints go to ``out_dir/checkpoint.npz`` (a fresh run
-    first removes an old one there); ``resume=True`` continues from it instead, which must be of
+    first removes an old run's files there, :func:`mitsnerf.run_dir.remove_run_files`); ``resume=True`` continues from it instead, which must be of
     the same method, method settings and training settings (except :data:`RESUMABLE_CHANGES`).
     ``on_log(entry, model)`` runs after each history entry, off the training clock (e.g. a
     held-out curve, :class:`mitsnerf.bench.worker.CurveRecorder`); a resumed run calls it again on

@@ -34,7 +34,7 @@ from mitsnerf.checkpoint import CHECKPOINT_FILE
 from mitsnerf.errors import OutputError
 from mitsnerf.outputs import check_output_dir, exclusive_lock
 
-#: What a run writes in its directory (:func:`mitsnerf.run.write_run`); ``--force`` removes these.
+#: What a run writes in its directory (:func:`mitsnerf.run.write_run`); a fresh run removes these.
 RUN_FILES = ("config.json", "params.npz", "history.json", "metrics.json", CHECKPOINT_FILE, "test")
 
 
@@ -99,7 +99,7 @@ def lock_path(path: str | os.PathLike) -> Path:
 
 
 def remove_run_files(path: Path) -> None:
-    """Delete what a run wrote in ``path`` (``--force``: start over), keeping everything else."""
+    """Delete what a run wrote in ``path`` (a fresh run starting over), keeping everything else."""
     import shutil
 
     for name in RUN_FILES:
@@ -114,12 +114,10 @@ def remove_run_files(path: Path) -> None:
 def claim_run_dir(path: str | os.PathLike, *, resume: bool = False, force: bool = False,
                   option: str = "--out") -> Iterator[RunDirState]:
     """Check that ``path`` can be written, take its lock (refused at once if another process holds
-    it), then check what it holds (:func:`check_run_dir`) and hold the lock for the block. With
-    ``force`` and without ``resume`` the old run's files are removed first. Yields the state."""
+    it), then check what it holds (:func:`check_run_dir`) and hold the lock for the block. Yields the
+    state. A run started over (``--force``) removes the old one's files only when training starts
+    (:func:`mitsnerf.run.fit`), so a refusal on the way (a bad dataset) loses nothing."""
     path = Path(path)
     check_output_dir(path, option, replaced=True)
     with exclusive_lock(lock_path(path), wait=False, what=path):
-        state = check_run_dir(path, resume=resume, force=force, option=option)
-        if force and not resume and state.kind != "new":
-            remove_run_files(path)
-        yield state
+        yield check_run_dir(path, resume=resume, force=force, option=option)

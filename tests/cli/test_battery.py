@@ -127,6 +127,11 @@ def binary_spec(ctx) -> None:
     (ctx.scenes / "binary.toml").write_bytes(bytes(range(256)))
 
 
+def finished_run_and_swapped_image(ctx) -> None:
+    copy_run(ctx)
+    swapped_image(ctx)
+
+
 def bench_file(text: str) -> Callable:
     def setup(ctx) -> None:
         ctx.bench = ctx.tmp / "b.toml"
@@ -197,6 +202,8 @@ CASES = [
          ("{foreign}", "not a mitsnerf run", "thesis.tex"), foreign_dir, (unchanged("foreign"),)),
     Case("train --force a non-run directory", 4, [*TRAIN, "--out", "{foreign}", "--force"], 2,
          ("{foreign}", "not a mitsnerf run"), foreign_dir, (unchanged("foreign"),)),
+    Case("train --force with a bad dataset", 4, [*train_on("{ds}"), "--out", "{rn}", "--force"], 2,
+         ("train/r_000.exr", "sha256"), finished_run_and_swapped_image, (unchanged("rn"),)),
     Case("train --resume a missing run", 1, ["train", "--resume", "--out", "{tmp}/none"], 2,
          ("{tmp}/none", "no checkpoint.npz to resume"), None, (absent("none"),)),
     Case("render --out is a file", 1, ["render", "{world.run}", "--out", "{file}"], 2, ("{file}", "--out"), a_file,
