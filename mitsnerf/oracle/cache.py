@@ -47,6 +47,7 @@ class OracleConfig:
     n_samples: int = param(128, lo=1, doc="the integrator's samples per ray N")
     noise_replicas: int = param(2, lo=1, doc="sign patterns for the image's Monte Carlo variance")
     seed: int = param(0, lo=0, doc="seed of the volpath samples")
+    enabled: bool = param(True, doc="compute the oracle (false: no ceiling row, no error budget)")
 
     def __post_init__(self) -> None:
         check_fields(self)
