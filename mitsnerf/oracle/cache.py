@@ -172,7 +172,7 @@ def compute_oracle(dataset, config: OracleConfig, footprint: int,
         "mc_error": {"lbar_rel_se_median": float(np.median(rel_se)) if rel_se.size else None,
                      "lbar_rel_se_p90": float(np.quantile(rel_se, 0.9)) if rel_se.size else None},
         "error_split": error_split(renders[int(footprint)], var, ref, test_ref),
-        "psnr_test_medium": {f"footprint_{k}": s.get("psnr_test_medium") for k, s in scores.items()},
+        "psnr_test_medium": {k: s.get("psnr_test_medium") for k, s in scores.items()},
         "noise_floor_psnr_medium": (ref.noise_floor or {}).get("psnr_medium"), "provenance": env.provenance(),
     }
     arrays = {"lbar_mc": grids.mc, "lbar_mc_se": grids.mc_se, "lbar_delta": grids.delta,
