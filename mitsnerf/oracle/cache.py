@@ -127,6 +127,8 @@ def error_split(oracle: np.ndarray, var: np.ndarray, ref, test_ref: np.ndarray |
     masks = ref.masks
     total = _medium_mean(np.square(oracle - ref.images).mean(-1), masks)
     out = {"mse_medium": total, "mc_var_medium": _medium_mean(var.mean(-1), masks)}
+    # the pooled medium PSNR the oracle would score without its own Monte Carlo noise
+    out["psnr_medium_without_mc"] = float(-10.0 * np.log10(max(total - out["mc_var_medium"], 1e-30)))
     if test_ref is not None:
         out["ref_var_medium"] = 0.5 * _medium_mean(np.square(test_ref - ref.images).mean(-1), masks)
         out["bias2_medium"] = total - out["ref_var_medium"] - out["mc_var_medium"]

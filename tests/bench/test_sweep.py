@@ -113,7 +113,11 @@ def test_sweep_writes_every_output(interrupted_then_resumed):
 
 
 def _quality(result):
-    return {(r["scene"], r["method"], k): r[k] for r in result.per_scene for k in QUALITY_KEYS}
+    return {(r["scene"], r["method"], k): r[k] for r in result.per_scene if not r.get("ceiling") for k in QUALITY_KEYS}
+
+
+def _ceilings(result):
+    return [r for r in result.per_scene if r.get("ceiling")]
 
 
 def test_pool_executor_gives_the_same_table(tiny_bench, interrupted_then_resumed):
@@ -122,6 +126,7 @@ def test_pool_executor_gives_the_same_table(tiny_bench, interrupted_then_resumed
     pooled = run_benchmark(config, options("pool", executor="pool", workers=2, report=False))
     assert len(pooled.computed) == 4
     assert _quality(pooled) == pytest.approx(_quality(sequential), rel=1e-6)  # threads: 1 per cell, not 2
+    assert _ceilings(pooled) == _ceilings(sequential) and len(_ceilings(pooled)) == 2  # the cached oracle
     assert all(r["worker"]["executor"] == "pool" for r in pooled.records)
 
 
@@ -132,4 +137,5 @@ def test_ray_executor_on_a_local_instance_gives_the_same_table(tiny_bench, inter
     on_ray = run_benchmark(config, options("ray", executor="ray", workers=2, report=False))
     assert len(on_ray.computed) == 4
     assert _quality(on_ray) == pytest.approx(_quality(sequential), rel=1e-6)
+    assert _ceilings(on_ray) == _ceilings(sequential)
     assert all(r["worker"]["executor"] == "ray" and r["worker"]["fresh_process"] for r in on_ray.records)
