@@ -1,9 +1,9 @@
-"""Benchmark configurations (``benchmarks/*.toml``) as frozen, validated dataclasses.
+"""Benchmark configurations (TOML; the shipped ones: ``mitsnerf/bench/configs/*.toml``) as frozen, validated dataclasses.
 
 ```toml
 name = "default"                 # default: the file's stem
 description = "..."
-scenes = ["cloud"]               # scene names or spec paths, or "all" (every scene of scenes/)
+scenes = ["cloud"]               # scene names or spec paths, or "all" (every scene mitsnerf scenes lists)
 seeds = [0]
 train = { seconds = 240 }        # training settings shared by every method (TrainConfig keys)
 [eval]                           # EvalConfig: what is measured besides the final test PSNR
@@ -38,13 +38,18 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Mapping
 
-from mitsnerf.config import INTERNAL, as_spec_error, deep_merge, from_dict, param, read_toml, source_field, to_dict
+from mitsnerf.config import (INTERNAL, as_spec_error, deep_merge, from_dict, named_files, param, read_toml, search_dirs,
+                             source_field, to_dict)
 from mitsnerf.errors import SpecError
 from mitsnerf.evaluate import EvalConfig
 from mitsnerf.methods import METHODS
 from mitsnerf.oracle.cache import OracleConfig
 
+#: Environment variable listing a user's benchmark config directories (``os.pathsep``-separated),
+#: searched before the shipped configs (``mitsnerf bench --config DIR`` adds to it).
 BENCHMARKS_ENV = "MITSNERF_BENCHMARKS"
+#: The shipped benchmark configs, package data.
+SHIPPED = Path(__file__).resolve().parent / "configs"
 
 
 @dataclass(frozen=True)
@@ -172,8 +177,13 @@ class BenchConfig:
 
 
 def benchmarks_dir() -> Path:
-    """Where named benchmark configs live: ``$MITSNERF_BENCHMARKS`` or the repo's ``benchmarks/``."""
-    return Path(os.environ.get(BENCHMARKS_ENV) or Path(__file__).resolve().parents[2] / "benchmarks")
+    """The benchmark configs shipped with the package (``mitsnerf/bench/configs``)."""
+    return SHIPPED
+
+
+def benchmark_dirs() -> list[Path]:
+    """Where benchmark names are looked up, first match first: ``$MITSNERF_BENCHMARKS``'s directories, then the shipped ones."""
+    return search_dirs(BENCHMARKS_ENV, SHIPPED)
 
 
 def _expand(raw: dict, source: str) -> dict:
@@ -228,11 +238,11 @@ def parse_bench_config(raw: Mapping[str, Any], source: str | os.PathLike = "<con
 
 
 def load_bench_config(name_or_path: str | os.PathLike) -> BenchConfig:
-    """A benchmark config by name (``benchmarks/<name>.toml``) or path; SpecError on any problem."""
+    """A benchmark config by name (``NAME.toml`` in :func:`benchmark_dirs`) or path; SpecError on any problem."""
     path = Path(name_or_path)
+    known = named_files(benchmark_dirs())
     if path.suffix != ".toml" and not path.exists():
-        path = benchmarks_dir() / f"{name_or_path}.toml"
+        path = known.get(str(name_or_path), path)
     if not path.exists():
-        known = sorted(p.stem for p in benchmarks_dir().glob("*.toml"))
         raise SpecError(path, None, f"no such benchmark config (known: {', '.join(known) or 'none'})")
     return parse_bench_config(read_toml(path, "a benchmark config"), path)

@@ -31,6 +31,16 @@ def _figure(width: float, height: float):
     return fig
 
 
+def _label(ax, xlabel: str, ylabel: str, title: str) -> None:
+    """Axis labels, title, a light grid, and a legend when something is labelled."""
+    ax.set_xlabel(xlabel)
+    ax.set_ylabel(ylabel)
+    ax.set_title(title)
+    ax.grid(alpha=0.3)
+    if ax.get_legend_handles_labels()[0]:
+        ax.legend(fontsize=8)
+
+
 def _save(fig, path: Path) -> Path:
     from mitsnerf.data.atomic import atomic_path
 
@@ -77,12 +87,7 @@ def psnr_time(scene: str, records: Sequence[dict], methods: Sequence[str], path:
         floor = _floor(records, floor_key)
         if floor is not None:
             ax.axhline(floor, color="k", ls="--", lw=1, label="GT noise floor")
-        ax.set_xlabel("training time, s (evaluation excluded)")
-        ax.set_ylabel("held-out PSNR, dB (linear)")
-        ax.set_title(f"{scene}: {title}")
-        ax.grid(alpha=0.3)
-        if ax.get_legend_handles_labels()[0]:
-            ax.legend(fontsize=8)
+        _label(ax, "training time, s (evaluation excluded)", "held-out PSNR, dB (linear)", f"{scene}: {title}")
     fig.tight_layout()
     return _save(fig, path)
 
@@ -111,12 +116,7 @@ def per_view(scene: str, records: Sequence[dict], methods: Sequence[str], path: 
     from matplotlib.ticker import MaxNLocator
 
     ax.xaxis.set_major_locator(MaxNLocator(integer=True))
-    ax.set_xlabel("test view")
-    ax.set_ylabel("PSNR, dB (linear, whole image)")
-    ax.set_title(f"{scene}: test PSNR per view (mean over seeds)")
-    ax.grid(alpha=0.3)
-    if ax.get_legend_handles_labels()[0]:
-        ax.legend(fontsize=8)
+    _label(ax, "test view", "PSNR, dB (linear, whole image)", f"{scene}: test PSNR per view (mean over seeds)")
     fig.tight_layout()
     return _save(fig, path)
 

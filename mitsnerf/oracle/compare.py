@@ -25,7 +25,7 @@ import drjit as dr
 import numpy as np
 
 from mitsnerf.math.box import Box
-from mitsnerf.math.composite import accumulate, weights
+from mitsnerf.math.composite import weights
 from mitsnerf.oracle.source import delta_radiance, mean_radiance
 from mitsnerf.render.volume import render_rays, sample_rays
 
@@ -88,7 +88,8 @@ def render_with_variance(source: PointSource, o, d, n_samples: int, box: Box,
         s, _ = sample_rays(o, d, n_samples, box)
         _, se, sigma = source.estimate(s.x)
         w, _ = weights(sigma, s.delta, n_samples)
-        var = [np.asarray(accumulate(w * w, type(w)(se[:, k] ** 2), n_samples), dtype=np.float64) for k in range(3)]
+        var = [np.asarray(dr.block_sum(w * w * type(w)(se[:, k] ** 2), n_samples), dtype=np.float64)
+               for k in range(3)]
     mean = np.stack([np.asarray(c, dtype=np.float64) for c in comp.rgb], axis=-1)
     return mean, np.stack(var, axis=-1)
 
