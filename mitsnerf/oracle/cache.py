@@ -65,7 +65,7 @@ class OracleConfig:
 def oracle_key(dataset_hash: str, config: OracleConfig, footprint: int) -> str:
     """sha256 of what decides the oracle (module docstring).
 
-    >>> oracle_key("abc", OracleConfig(), 3) == oracle_key("abc", OracleConfig(spp=64), 3)
+    >>> oracle_key("abc", OracleConfig(), 3) == oracle_key("abc", OracleConfig(spp=128), 3)
     True
     >>> oracle_key("abc", OracleConfig(), 3) == oracle_key("abc", OracleConfig(), 1)
     False
