@@ -8,6 +8,8 @@ seeds = [0]
 train = { seconds = 240 }        # training settings shared by every method (TrainConfig keys)
 [eval]                           # EvalConfig: what is measured besides the final test PSNR
 curve_points = 8
+[oracle]                         # OracleConfig: the dataset's emission-absorption ceiling (cached with it)
+spp = 64
 [[methods]]                      # or: methods = "all" (every registered method, see below)
 name = "nerf"                    # a registered method
 label = "nerf"                   # column label (default: name); unique
@@ -18,6 +20,7 @@ quick = { config = { n_samples = 32 } }   # this method's part of the --quick pr
 scene = { "cameras.width" = 16 } # SceneSpec.with_overrides keys
 train = { steps = 40, seconds = 0 }
 eval = { curve_points = 3 }
+oracle = { spp = 8 }
 ```
 
 With ``methods = "all"``, every method in :data:`mitsnerf.methods.METHODS` runs with its
@@ -40,6 +43,7 @@ from mitsnerf.config import (INTERNAL, as_spec_error, deep_merge, from_dict, nam
 from mitsnerf.errors import SpecError
 from mitsnerf.evaluate import EvalConfig
 from mitsnerf.methods import METHODS
+from mitsnerf.oracle.cache import OracleConfig
 
 #: Environment variable listing a user's benchmark config directories (``os.pathsep``-separated),
 #: searched before the shipped configs (``mitsnerf bench --config DIR`` adds to it).
@@ -86,6 +90,7 @@ class QuickProfile:
     config: Mapping[str, Any] = param(default_factory=dict, doc="method config keys, for every method")
     train: Mapping[str, Any] = param(default_factory=dict, doc="training settings, for every method")
     eval: Mapping[str, Any] = param(default_factory=dict, doc="EvalConfig keys")
+    oracle: Mapping[str, Any] = param(default_factory=dict, doc="OracleConfig keys")
 
 
 @dataclass(frozen=True)
@@ -98,6 +103,8 @@ class BenchConfig:
     """Training settings shared by every method (a method's own ``train`` wins)."""
     eval: EvalConfig = param(default_factory=EvalConfig, doc="what is measured besides the test PSNR")
     quick: QuickProfile = param(default_factory=QuickProfile, doc="the --quick profile")
+    oracle: OracleConfig = param(default_factory=OracleConfig,
+                                 doc="the emission-absorption oracle of each dataset (the ceiling row)")
     description: str = param("", doc="one line")
     source: str | None = source_field()
     methods_all: bool = field(default=False, compare=False, metadata={INTERNAL: True})
@@ -154,6 +161,13 @@ class BenchConfig:
         path = next((where for where, table in reversed(layers) if head in table), f"{self.method_path(method)}.{part}")
         field_name = f"{path}.{error.field}" if error.field else path
         return SpecError(self.source, field_name, f"{error.message} (method {method.label})")
+
+    def oracle_config(self, quick: bool) -> OracleConfig:
+        """The oracle's settings, with the quick profile's ``oracle`` keys over them."""
+        if not quick or not self.quick.oracle:
+            return self.oracle
+        return from_dict(OracleConfig, deep_merge(to_dict(self.oracle), self.quick.oracle), source=self.source,
+                         prefix="quick.oracle")
 
     def eval_config(self, quick: bool) -> EvalConfig:
         if not quick or not self.quick.eval:

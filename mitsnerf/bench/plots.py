@@ -70,6 +70,9 @@ def psnr_time(scene: str, records: Sequence[dict], methods: Sequence[str], path:
     colours = _colours(methods)
     for ax, key, title, floor_key in ((fig.add_subplot(1, 2, 1), "psnr", "whole image", "noise_floor_psnr"),
                                       (fig.add_subplot(1, 2, 2), "psnr_medium", "medium pixels", "noise_floor_psnr_medium")):
+        ceiling = _floor(records, floor_key.replace("noise_floor_psnr", "oracle_psnr_test"))
+        if ceiling is not None:
+            ax.axhline(ceiling, color="tab:red", ls=":", lw=1.5, label="oracle (EA ceiling)")
         for method in methods:
             first = True
             for r in records:
@@ -105,6 +108,11 @@ def per_view(scene: str, records: Sequence[dict], methods: Sequence[str], path: 
                   if r["metrics"].get("noise_floor_psnr_per_view")), None)
     if floor:
         ax.plot(np.arange(len(floor)), [np.nan if v is None else v for v in floor], "k--", lw=1, label="GT noise floor")
+    ceiling = next(((r.get("oracle") or {}).get("psnr_test_per_view") for r in records
+                    if (r.get("oracle") or {}).get("psnr_test_per_view")), None)
+    if ceiling:
+        ax.plot(np.arange(len(ceiling)), [np.nan if v is None else v for v in ceiling], ":", color="tab:red",
+                lw=1.5, label="oracle (EA ceiling)")
     from matplotlib.ticker import MaxNLocator
 
     ax.xaxis.set_major_locator(MaxNLocator(integer=True))

@@ -26,39 +26,10 @@ from typing import Any, Callable
 import drjit as dr
 import numpy as np
 
+from mitsnerf.math.box import UNIT_BOX, march_transmittance
 from mitsnerf.math.camera import Camera
-from mitsnerf.math.box import UNIT_BOX, Box
 from mitsnerf.math.rays import camera_rays_numpy, to_array3f
 from mitsnerf.render.volume import render_rays
-
-
-def march_transmittance(density: Callable[[Any], Any], x, w, m: int, box: Box):
-    """``T = exp(-int_0^{s_f} sigma_t(x + s w) ds)`` from points ``x`` inside the box along ``w``.
-
-    Midpoint rule with ``m`` equal intervals (second order, unlike the render quadrature's last
-    half interval): ``s_k = (k + 1/2) s_f / m``, ``T = exp(-(s_f / m) sum_k sigma_t(x + s_k w))``.
-    ``x`` Array3f (M,), ``w`` Array3f (M,) or (1,) unit; ``density`` maps Array3f -> Float.
-    Returns Float (M,).
-
-    >>> import mitsuba as mi
-    >>> from mitsnerf.env import set_variant; _ = set_variant("llvm_ad_rgb")
-    >>> slab = lambda p: 2.0 + 0.0 * p.x                      # sigma_t = 2, path 0.5 to the face
-    >>> march_transmittance(slab, mi.Array3f(0, 0, 0), mi.Array3f(0, 0, 1), 4, UNIT_BOX)  # exp(-1)
-    [0.367879]
-    """
-    Array3f = type(x)
-    Float = type(x.x)
-    UInt32 = dr.uint32_array_t(Float)
-    width = dr.width(x)
-    w = w + dr.zeros(Array3f, width) if dr.width(w) != width else w
-    _, s_f, _ = box.intersect(x, w)
-    idx = dr.arange(UInt32, width * m)
-    ray = idx // m
-    k = Float(idx - ray * m)
-    s_f_k = dr.gather(Float, s_f, ray)
-    p = dr.gather(Array3f, x, ray) + (k + 0.5) / m * s_f_k * dr.gather(Array3f, w, ray)
-    tau = dr.block_sum(density(p), m) * (s_f / m)
-    return dr.exp(-tau)
 
 
 @dataclass(frozen=True)
