@@ -585,17 +585,6 @@ def user_error_line(exc: BaseException) -> str | None:
     return None
 
 
-def _signal_cause(exc: BaseException) -> KeyboardInterrupt | None:
-    """The KeyboardInterrupt (Ctrl-C, or a signal's Interrupted) in ``exc``'s chain of causes, if any."""
-    seen = set()
-    while exc is not None and id(exc) not in seen:
-        if isinstance(exc, KeyboardInterrupt):
-            return exc
-        seen.add(id(exc))
-        exc = exc.__cause__ or exc.__context__
-    return None
-
-
 def _interrupted(exc: KeyboardInterrupt) -> int:
     """Say what a signal stopped (and what it saved); the shell's exit status 128 + its number."""
     from mitsnerf.errors import Interrupted
@@ -619,7 +608,9 @@ def main(argv: list[str] | None = None) -> int:
     except KeyboardInterrupt as exc:
         return _interrupted(exc)
     except Exception as exc:  # one line for errors a user can act on; tracebacks for bugs
-        stop = _signal_cause(exc)
+        from mitsnerf.errors import signal_cause
+
+        stop = signal_cause(exc)
         if stop is not None:  # a signal inside code that re-raised it as another error (an import)
             return _interrupted(stop)
         line = user_error_line(exc)

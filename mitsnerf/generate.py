@@ -174,7 +174,7 @@ def generate_dataset(spec: SceneSpec, out_root: str | os.PathLike, *, force: boo
     state = "missing" if force else _cache_state(final, digest, verify_hashes)
     if state == "ok":
         return final
-    with dataset_lock(final):
+    with dataset_lock(final, progress):
         if state == "missing" and not force and _cache_state(final, digest, verify_hashes) == "ok":
             return final  # another process finished it meanwhile
         clean_temps(final)

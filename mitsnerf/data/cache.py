@@ -50,13 +50,14 @@ def is_complete(directory: Path, digest: str, format_version: int) -> bool:
 
 
 @contextlib.contextmanager
-def dataset_lock(final: Path) -> Iterator[None]:
+def dataset_lock(final: Path, progress: bool = True) -> Iterator[None]:
     """Exclusive lock on ``.<name>.lock`` next to ``final`` while one process writes it; a writer
-    that has to wait says for whom (always: a silent wait looks like a hang)."""
+    that has to wait says for whom (with ``progress``: a silent wait looks like a hang)."""
     def waiting(holder: str) -> None:
         print(f"mitsnerf: waiting for {holder}, which is writing {final} ...", file=sys.stderr, flush=True)
 
-    with exclusive_lock(final.parent / f".{final.name}.lock", wait=True, what=final, on_wait=waiting):
+    with exclusive_lock(final.parent / f".{final.name}.lock", wait=True, what=final,
+                        on_wait=waiting if progress else None):
         yield
 
 

@@ -19,7 +19,7 @@ from typing import Any, Callable
 import drjit as dr
 import drjit.opt  # noqa: F401  (makes dr.opt available)
 
-from mitsnerf.errors import TrainingError
+from mitsnerf.errors import TrainingError, signal_cause
 from mitsnerf.methods.base import Model
 from mitsnerf.train.checkpointing import CheckpointPolicy, stop_signals
 from mitsnerf.train.clock import Clock
@@ -171,8 +171,11 @@ def train(model: Model, data: PixelData, config: TrainConfig, base_lr: float, *,
                 bar.step()
                 if loop.history and loop.history[-1]["step"] == loop.step:
                     bar.show(loop.history[-1])
-    except KeyboardInterrupt as exc:
-        raise loop.policy.interrupted(exc, lambda: loop.save(loop.snapshot)) from None
+    except BaseException as exc:  # a signal, also one a library turned into another error
+        stop = signal_cause(exc)
+        if stop is None:
+            raise
+        raise loop.policy.interrupted(stop, lambda: loop.save(loop.snapshot)) from None
     finally:
         bar.close()
     result = loop.result(loop.clock.seconds() - t0)

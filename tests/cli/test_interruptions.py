@@ -219,3 +219,23 @@ def test_a_signal_that_an_import_turned_into_another_error_still_exits_as_the_si
     monkeypatch.setattr(mitsnerf.run, "fit", import_stopped)
     assert main(["train", str(world.dataset), "--out", str(tmp_path / "r"), *world.nerf]) == 143
     assert capsys.readouterr().err.strip().splitlines()[-1] == "mitsnerf: interrupted; stopped by SIGTERM"
+
+
+def test_training_saves_its_checkpoint_when_a_library_wraps_the_signal_in_another_error(world, tmp_path):
+    from mitsnerf.data.dataset import load_dataset
+    from mitsnerf.errors import Interrupted
+    from mitsnerf.run import fit
+    from mitsnerf.train import TrainConfig
+
+    def wrapped_at_4(entry, model):
+        if entry["step"] == 4:
+            try:
+                raise Interrupted(1, "stopped by SIGHUP")
+            except Interrupted as exc:
+                raise RuntimeError("a callback failed") from exc  # as a C++ library may report it
+
+    overrides = {"network": {"width": 8, "depth": 1, "head_width": 8, "features": 4}, "n_samples": 8}
+    with pytest.raises(Interrupted, match=r"stopped by SIGHUP; checkpoint of step 4 saved") as info:
+        fit(load_dataset(world.dataset), "nerf", overrides, TrainConfig(steps=8, batch_rays=64, log_every=2),
+            tmp_path / "run", progress=False, on_log=wrapped_at_4)
+    assert info.value.exit_status == 129
