@@ -15,6 +15,10 @@ Everything handed out is linear RGB float32, whichever form the files take:
   (The NeRF code composites the sRGB values instead; the two agree where
   ``a`` is 0 or 1 and differ only on partly covered pixels.)
 
+- **Premultiplied EXR** (a transforms file with ``"exr_alpha": "premultiplied"``: the
+  medium-alone view of a mitsnerf dataset): RGB is radiance over a transparent background,
+  composited over the same background colour ``b`` as PNG alpha: ``rgb + b * (1 - a)``.
+
 Frame ``file_path`` entries are resolved against the transforms file's
 directory: ``file_path + ".exr"`` if that exists, else ``file_path + ".png"``,
 else the path as given.
@@ -185,7 +189,7 @@ class Dataset:
                 r, c, _ = np.argwhere(bad)[0]
                 raise DatasetError(path, None, f"{int(bad.sum())} non-finite pixel values (NaN/inf), "
                                                f"first at row {r}, column {c}")
-            images[i], a = self._to_linear(path, img)
+            images[i], a = self._to_linear(path, img, meta.get("exr_alpha") == "premultiplied")
             if a is None:
                 all_alpha = False
             else:
@@ -196,11 +200,13 @@ class Dataset:
         return Views(images, alpha if all_alpha else None, tuple(cameras), _view_names(file_paths),
                      float(meta["pixel_center"]))
 
-    def _to_linear(self, path: Path, img: np.ndarray) -> tuple[np.ndarray, np.ndarray | None]:
+    def _to_linear(self, path: Path, img: np.ndarray, premultiplied: bool = False) -> tuple[np.ndarray, np.ndarray | None]:
         """Linear RGB ``(H, W, 3)`` and alpha ``(H, W)`` or None, per the module's rules."""
         rgb = img[..., :3]
         a = img[..., 3] if img.shape[2] == 4 else None
         if path.suffix.lower() == ".exr":
+            if premultiplied and a is not None:
+                rgb = rgb + np.asarray(self.png_background, dtype=np.float32) * (1.0 - a[..., None])
             return rgb, a
         if self.color_space == "srgb":
             rgb = srgb_to_linear(rgb)
