@@ -131,6 +131,26 @@ def cmd_train(args) -> int:
     return 0
 
 
+def cmd_score(args) -> int:
+    from mitsnerf.bench.tables import QUALITY, markdown_table, scene_rows
+    from mitsnerf.data.atomic import atomic_write_json
+    from mitsnerf.external import score_renders
+
+    dataset = _load(args, args.dataset)
+    renders = Path(args.renders)
+    result = score_renders(dataset, renders, density=Path(args.density) if args.density else None, name=args.name,
+                           fmt=args.format)
+    record = result.record(dataset, renders)
+    scene = (dataset.manifest or {}).get("name") or Path(dataset.root).resolve().name
+    row = scene_rows([{"scene": scene, "method": f"{result.name} (external)", "seed": 0, "metrics": result.metrics}])
+    out = Path(args.out) if args.out else renders / "scores.json"
+    atomic_write_json(out, record)
+    print(markdown_table(row, QUALITY))
+    print(f"\n{len(result.files)} renders matched by {result.matched_by}; {result.oracle}; "
+          f"density: {result.density or 'none given'} -> {out}")
+    return 0
+
+
 def cmd_render(args) -> int:
     from mitsnerf.novel import ViewRequest, render_run
 
@@ -268,6 +288,25 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--pixel-center", type=float, help="0.5 (Mitsuba, mitsnerf) or 0 (original NeRF loader); default from the data")
     p.add_argument("--background", type=float, nargs=3, metavar=("R", "G", "B"), help="background for foreign PNG data (default white)")
     p.set_defaults(func=cmd_train)
+
+    p = sub.add_parser("score", help="score any tool's renders of a dataset's test views, as a benchmark cell",
+                       description="Score RENDERS (a folder of PNG or EXR images) against DATASET's test views: "
+                                   "PSNR/SSIM linear and sRGB, medium PSNR, the noise floor, the oracle (if "
+                                   "DATASET/oracle/scores.json exists), and with --density the density errors. "
+                                   "Images are matched to the test frames by file name (r_000.png ...) or, when no "
+                                   "name is a frame's, by the frame number in each name; PNG alpha is composited "
+                                   "over the dataset's background, EXR is linear radiance used as is.")
+    p.add_argument("dataset", help="dataset directory (mitsnerf generate output, NeRF-synthetic or instant-ngp)")
+    p.add_argument("renders", help="folder of the renders of the test views")
+    p.add_argument("--density", metavar="GRID", help="sigma_t on a grid over the dataset's box: .npy [z, y, x] or Mitsuba .vol")
+    p.add_argument("--name", help="the row's name (default: the renders folder's name)")
+    p.add_argument("--format", choices=("png", "exr"), help="read only these images (needed when both are there)")
+    p.add_argument("--out", help="JSON record to write (default: RENDERS/scores.json)")
+    p.add_argument("--box", type=float, nargs=6, metavar=("X0", "Y0", "Z0", "X1", "Y1", "Z1"),
+                   help="the scene box (default: from the data, as mitsnerf train)")
+    p.add_argument("--pixel-center", type=float, help="0.5 (Mitsuba, mitsnerf) or 0 (original NeRF loader); default from the data")
+    p.add_argument("--background", type=float, nargs=3, metavar=("R", "G", "B"), help="background for foreign PNG data (default white)")
+    p.set_defaults(func=cmd_score)
 
     p = sub.add_parser("render", help="render a trained run from any camera or an orbit, with depth and opacity maps",
                        description="Render RUN: a dataset view (--split/--index, default the first test view), "
