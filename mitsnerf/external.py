@@ -203,6 +203,8 @@ class ExternalScore:
     renders: np.ndarray
     """(V, H, W, 3) linear, as scored."""
     slices: dict
+    reference: scoring.Reference
+    """What they were scored against (the test views, their medium masks)."""
 
     def record(self, dataset: Dataset, folder: Path) -> dict[str, Any]:
         """The JSON record ``mitsnerf score`` writes."""
@@ -230,4 +232,4 @@ def score_renders(dataset: Dataset, folder: Path, *, density: Path | None = None
         metrics["density_note"] = "no density grid given (--density)"
     views = dataset.views("test")
     return ExternalScore(name or folder.resolve().name, metrics, {n: str(p) for n, p in zip(views.names, paths)}, rule,
-                         None if density is None else str(density), oracle_source, images, slices)
+                         None if density is None else str(density), oracle_source, images, slices, ref)

@@ -58,6 +58,7 @@ LEGEND = (
     "along every test ray; T MAE: mean abs error of the transmittance exp(-tau). train s excludes "
     "held-out evaluation. peak RSS: the high-water mark of the process that ran the cell (cumulative over "
     "the cells of a sequential run, so not marked best there). "
+    "NAME (external): renders made by another tool, scored as mitsnerf score does (no training or cost figures). "
     "Bold: best in the column (per scene). Means over seeds."
 )
 
