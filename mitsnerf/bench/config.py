@@ -81,21 +81,19 @@ class MethodRun:
             raise ValueError(f"label: must not contain '/' or start with '.', got {self.label!r}")
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, kw_only=True)
 class ExternalFiles:
-    """Per scene name: a folder of renders of its test views, and optionally a density grid."""
+    """Per scene name: a folder of renders of its test views, and optionally a density grid over its box."""
 
-    renders: Mapping[str, str] = param(default_factory=dict, doc="scene name -> folder of renders")
-    density: Mapping[str, str] = param(default_factory=dict, doc="scene name -> sigma_t grid (.npy or .vol)")
+    renders: Mapping[str, str] = param(default_factory=dict, doc="scene name -> folder of renders of its test views")
+    density: Mapping[str, str] = param(default_factory=dict, doc="scene name -> sigma_t grid (.npy or .vol) in its box")
 
 
-@dataclass(frozen=True)
-class ExternalRun:
+@dataclass(frozen=True, kw_only=True)
+class ExternalRun(ExternalFiles):
     """Renders made by another tool, scored like a cell (``mitsnerf score``) and shown marked external."""
 
     name: str = param(doc='the row reads "NAME (external)"; unique')
-    renders: Mapping[str, str] = param(doc="scene name -> folder of renders of its test views")
-    density: Mapping[str, str] = param(default_factory=dict, doc="scene name -> sigma_t grid (.npy or .vol) in its box")
     format: str = param("", choices=("", "png", "exr"), doc="read only these images (empty: both)")
     quick: ExternalFiles = param(default_factory=ExternalFiles,
                                  doc="the same for the --quick profile's datasets (none: left out of --quick)")
@@ -112,7 +110,7 @@ class ExternalRun:
 
     def files(self, quick: bool) -> ExternalFiles:
         """The renders and densities of the profile (``quick``) being run."""
-        return self.quick if quick else ExternalFiles(self.renders, self.density)
+        return self.quick if quick else ExternalFiles(renders=self.renders, density=self.density)
 
 
 @dataclass(frozen=True)

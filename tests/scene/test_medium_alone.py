@@ -14,6 +14,7 @@ from mitsnerf import generate as gen
 from mitsnerf import scoring
 from mitsnerf.data.dataset import load_dataset
 from mitsnerf.data.images import read_exr, read_png
+from mitsnerf.external import score_renders
 from mitsnerf.math.color import srgb_to_linear
 from mitsnerf.math.rays import camera_rays_numpy
 from mitsnerf.render.background import ConstantBackground, make_background, pixel_background
@@ -137,6 +138,10 @@ def test_world_scale_keeps_the_images(tmp_path):
     m3 = json.loads((three / "manifest.json").read_text())
     assert m3["box"] == [[-1.5] * 3, [1.5] * 3]
     assert load_dataset(three).box.to_list() == m3["box"]
+    # the true grids and the scores follow the scale: the .vol's box is the scaled one, its own grid scores 0 error
+    s = score_renders(load_dataset(three), three / "test_ref", density=three / "volume" / "sigma_t.vol", fmt="exr")
+    assert s.metrics["psnr_test"] == m3["noise_floor"]["psnr"] and s.metrics["density_rel_l1"] == pytest.approx(0, abs=1e-6)
+    assert s.metrics["tau_rel_l1"] < 1e-5 and s.reference.masks.any()
 
 
 def test_nerf_synthetic_scale_fits_fixed_near_far(tiny_dict):
