@@ -79,3 +79,17 @@ def test_cameras_inside_the_box_fail_when_the_split_loads(tmp_path):
         ds.views("train")
     assert e.value.field == "frames[*].transform_matrix" and e.value.where.endswith(T)
     assert json.loads((tmp_path / "d" / T).read_text())["aabb"] == [[-5] * 3, [5] * 3]
+
+
+def test_train_defaults_to_ngp_with_a_bar_that_shows_the_remaining_time(tmp_path, capsys):
+    """``mitsnerf train DIR`` without --method: ngp, its budget in steps, a tqdm bar with elapsed<remaining."""
+    import re
+
+    from mitsnerf.train import TrainConfig
+
+    root = _foreign(tmp_path / "data")
+    assert main(["train", str(root), "--out", str(tmp_path / "run"), "--steps", "3", "--batch-rays", "16"]) == 0
+    err = capsys.readouterr().err
+    assert re.search(r"train ngp: .*\b3/3 \[\d\d:\d\d<\d\d:\d\d", err), err[-300:]
+    assert json.loads((tmp_path / "run" / "config.json").read_text())["method"] == "ngp"
+    assert TrainConfig().steps == 3000  # the default budget: a few minutes of ngp on a 2-core CPU
