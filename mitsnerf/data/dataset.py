@@ -189,11 +189,7 @@ class Dataset:
 
         file_paths, cameras, meta = read_transforms(tpath, self.pixel_center, image_size_of=size_of)
         if self.single_file:
-            keep = holdout_frames(split, len(cameras))
-            if not keep:
-                raise DatasetError(tpath, "frames", f"{len(cameras)} frame(s): too few to hold out a {split} split "
-                                                    f"(every {HOLDOUT}th frame is a test frame, the rest train)")
-            file_paths, cameras = [file_paths[i] for i in keep], [cameras[i] for i in keep]
+            file_paths, cameras = _held_out(tpath, split, file_paths, cameras)
         images = alpha = None
         all_alpha = True
         first: tuple[Path, int, int] | None = None
@@ -244,6 +240,15 @@ class Dataset:
             bg = np.asarray(self.png_background, dtype=np.float32)
             rgb = rgb * a[..., None] + bg * (1.0 - a[..., None])
         return rgb, a
+
+
+def _held_out(tpath: Path, split: str, file_paths: list[str], cameras: list) -> tuple[list[str], list]:
+    """The frames of ``split`` in a single ``transforms.json`` (:func:`holdout_frames`)."""
+    keep = holdout_frames(split, len(cameras))
+    if not keep:
+        raise DatasetError(tpath, "frames", f"{len(cameras)} frame(s): too few to hold out a {split} split "
+                                            f"(every {HOLDOUT}th frame is a test frame, the rest train)")
+    return [file_paths[i] for i in keep], [cameras[i] for i in keep]
 
 
 def _split_names(root: Path) -> tuple[str, ...]:
