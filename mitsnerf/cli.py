@@ -225,12 +225,28 @@ def cmd_bench(args) -> int:
 
 
 def cmd_check(args) -> int:
-    from mitsnerf.verify.runner import format_table, run_checks
+    from mitsnerf.verify.cases import QUALITIES
+    from mitsnerf.verify.runner import format_mutations, format_table, run_checks, run_mutations
 
+    alpha = QUALITIES[args.quality].alpha
+    if args.mutations:
+        progress = None if args.no_progress else (
+            lambda label, r: print(f"  {label}: {r.name}: {r.status} ({r.seconds:.1f} s)", file=sys.stderr, flush=True))
+        report = run_mutations(args.quality, only=args.case, progress=progress)
+        print(format_table(report.clean, alpha))
+        print()
+        print(format_mutations(report))
+        failed = [r.name for r in report.clean if r.passed is False]
+        if failed:
+            print(f"mitsnerf check: {len(failed)} case(s) failed without a mutation: {', '.join(failed)}", file=sys.stderr)
+        if report.escaped:
+            print(f"mitsnerf check: {len(report.escaped)} mutation(s) caught by no case: {', '.join(report.escaped)}",
+                  file=sys.stderr)
+        return 0 if report.passed else 1
     progress = None if args.no_progress else (
         lambda r: print(f"  {r.name}: {r.status} ({r.seconds:.1f} s)", file=sys.stderr, flush=True))
     results = run_checks(args.quality, out=args.out, only=args.case, progress=progress)
-    print(format_table(results))
+    print(format_table(results, alpha))
     failed = [r.name for r in results if r.passed is False]
     if failed:
         print(f"mitsnerf check: {len(failed)} case(s) failed: {', '.join(failed)}", file=sys.stderr)
@@ -360,9 +376,12 @@ def build_parser() -> argparse.ArgumentParser:
                        description="Run the verification cases (mitsnerf.verify) and print a table; "
                                    "exit status 1 if any case fails.")
     p.add_argument("--quality", choices=("quick", "thorough"), default="quick",
-                   help="quick: 12x12 images, 1024-4096 spp (under a minute); thorough: 24x24, 4096-16384 spp (minutes)")
+                   help="quick: 12x12 images, 256-16384 spp (about a minute); thorough: 24x24, 1024-65536 spp (minutes)")
     p.add_argument("--out", help="directory for the images of failing cases (default: a new temporary directory)")
     p.add_argument("--case", action="append", metavar="NAME", help="run only this case (repeatable)")
+    p.add_argument("--mutations", action="store_true",
+                   help="also run every case under each built-in mutation (bugs planted in the package's functions) "
+                        "and print which cases catch each; exit status 1 if one is caught by none")
     p.add_argument("--no-progress", action="store_true")
     p.set_defaults(func=cmd_check)
     return parser

@@ -100,6 +100,9 @@ def test_resume_is_bit_identical_to_an_uninterrupted_run(nerf_setup, tmp_path):
     assert resumed.history[-1]["loss"] == straight.history[-1]["loss"]
     # the loss monitor's interval sums travel with the checkpoint: the same interval means
     assert [h["loss_mean"] for h in resumed.history] == [h["loss_mean"] for h in straight.history]
+    # the learning rate is a function of the step alone: the resumed run's schedule is the straight one's
+    assert [h["lr"] for h in resumed.history] == [h["lr"] for h in straight.history]
+    assert straight.history[0]["lr"] == LR * 0.1 ** (1 / 8) and straight.history[-1]["lr"] == LR * 0.1 ** (7 / 8)
 
 
 def test_a_resume_in_the_middle_of_a_log_interval_keeps_the_interval_means(nerf_setup, tmp_path):

@@ -161,13 +161,13 @@ def test_method_config_errors_still_read_field_problem():
 
     with pytest.raises(ValueError) as info:
         from_dict(NeRFMethodConfig, {"n_samples": 0})
-    assert str(info.value) == "n_samples: must be >= 1, got 0"
+    assert str(info.value) == "n_samples: must be an integer in [1, 4096], got 0"
     with pytest.raises(ValueError, match=r"^network\.depth: "):
         from_dict(NeRFMethodConfig, {"network": {"depth": 0}})
     with pytest.raises(ValueError) as info:  # a message that does not start with one field stays whole
         from_dict(VoxelMethodConfig, {"resolution": 4, "initial_resolution": 8})
     assert info.value.field is None and str(info.value).startswith("initial_resolution, resolution: ")
-    with pytest.raises(ValueError, match=r"^coarse_network\.width: expected an integer, got 'w'$"):
+    with pytest.raises(ValueError, match=r"^coarse_network\.width: must be an integer in \[1, 4096\], got 'w'$"):
         from_dict(NeRFMethodConfig, {"coarse_network": {"width": "w"}})
 
 

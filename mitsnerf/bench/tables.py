@@ -11,6 +11,7 @@ from __future__ import annotations
 import csv
 import io
 import math
+import re
 from typing import Any, Iterable, Sequence
 
 Column = tuple[str, str, int]
@@ -32,11 +33,13 @@ QUALITY: tuple[Column, ...] = KEYS + (
     ("density_psnr", "sigma PSNR", 2),
     ("tau_rel_l1", "tau rel L1", 3),
     ("transmittance_mae", "T MAE", 4),
+    ("footprint", "footprint K", 0),
     ("note", "note", 0),
 )
 COST: tuple[Column, ...] = KEYS + (
-    ("train_seconds", "train s", 1),
+    ("budget", "budget", 0),
     ("steps", "steps", 0),
+    ("train_seconds", "train s", 1),
     ("rays_per_s", "rays/s", 0),
     ("samples_per_s", "samples/s", 0),
     ("peak_rss_mb", "peak RSS MiB", 0),
@@ -49,14 +52,19 @@ BEST: dict[str, str] = {
     "ssim_test": "max", "ssim_test_srgb": "max", "psnr_train": "max",
     "density_rel_l1": "min", "density_rel_l2": "min", "density_psnr": "max", "tau_rel_l1": "min",
     "transmittance_mae": "min", "rays_per_s": "max", "samples_per_s": "max", "peak_rss_mb": "min",
+    "seconds_to_30db": "min", "seconds_to_35db": "min", "seconds_to_40db": "min",
 }
 LEGEND = (
     "PSNR/SSIM of the test views; lin: linear radiance clipped to [0, 1]; sRGB: the clipped values "
     "sRGB-encoded; medium: only pixels whose ray crosses the true medium. GT floor: PSNR between two "
     "independent ground-truth renders of the test views (manifest noise_floor; a noise-free model scores "
     "about 3 dB above it). sigma: learned against true density on the voxel centres; tau: optical depth "
-    "along every test ray; T MAE: mean abs error of the transmittance exp(-tau). train s excludes "
-    "held-out evaluation. peak RSS: the high-water mark of the process that ran the cell (cumulative over "
+    "along every test ray; T MAE: mean abs error of the transmittance exp(-tau). budget: what set the run's "
+    "length (steps: the table is the same on any machine and load; a seconds cap makes it machine-dependent). "
+    "footprint K: each test pixel is the mean of K x K rays over its area (1: its centre ray). "
+    "train s excludes held-out evaluation; s to X dB medium: training seconds at the first held-out "
+    "evaluation (steps k/N of the budget) reaching X dB on medium pixels (measured, not decisive). "
+    "peak RSS: the high-water mark of the process that ran the cell (cumulative over "
     "the cells of a sequential run, so not marked best there). "
     "NAME (external): renders made by another tool, scored as mitsnerf score does (no training or cost figures). "
     "Bold: best in the column (per scene). Means over seeds."
@@ -141,11 +149,16 @@ def cell_row(record: dict) -> dict:
 
 
 def _aggregate(rows: Sequence[dict], base: dict) -> dict:
+    """Means (and ``_std``) of the numeric columns of ``rows``; a text column kept where every row agrees."""
     out = dict(base)
     keys: list[str] = []
     for row in rows:
         keys.extend(k for k in row if k not in keys and k not in ("scene", "method", "seed", "note", "density_note"))
     for key in keys:
+        texts = {r[key] for r in rows if isinstance(r.get(key), str)}
+        if texts:
+            out[key] = texts.pop() if len(texts) == 1 else "mixed"
+            continue
         values = [r[key] for r in rows if _is_number(r.get(key))]
         if not values:
             out[key] = None
@@ -202,14 +215,29 @@ def best_rules(records: Sequence[dict]) -> dict[str, str]:
     return dict(BEST) if fresh else {k: v for k, v in BEST.items() if k != "peak_rss_mb"}
 
 
+_TO_TARGET = re.compile(r"seconds_to_(.+)db")
+
+
+def cost_columns(rows: Sequence[dict]) -> tuple[Column, ...]:
+    """:data:`COST` plus a "seconds to X dB" column per medium-PSNR target found in ``rows``.
+
+    >>> [c[1] for c in cost_columns([{"seconds_to_35db": 1.0}])][-2]
+    's to 35 dB medium'
+    """
+    targets = list(dict.fromkeys(m.group(1) for r in rows for k in r if (m := _TO_TARGET.fullmatch(k))))
+    targets.sort(key=float)
+    return COST[:-1] + tuple((f"seconds_to_{t}db", f"s to {t} dB medium", 1) for t in targets) + COST[-1:]
+
+
 def markdown_report(per_scene: Sequence[dict], average: Sequence[dict], best: dict[str, str] | None = None) -> str:
     """The Markdown printed and written as ``table.md``: quality and cost, per scene and averaged."""
     best = BEST if best is None else best
+    cost = cost_columns(per_scene)
     parts = ["## Quality per scene", "", markdown_table(per_scene, QUALITY, best, group="scene"), "",
-             "## Cost per scene", "", markdown_table(per_scene, COST, best, group="scene")]
+             "## Cost per scene", "", markdown_table(per_scene, cost, best, group="scene")]
     if len({r["scene"] for r in per_scene}) > 1:
         parts += ["", "## Quality averaged over scenes", "", markdown_table(average, QUALITY, best), "",
-                  "## Cost averaged over scenes", "", markdown_table(average, COST, best)]
+                  "## Cost averaged over scenes", "", markdown_table(average, cost, best)]
     parts += ["", LEGEND]
     return "\n".join(parts)
 

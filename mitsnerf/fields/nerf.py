@@ -24,6 +24,7 @@ from typing import Any
 import drjit as dr
 import drjit.nn as nn
 
+from mitsnerf.config import check_fields, param
 from mitsnerf.math.activations import sigmoid, softplus
 from mitsnerf.math.box import Box
 
@@ -32,39 +33,30 @@ from mitsnerf.math.box import Box
 class NeRFConfig:
     """Sizes and output scalings of the NeRF network."""
 
-    pos_octaves: int = 10
+    pos_octaves: int = param(10, lo=0, hi=20)
     """Frequencies L_x of the positional encoding of x (NeRF: 10)."""
-    dir_octaves: int = 4
+    dir_octaves: int = param(4, lo=0, hi=20)
     """Frequencies L_d of the encoding of the view direction (NeRF: 4)."""
-    width: int = 64
+    width: int = param(64, lo=1, hi=4096)
     """Width W of the trunk (NeRF: 256)."""
-    depth: int = 4
+    depth: int = param(4, lo=1, hi=64)
     """Number of hidden layers D of the trunk (NeRF: 8)."""
-    skip: int | None = 2
+    skip: int | None = param(2, lo=0, hi=64)
     """Trunk layer index at which the encoded input is concatenated again (NeRF: 4, of 8); None or 0
     (TOML has no null), or an index >= depth (a trunk too shallow for it): no skip."""
-    features: int = 15
+    features: int = param(15, lo=1, hi=4096)
     """Position features passed from the trunk to the colour head."""
-    head_width: int = 32
+    head_width: int = param(32, lo=1, hi=4096)
     """Width of the colour head's hidden layer (NeRF: 128)."""
-    sigma_scale: float = 10.0
+    sigma_scale: float = param(10.0, lo=0.0, lo_open=True)
     """Output scale of sigma (world units^-1): softplus(h_0 + sigma_bias) * sigma_scale."""
-    sigma_bias: float = -2.0
+    sigma_bias: float = param(-2.0)
     """Initial bias of the density pre-activation (starts nearly transparent)."""
-    c_max: float = 1.0
+    c_max: float = param(1.0, lo=0.0, lo_open=True)
     """Largest colour (radiance) the head can output."""
 
     def __post_init__(self) -> None:
-        for name in ("pos_octaves", "dir_octaves"):
-            if getattr(self, name) < 0:
-                raise ValueError(f"{name}: must be >= 0, got {getattr(self, name)}")
-        for name in ("width", "depth", "features", "head_width"):
-            if getattr(self, name) < 1:
-                raise ValueError(f"{name}: must be >= 1, got {getattr(self, name)}")
-        if self.skip is not None and self.skip < 0:
-            raise ValueError(f"skip: must be None, 0 (no skip) or a layer index >= 1, got {self.skip}")
-        if not (self.sigma_scale > 0 and self.c_max > 0):
-            raise ValueError("sigma_scale, c_max: must be > 0")
+        check_fields(self)
 
 
 class _BroadcastColumns(dr.CustomOp):
@@ -141,8 +133,9 @@ class NeRFNetwork(nn.Module):
         self.head = head
 
 
-def build_network(config: NeRFConfig, TensorXf, seed: int = 0) -> NeRFNetwork:
-    """Allocate a network for ``config`` with weights from a seeded generator."""
+def build_network(config: NeRFConfig, TensorXf, seed: int = 0, head: bool = True) -> NeRFNetwork:
+    """Allocate a network for ``config`` with weights from a seeded generator; ``head=False``: a
+    density-only network (one output, no colour head: ``config.features`` and the head's sizes unused)."""
     rng = dr.rng(seed=seed)
     in_pos = 3 * (1 + 2 * config.pos_octaves)
     in_dir = 3 * (1 + 2 * config.dir_octaves)
@@ -153,8 +146,11 @@ def build_network(config: NeRFConfig, TensorXf, seed: int = 0) -> NeRFNetwork:
             size += in_pos
         trunk.append(nn.Linear(size, config.width).alloc(TensorXf, size, rng))
         size = config.width
-    out = nn.Linear(size, 1 + config.features).alloc(TensorXf, size, rng)
-    out.bias = TensorXf([config.sigma_bias] + [0.0] * config.features)
+    features = config.features if head else 0
+    out = nn.Linear(size, 1 + features).alloc(TensorXf, size, rng)
+    out.bias = TensorXf([config.sigma_bias] + [0.0] * features)
+    if not head:
+        return NeRFNetwork(trunk, out, [])
     h1 = nn.Linear(config.features + in_dir, config.head_width).alloc(TensorXf, 0, rng)
     h2 = nn.Linear(config.head_width, 3).alloc(TensorXf, 0, rng)
     return NeRFNetwork(trunk, out, [h1, h2])
@@ -178,8 +174,9 @@ class NeRFField:
     box: Box
 
     @classmethod
-    def create(cls, config: NeRFConfig, TensorXf, box: Box, seed: int = 0) -> "NeRFField":
-        return cls(config, build_network(config, TensorXf, seed), box)
+    def create(cls, config: NeRFConfig, TensorXf, box: Box, seed: int = 0, head: bool = True) -> "NeRFField":
+        """A field of a freshly initialised network; ``head=False``: density only (:meth:`density`)."""
+        return cls(config, build_network(config, TensorXf, seed, head), box)
 
     def _tensor(self, v, width: int):
         """A (3, width) tensor of an Array3f (broadcast to ``width``)."""

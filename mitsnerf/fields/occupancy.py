@@ -15,8 +15,12 @@ the initial ~1 must drop below the threshold within a hundred steps or so, hence
 defaults ``decay = 0.6`` every 8 steps (a factor 100 in 9 updates, 72 steps); the
 dilation, not the memory, is what keeps the grid conservative.
 
-Skipping cells below the threshold changes a ray's optical depth by at most
-``threshold * chord``, and only where the medium is that thin all along the ray: on
+What skipping costs, exactly: zeroing sigma on a set S of a ray's samples moves its colour by
+at most ``(1 - exp(-tau_S)) * (c_max - c_min)``, ``tau_S`` the optical depth of the skipped
+samples and ``[c_min, c_max]`` the range of the colours and the background (the two renders
+differ only when a sample of S would have absorbed; tests/fields/test_occupancy.py checks the
+bound). Skipping cells below the threshold makes ``tau_S <= threshold * chord``, and only where
+the medium is that thin all along the ray: on
 the default cloud (sigma_t up to 30) the grid of its true density at the default
 threshold 0.5 leaves 5% of the samples of the test views and renders them 90 dB from
 the full render, while a learned field's faint haze (which a lower threshold keeps

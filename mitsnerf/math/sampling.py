@@ -13,27 +13,41 @@ from __future__ import annotations
 import drjit as dr
 
 
-def stratified_t(t_n, t_f, n: int, u=None):
+QUADRATURES = ("seed", "midpoint")
+"""The quadrature rules of :func:`stratified_t`: the seed's rule (the default) and the exact midpoint rule."""
+
+
+def stratified_t(t_n, t_f, n: int, u=None, quadrature: str = "seed"):
     """Stratified sample distances and their interval lengths along each ray.
 
-    Formula (0-based ``i = 0 .. N-1``; DEVELOPERS.md writes it 1-based)::
+    Formula (0-based ``i = 0 .. N-1``; DEVELOPERS.md writes it 1-based), ``h = (t_f - t_n) / N``::
 
-        t_i     = t_n + (i + u_i) / N * (t_f - t_n),     u_i ~ U[0, 1)
-        delta_i = t_{i+1} - t_i,   delta_{N-1} = t_f - t_{N-1}
+        t_i     = t_n + (i + u_i) h,     u_i ~ U[0, 1)
 
-    so each ``t_i`` lies in its own stratum ``[t_n + i/N (t_f - t_n), t_n + (i+1)/N (t_f - t_n))``
-    and the deltas of a ray sum to ``t_f - t_0``: each sample stands for ``[t_i, t_{i+1})``.
-    With midpoints (``u = 0.5``, ``h = (t_f - t_n) / N``) the optical depth is
-    ``h sum_{i<N-1} sigma(t_i) + (h/2) sigma(t_{N-1})``, the midpoint rule minus half an
-    interval at the exit: its error is ``-(h/2) sigma_t(t_f) + O(h^2)``, first order in ``1/N``
-    where the medium is dense at the exit, second order where it vanishes there.
-    ``u = 0`` everywhere gives the left Riemann sum from ``t_n``, exact for constant ``sigma``.
+    so each ``t_i`` lies in its own stratum ``[t_n + i h, t_n + (i+1) h)``. The interval
+    each sample stands for depends on ``quadrature``:
+
+    - ``"seed"`` (the default; the project's specification)::
+
+          delta_i = t_{i+1} - t_i,   delta_{N-1} = t_f - t_{N-1}
+
+      The deltas of a ray sum to ``t_f - t_0``: each sample stands for ``[t_i, t_{i+1})``.
+      With midpoints (``u = 0.5``) the optical depth is ``h sum_{i<N-1} sigma(t_i) +
+      (h/2) sigma(t_{N-1})``, the midpoint rule minus half an interval at the exit: its error
+      is ``-(h/2) sigma_t(t_f) + O(h^2)``, first order in ``1/N`` where the medium is dense at
+      the exit, second order where it vanishes there. ``u = 0`` everywhere gives the left
+      Riemann sum from ``t_n``, exact for constant ``sigma``.
+    - ``"midpoint"``: ``delta_i = h``; each sample stands for its whole stratum (the
+      intervals ``(t_start, t_end)`` partition ``[t_n, t_f]``). With ``u = 0.5`` this is the
+      midpoint rule, error ``O(h^2)`` whatever the density at the ends; with jittered ``u``
+      the optical depth is a stratified Monte Carlo estimate, unbiased.
 
     Args:
         t_n, t_f: per-ray entry and exit distances, Float of shape (R,).
         n: samples per ray, N >= 1.
         u: jitter in [0, 1), Float of shape (R*N,); None places every sample at its
            stratum's midpoint (u = 0.5), the deterministic choice for evaluation.
+        quadrature: ``"seed"`` or ``"midpoint"`` (see above).
 
     Returns:
         (t, delta), each Float of shape (R*N,).
@@ -46,9 +60,13 @@ def stratified_t(t_n, t_f, n: int, u=None):
         [0.125, 0.375, 0.625, 0.875]
         >>> delta
         [0.25, 0.25, 0.25, 0.125]
+        >>> stratified_t(Float(0.0), Float(1.0), 4, quadrature="midpoint")[1]
+        [0.25, 0.25, 0.25, 0.25]
     """
     if n < 1:
         raise ValueError(f"stratified_t: n must be >= 1, got {n}")
+    if quadrature not in QUADRATURES:
+        raise ValueError(f"stratified_t: quadrature must be one of {', '.join(QUADRATURES)}, got {quadrature!r}")
     Float = type(t_n)
     UInt32 = dr.uint32_array_t(Float)
     n_rays = max(dr.width(t_n), dr.width(t_f))
@@ -69,9 +87,12 @@ def stratified_t(t_n, t_f, n: int, u=None):
         u_next = dr.gather(Float, u, idx + 1, i + 1 < n)
     fi = Float(i)
     t = tn + (fi + u) / n * span
-    last = i + 1 == n
-    t_next = dr.select(last, tf, tn + (fi + 1 + u_next) / n * span)
-    return t, t_next - t
+    if quadrature == "midpoint":
+        delta = span / n + dr.zeros(Float, n_rays * n)
+    else:
+        t_next = dr.select(i + 1 == n, tf, tn + (fi + 1 + u_next) / n * span)
+        delta = t_next - t
+    return t, delta
 
 
 def sample_pdf(bins, weights, n_bins: int, n: int, u=None, eps: float = 1e-5):
@@ -137,7 +158,7 @@ def sample_pdf(bins, weights, n_bins: int, n: int, u=None, eps: float = 1e-5):
     return e0 + frac * (e1 - e0)
 
 
-def _count_before(values, n_values: int, queries, n_queries: int, inclusive: bool):
+def count_before(values, n_values: int, queries, n_queries: int, inclusive: bool):
     """Per ray, how many of the ray's (sorted) ``values`` lie before each of its ``queries``.
 
     Counts ``v < q`` (``inclusive=False``) or ``v <= q`` (``inclusive=True``) by a
@@ -196,10 +217,10 @@ def merge_sorted_t(t_a, n_a: int, t_b, n_b: int):
     out = dr.zeros(Float, n_rays * n)
     idx_a = dr.arange(UInt32, n_rays * n_a)
     ray_a = idx_a // n_a
-    pos_a = ray_a * n + (idx_a - ray_a * n_a) + _count_before(t_b, n_b, t_a, n_a, inclusive=False)
+    pos_a = ray_a * n + (idx_a - ray_a * n_a) + count_before(t_b, n_b, t_a, n_a, inclusive=False)
     idx_b = dr.arange(UInt32, n_rays * n_b)
     ray_b = idx_b // n_b
-    pos_b = ray_b * n + (idx_b - ray_b * n_b) + _count_before(t_a, n_a, t_b, n_b, inclusive=True)
+    pos_b = ray_b * n + (idx_b - ray_b * n_b) + count_before(t_a, n_a, t_b, n_b, inclusive=True)
     dr.scatter(out, t_a, pos_a)
     dr.scatter(out, t_b, pos_b)
     return out

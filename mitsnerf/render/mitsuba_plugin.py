@@ -52,8 +52,6 @@ from typing import Any
 
 import drjit as dr
 
-from mitsnerf.math.composite import composite
-
 NAME = "mitsnerf_ea"
 
 #: Plugin classes already registered, by Mitsuba variant (the class derives from the variant's
@@ -82,8 +80,6 @@ def _make_class():
             """The :class:`mitsnerf.math.box.Box` the field lives in; set after ``mi.load_dict``."""
             self.background: Any = None
             """``d -> Array3f``, a constant, or None: the scene's environment emitter."""
-            self.composite_fn = composite
-            """The compositing step (replaced only by the verification's mutation tests)."""
 
         def sample(self, scene, sampler, ray, medium=None, active=True):
             if self.field is None or self.box is None:
@@ -97,8 +93,7 @@ def _make_class():
                 background = EnvmapBackground(scene.environment())
             o = mi.Array3f(ray.o)
             d = mi.Array3f(ray.d)
-            out = render_rays(self.field, o, d, self.n_samples, box=self.box, background=background,
-                              composite_fn=self.composite_fn)
+            out = render_rays(self.field, o, d, self.n_samples, box=self.box, background=background)
             valid = dr.full(mi.Bool, True, dr.width(out.T_final))
             return mi.Spectrum(out.rgb), valid, []
 

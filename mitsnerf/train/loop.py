@@ -5,7 +5,8 @@ model's per-parameter factors), the step's loss (:func:`mitsnerf.train.step.step
 numbers from :func:`mitsnerf.train.schedule.step_rng`), a NaN check, ``opt.step()``, the new
 values back into the model, and the values the model's :meth:`~mitsnerf.methods.base.Model.after_step`
 returns written into the optimiser. Every ``log_every`` steps a history entry (``step``,
-``seconds``, ``loss``, ``loss_mean`` of the interval, ``psnr`` of the last batch) and the
+``seconds``, ``lr`` (the step's global learning rate), ``loss``, ``loss_mean`` of the interval,
+``psnr`` of the last batch) and the
 ``on_log`` hook, whose time the clock does not count (it may evaluate the model).
 """
 
@@ -79,7 +80,7 @@ class _Loop:
         self.monitor = LossMonitor(config.divergence_factor, config.divergence_patience)
         self.monitor.load_state(state.monitor)
         self.snapshot = self.state()
-        self.start_step, self.rays, self.loss = state.step, 0, math.nan
+        self.start_step, self.rays, self.loss, self.lr = state.step, 0, math.nan, base_lr
 
     def state(self) -> TrainState:
         from mitsnerf.checkpoint import optimizer_snapshot
@@ -110,7 +111,7 @@ class _Loop:
         if new:
             opt.update(new)
             model.set_parameters(opt)
-        self.step, self.rays, self.loss = step + 1, self.rays + out.rays, loss
+        self.step, self.rays, self.loss, self.lr = step + 1, self.rays + out.rays, loss, lr
         self.monitor.add(loss)
         entry = self.log_entry(loss, out.mse) if self.step % config.log_every == 0 or self.step == config.steps else None
         self.snapshot = self.state()
@@ -122,7 +123,7 @@ class _Loop:
 
     def log_entry(self, loss: float, mse) -> dict:
         """The history entry of this step; raises on a diverging loss."""
-        entry = {"step": self.step, "seconds": self.clock.seconds(), "loss": loss,
+        entry = {"step": self.step, "seconds": self.clock.seconds(), "lr": self.lr, "loss": loss,
                  "loss_mean": self.monitor.close_interval(), "psnr": -10.0 * math.log10(max(float(mse[0]), 1e-12))}
         self.history.append(entry)
         if self.monitor.diverging:

@@ -1,21 +1,27 @@
-"""The verification scenarios: frozen configs (scene, sizes, tolerances) and their procedural inputs.
+"""The verification cases: frozen configs (scene, sizes, tolerances) and their procedural inputs.
 
-Every scenario names the mutations (deliberately broken compositing,
+Every case names the mutations (bugs planted in the package's functions,
 :mod:`mitsnerf.verify.mutations`) that it must detect; the tests run each such pair and
-require a failure, so no tolerance can be wide enough to pass those bugs.
+require a failure, and ``mitsnerf check --mutations`` prints the full matrix.
 
-Why the media are "front-heavy". The quadrature (``stratified_t`` midpoints, then
-``composite``) integrates optical depth as ``sum_{i<N-1} sigma_i h + sigma_{N-1} h/2`` with
+Media and quadratures. The seed's quadrature (``stratified_t`` midpoints, then ``composite``)
+integrates optical depth as ``sum_{i<N-1} sigma_i h + sigma_{N-1} h/2`` with
 ``h = (t_f - t_n)/N``: the midpoint rule minus half of the last interval, so its error is::
 
     tau_hat - tau = -(h/2) sigma_t(t_f) + O(h^2)
 
-(first order, set by the density at the *exit*). The mutation "delta from the wrong end"
-(``delta_i = t_i - t_{i-1}``) errs by ``-(h/2) sigma_t(t_n)`` instead. Seen from the
-verification camera (on the -y axis) the media are dense where rays enter (the y = -0.5
-face) and vanish on every face rays leave by, so the correct quadrature is second order and
-well inside the Monte Carlo noise while the mutated one is off by a first-order amount.
-A medium dense at both ends could not tell the two apart: both converge at rate 1/N.
+(first order, set by the density at the *exit*). Each scenario says which rules it renders
+and what each is compared with:
+
+- ``front_heavy`` media (dense where the camera's rays enter, zero on every face they
+  leave by): the seed's rule is second order there and is compared with volpath directly;
+  a delta taken from the wrong end (error ``-(h/2) sigma_t(t_n)``) is first order.
+- ``homogeneous`` boxes (dense at the exit): with ``c = 0`` the seed's rule renders exactly
+  ``exp(-sigma_t (L - h/2)) bg`` per ray (``L = t_f - t_n``), so volpath's mean times
+  ``exp(sigma_t L / 2N)`` is its reference (the closed form of the biased quadrature);
+  the midpoint rule (``quadrature="midpoint"``) is compared with volpath as it is.
+- ``exit_heavy`` media (zero at the entry face, dense at the far faces): the midpoint rule
+  against volpath; the seed's bias there is measured and printed, not tested.
 """
 
 from __future__ import annotations
@@ -46,7 +52,8 @@ class Quality:
     resolution: int = 16
     """Grid resolution R of the procedural media (R^3 voxels)."""
     alpha: float = 0.001
-    """Family-wise error rate of each scenario's tests (Holm over pixels, and the image mean)."""
+    """Family-wise error rate of each scenario: all its pixel and channel-mean tests are one
+    weighted-Holm family (:func:`mitsnerf.verify.stats.decide`)."""
     seed: int = 0
 
     def __post_init__(self) -> None:
@@ -68,45 +75,77 @@ QUALITIES = {
 
 # --------------------------------------------------------------------------- scenarios
 
+MEDIA = ("front_heavy", "exit_heavy", "homogeneous")
+
+SOURCES = ("zero", "single_scatter")
+"""The integrator's colour ``c(x, d)`` of a volpath scenario: ``"zero"`` (absorption only) or
+``"single_scatter"`` (``albedo p E T_light`` of a directional light). Each has a builder in
+:data:`mitsnerf.verify.sources.SOURCE_BUILDERS`; a new source is a name here and a builder there."""
+
 
 @dataclass(frozen=True)
 class VolpathScenario:
-    """Emission-absorption rendering against ``volpath`` on the same rays.
+    """Emission-absorption rendering against ``volpath`` on the same rays (one test family).
 
-    ``source`` chooses the integrator's colour c(x, d): ``"zero"`` (absorption only),
-    ``"one"`` (white furnace) or ``"single_scatter"`` (``albedo p E T_light``).
+    ``quadratures``: the rules rendered (``"seed"``, ``"midpoint"``); each is one comparison
+    of the family (see the module docstring for each medium's reference).
     """
 
     name: str
     title: str
+    medium: str  # one of MEDIA
     sigma_t_max: float
     albedo: str  # "zero" | "one" | "procedural"
     environment: str  # "constant" | "envmap" | "black"
-    source: str  # "zero" | "one" | "single_scatter"
+    source: str  # one of SOURCES
+    quadratures: tuple[str, ...] = ("seed",)
     env_radiance: tuple[float, float, float] = (1.0, 1.0, 1.0)
     sun_direction: tuple[float, float, float] | None = None
     """Direction the directional light travels (towards the scene), or None."""
     sun_irradiance: tuple[float, float, float] = (0.0, 0.0, 0.0)
     max_depth: int = -1
-    homogeneous: bool = False
-    """A homogeneous box of ``sigma_t_max`` instead of the front-heavy medium."""
     spp_factor: float = 1.0
     max_rel_error: float = 0.01
     """Bound on ``|sum ours - sum ref| / sum ref``, on top of the z-tests."""
     detects: tuple[str, ...] = ()
     """Mutations this scenario must fail on."""
-    compare_to_one: bool = False
-    """Also z-test the reference against the constant image 1 (furnace)."""
 
     def __post_init__(self) -> None:
+        if self.medium not in MEDIA:
+            raise ValueError(f"{self.name}: medium must be one of {', '.join(MEDIA)}, got {self.medium!r}")
         if self.albedo not in ("zero", "one", "procedural"):
             raise ValueError(f"{self.name}: albedo must be zero, one or procedural, got {self.albedo!r}")
         if self.environment not in ("constant", "envmap", "black"):
             raise ValueError(f"{self.name}: environment must be constant, envmap or black, got {self.environment!r}")
-        if self.source not in ("zero", "one", "single_scatter"):
-            raise ValueError(f"{self.name}: source must be zero, one or single_scatter, got {self.source!r}")
+        if self.source not in SOURCES:
+            raise ValueError(f"{self.name}: source must be one of {', '.join(SOURCES)}, got {self.source!r}")
         if self.source == "single_scatter" and self.sun_direction is None:
             raise ValueError(f"{self.name}: single scattering needs a sun_direction")
+        if not self.quadratures or set(self.quadratures) - {"seed", "midpoint"}:
+            raise ValueError(f"{self.name}: quadratures must be a non-empty subset of seed, midpoint")
+        if "seed" in self.quadratures and self.seed_reference() is None:
+            raise ValueError(f"{self.name}: the seed's rule is first-order biased in a {self.medium} medium and "
+                             "has no closed form with this source; render it with quadrature midpoint")
+
+    def seed_reference(self) -> str | None:
+        """How the seed's rule is compared: ``"volpath"``, ``"closed_form_bias"`` or None (not possible)."""
+        if self.medium == "front_heavy":
+            return "volpath"
+        if self.medium == "homogeneous" and self.source == "zero":
+            return "closed_form_bias"
+        return None
+
+
+@dataclass(frozen=True)
+class MitsubaFurnace:
+    """A check of Mitsuba itself, not of the integrator: volpath in a white furnace renders 1."""
+
+    name: str = "mitsuba_furnace"
+    title: str = "volpath, albedo 1, environment 1, unlimited depth, against 1"
+    sigma_t_max: float = 8.0
+    spp_factor: float = 0.25
+    max_rel_error: float = 0.01
+    max_depth: int = -1
 
 
 @dataclass(frozen=True)
@@ -129,7 +168,8 @@ class ClosedFormCase:
     rtol: float = 2e-5
     """Float32 compositing of up to a few hundred terms."""
     order_tol: float = 0.15
-    detects: tuple[str, ...] = ("off_by_one_T", "delta_wrong_end", "no_background")
+    detects: tuple[str, ...] = ("T_off_by_one", "wrong_interval", "background_T_before_last", "no_background",
+                                "delta_x1.01", "delta_wrong_end")
 
 
 @dataclass(frozen=True)
@@ -140,61 +180,118 @@ class GradientCase:
     title: str
     parameter: str  # "sigma_t_grid" | "nerf_weights" | "color_grid"
     eps: float
-    """Finite-difference step (absolute, in the parameter's units)."""
+    """Finite-difference step of single entries (absolute, in the parameter's units)."""
     rtol: float
     atol_frac: float
-    """Absolute floor, as a fraction of the largest |derivative| checked (float32 round-off)."""
+    """Absolute floor of single entries, as a fraction of the largest |derivative| checked (float32 round-off)."""
+    eps_direction: float
+    """Finite-difference step along the unit direction v."""
+    rtol_direction: float = 1e-3
+    """Along v: a 0.3% error of the gradient must fail (measured FD error: see gradients.py)."""
     n_checked: int = 6
+    float64: bool = False
+    """Render in float64 (rays, field, compositing): for a field that is not smooth enough for float32 FD."""
     detects: tuple[str, ...] = ()
 
 
 @dataclass(frozen=True)
 class PluginCase:
-    """The Mitsuba integrator plugin renders a field exactly as the package does."""
+    """The Mitsuba integrator plugin renders a field as an independent float64 quadrature of the same samples does."""
 
     name: str
     title: str
     field: str  # "grid" | "nerf"
     environment: str  # "constant" | "envmap"
     atol: float = 1e-5
-    detects: tuple[str, ...] = ("no_background", "off_by_one_T")
+    """Float32 against float64 compositing of N = 64-128 samples (measured within 4e-6)."""
+    detects: tuple[str, ...] = ("T_off_by_one", "wrong_interval", "background_T_before_last", "no_background",
+                                "delta_x1.01", "delta_wrong_end")
+
+
+@dataclass(frozen=True)
+class JitterCase:
+    """The training sampler's jitter, tested statistically: positions uniform in their strata, independent."""
+
+    name: str = "sampler_jitter"
+    title: str = "training jitter through stratified_t: uniform, independent across samples and steps"
+    steps: tuple[int, int] = (0, 1)
+    """Two training steps whose generators must give independent jitter."""
+    rtol: float = 1e-5
+    """Float32 tolerance of the deterministic interval checks (relative to the ray's span)."""
+    detects: tuple[str, ...] = ("jitter_ignored", "jitter_frozen", "delta_x1.01", "delta_wrong_end")
+
+
+@dataclass(frozen=True)
+class TrainingPathCase:
+    """The average of jittered (training-mode) renders against volpath (a scenario's reference reused).
+
+    The seed's rule with jitter has a first-order bias in expectation,
+    ``E[tau_hat] - tau = (h/12) sigma_t(t_n) - (7h/12) sigma_t(t_f) + O(h^2)`` (a missing
+    ``[t_n, t_0]`` of mean length ``h/2`` and left-point intervals of mean square length
+    ``7h^2/6``); in the front-heavy scenario ``sigma_t(t_f) = 0`` and ``n_factor`` x N samples
+    put ``(h/12) sigma_t(t_n)`` below the noise. The measured difference is printed.
+    """
+
+    name: str = "train_average"
+    scenario: str = "single_scatter"
+    n_factor: int = 8
+    renders: int = 16
+    detects: tuple[str, ...] = ()
 
 
 SUN = tuple(float(v) for v in np.array([0.3, 0.5, -0.8]) / np.linalg.norm([0.3, 0.5, -0.8]))
 
 SCENARIOS: tuple[VolpathScenario, ...] = (
-    VolpathScenario("absorption_constant", "albedo 0, constant environment",
+    VolpathScenario("absorption_constant", "front-heavy, albedo 0, constant environment", "front_heavy",
                     sigma_t_max=8.0, albedo="zero", environment="constant", source="zero",
                     env_radiance=(0.6, 0.8, 1.0), spp_factor=4.0, detects=("delta_wrong_end", "no_background")),
-    VolpathScenario("absorption_envmap", "albedo 0, envmap environment",
+    VolpathScenario("absorption_envmap", "front-heavy, albedo 0, envmap environment", "front_heavy",
                     sigma_t_max=8.0, albedo="zero", environment="envmap", source="zero", spp_factor=4.0,
                     detects=("delta_wrong_end", "no_background")),
-    VolpathScenario("white_furnace", "albedo 1, environment 1, unlimited depth",
-                    sigma_t_max=8.0, albedo="one", environment="constant", source="one",
-                    spp_factor=0.25, compare_to_one=True, detects=("off_by_one_T", "no_background")),
-    VolpathScenario("single_scatter", "directional light, black environment, volpath max_depth 2",
-                    sigma_t_max=8.0, albedo="procedural", environment="black", source="single_scatter",
-                    sun_direction=SUN, sun_irradiance=(3.0, 2.5, 2.0), max_depth=2, spp_factor=4.0,
-                    max_rel_error=0.02,
-                    detects=("off_by_one_T", "delta_wrong_end")),
+    VolpathScenario("single_scatter", "front-heavy, directional light, black environment, volpath max_depth 2",
+                    "front_heavy", sigma_t_max=8.0, albedo="procedural", environment="black",
+                    source="single_scatter", sun_direction=SUN, sun_irradiance=(3.0, 2.5, 2.0), max_depth=2,
+                    spp_factor=4.0, max_rel_error=0.02, detects=("T_off_by_one", "delta_wrong_end")),
+    VolpathScenario("box_absorption", "homogeneous box, albedo 0, envmap; seed rule (closed-form bias) and midpoint",
+                    "homogeneous", sigma_t_max=2.0, albedo="zero", environment="envmap", source="zero",
+                    quadratures=("seed", "midpoint"), spp_factor=16.0,
+                    detects=("wrong_interval", "background_T_before_last", "no_background", "delta_x1.01")),
+    VolpathScenario("exit_absorption", "exit-heavy, albedo 0, envmap; midpoint rule", "exit_heavy",
+                    sigma_t_max=8.0, albedo="zero", environment="envmap", source="zero",
+                    quadratures=("midpoint",), spp_factor=4.0,
+                    detects=("background_T_before_last", "no_background", "delta_x1.01")),
+    VolpathScenario("exit_single_scatter", "exit-heavy, directional light, volpath max_depth 2; midpoint rule",
+                    "exit_heavy", sigma_t_max=8.0, albedo="procedural", environment="black",
+                    source="single_scatter", quadratures=("midpoint",), sun_direction=SUN,
+                    sun_irradiance=(3.0, 2.5, 2.0), max_depth=2, spp_factor=4.0, max_rel_error=0.02,
+                    detects=("T_off_by_one",)),
 )
+
+MITSUBA_FURNACE = MitsubaFurnace()
 
 FURNACE_DEPTHS = FurnaceDepthRecord("furnace_max_depth", sigma_t=10.0, max_depths=(2, 8, 32, 64, -1))
 
 CLOSED_FORM = ClosedFormCase()
 
+JITTER = JitterCase()
+
+TRAINING_PATH = TrainingPathCase()
+
 GRADIENT_CASES: tuple[GradientCase, ...] = (
     GradientCase("grad_sigma_t", "d loss / d sigma_t grid values", "sigma_t_grid",
-                 eps=0.05, rtol=0.01, atol_frac=0.01, detects=("detach_T",)),
-    GradientCase("grad_nerf", "d loss / d NeRF trunk weights", "nerf_weights",
-                 eps=0.01, rtol=0.02, atol_frac=0.02, detects=("detach_T", "detach_rgb")),
+                 eps=0.05, rtol=0.01, atol_frac=0.01, eps_direction=0.2,
+                 detects=("T_detached", "tau_grad_x1.003", "C_grad_x1.003")),
+    GradientCase("grad_nerf", "d loss / d NeRF trunk weights (float64)", "nerf_weights",
+                 eps=1e-6, rtol=1e-4, atol_frac=1e-4, eps_direction=1e-6, float64=True,
+                 detects=("T_detached", "rgb_detached", "C_grad_x1.003")),
     GradientCase("grad_color", "d loss / d colour grid values", "color_grid",
-                 eps=0.05, rtol=0.005, atol_frac=0.01, detects=("detach_rgb",)),
+                 eps=0.05, rtol=0.005, atol_frac=0.01, eps_direction=0.2,
+                 detects=("rgb_detached", "rgb_grad_x1.003", "C_grad_x1.003")),
 )
 
 PLUGIN_CASES: tuple[PluginCase, ...] = (
-    PluginCase("plugin_grid", "mitsnerf_ea plugin vs package: grid field, envmap", "grid", "envmap"),
-    PluginCase("plugin_nerf", "mitsnerf_ea plugin vs package: NeRF field, constant env", "nerf", "constant"),
+    PluginCase("plugin_grid", "mitsnerf_ea plugin: exit-heavy grid field, envmap", "grid", "envmap"),
+    PluginCase("plugin_nerf", "mitsnerf_ea plugin: NeRF field, constant env", "nerf", "constant"),
 )
 
 
@@ -253,12 +350,39 @@ def environment_bitmap(height: int = 8, width: int = 16) -> np.ndarray:
     return np.stack([r, g, b], axis=-1).astype(np.float32)
 
 
+def exit_heavy_sigma_t(resolution: int, sigma_t_max: float) -> np.ndarray:
+    """A heterogeneous ``sigma_t`` grid (R, R, R), zero at y = -0.5 (where the camera's rays enter), dense beyond.
+
+    With ``e(s)`` as in :func:`front_heavy_sigma_t`::
+
+        sigma_t = sigma_t_max * e(s_y)^2 * h / max(...),   h as there
+
+    The side faces are not zeroed: rays leave through dense medium on every face.
+    """
+    x, y, z = voxel_centres(resolution)
+    s0 = 0.5 / resolution - 0.5
+    e = (y - s0) / (-2.0 * s0)
+    blob = np.exp(-((x - 0.15) ** 2 + (y + 0.05) ** 2 + (z - 0.1) ** 2) / 0.02)
+    h = 1.0 + 0.6 * np.sin(2 * np.pi * (1.3 * x + 0.7 * z) + 1.0) * np.cos(2 * np.pi * 1.1 * y) + 0.8 * blob
+    sigma = np.clip(e**2 * h, 0.0, None)
+    sigma[:, 0, :] = 0.0
+    return (sigma_t_max * sigma / sigma.max()).astype(np.float32)
+
+
+def medium_sigma_t(medium: str, resolution: int, sigma_t_max: float) -> np.ndarray:
+    """The ``sigma_t`` grid (R, R, R) of a medium kind (:data:`MEDIA`)."""
+    if medium == "homogeneous":
+        return np.full((resolution,) * 3, sigma_t_max, np.float32)
+    if medium == "exit_heavy":
+        return exit_heavy_sigma_t(resolution, sigma_t_max)
+    if medium == "front_heavy":
+        return front_heavy_sigma_t(resolution, sigma_t_max)
+    raise ValueError(f"unknown medium {medium!r}; choose one of {', '.join(MEDIA)}")
+
+
 def scenario_grids(s: VolpathScenario, resolution: int) -> tuple[np.ndarray, np.ndarray | float]:
     """``(sigma_t (R, R, R), albedo (R, R, R, 3) or a float)`` of a scenario."""
-    if s.homogeneous:
-        sigma = np.full((resolution,) * 3, s.sigma_t_max, np.float32)
-    else:
-        sigma = front_heavy_sigma_t(resolution, s.sigma_t_max)
+    sigma = medium_sigma_t(s.medium, resolution, s.sigma_t_max)
     albedo: np.ndarray | float = {"zero": 0.0, "one": 1.0}.get(s.albedo, None)  # type: ignore[assignment]
     if albedo is None:
         albedo = procedural_albedo(resolution)
@@ -271,6 +395,7 @@ def isotropic_phase() -> float:
 
 
 ALL_CASE_NAMES = (
-    [CLOSED_FORM.name] + [s.name for s in SCENARIOS] + [FURNACE_DEPTHS.name]
+    [CLOSED_FORM.name] + [s.name for s in SCENARIOS] + [TRAINING_PATH.name, JITTER.name]
     + [g.name for g in GRADIENT_CASES] + [p.name for p in PLUGIN_CASES]
+    + [MITSUBA_FURNACE.name, FURNACE_DEPTHS.name]
 )

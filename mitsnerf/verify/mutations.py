@@ -1,88 +1,204 @@
-"""Deliberately broken compositing steps: each verification case must fail on the ones it names.
+"""Bugs planted inside the package's own functions, as a real bug would sit: every case must see them.
 
-Every mutation has the signature of :func:`mitsnerf.math.composite.composite`
-(``(sigma, delta, rgb, n, background=0.0, t=None) -> Composite``) and is injected with
-``render_rays(..., composite_fn=...)``. The correct quadrature is::
+A :class:`Mutation` names a function (module and qualified name), an exact snippet of its
+source and the snippet's replacement. :func:`planted` takes ``inspect.getsource`` of the
+function, replaces the snippet (it must occur exactly once), compiles the result in the
+function's own module globals and swaps the function's ``__code__`` for the compiled one,
+restoring it on exit (also when the body raises). The function object stays the same, so
+every caller -- ``render_rays``, the Mitsuba plugin, the methods, anything that imported
+the function by name -- runs the bug. ``mitsnerf check --mutations`` runs every case
+under every mutation and prints which cases catch it
+(:func:`mitsnerf.verify.runner.run_mutations`).
 
+The correct quadrature, for reference (:mod:`mitsnerf.math.composite`,
+:func:`mitsnerf.math.sampling.stratified_t`)::
+
+    t_i = t_n + (i + u_i) h,   delta_i = t_{i+1} - t_i (last: t_f - t_{N-1})
     T_i = exp(-sum_{j<i} sigma_j delta_j),   C = sum_i T_i (1 - exp(-sigma_i delta_i)) c_i + T_N bg
 
-The mutations:
+Value mutations change what is rendered; training mutations only what training renders
+(jittered samples); gradient mutations only derivatives (``x s - detach(x) (s - 1)`` has the
+value of ``x`` and the gradient ``s dx``).
 
-- ``off_by_one_T``: ``T_i = exp(-sum_{j<=i} sigma_j delta_j)`` (inclusive prefix sum); ``T_N`` right.
-  Visible wherever c != 0; invisible with c = 0 (absorption only depends on ``T_N`` alone).
-- ``delta_wrong_end``: ``delta_i = t_i - t_{i-1}`` with ``t_{-1} = t_n`` (each sample takes the
-  interval *before* it). With stratum midpoints that is the per-ray rotation
-  ``delta'_i = delta_{(i-1) mod N}``. Optical depth then errs by ``-(h/2) sigma_t(t_n)`` instead
-  of ``-(h/2) sigma_t(t_f)``: visible where the density at entry and exit differ.
-  Invisible in a furnace (the weights still sum to one) and for homogeneous media.
-- ``no_background``: ``C = sum_i w_i c_i`` (the ``T_N bg`` term dropped).
-- ``detach_T``: the right values, but ``T_i`` and ``T_N`` cut from the AD graph (a gradient bug).
-- ``detach_rgb``: the right values, colour cut from the AD graph.
-
->>> import drjit as dr
->>> from drjit.llvm.ad import Float, Array3f
->>> out = delta_wrong_end(Float(1.0, 2.0), Float(0.25, 0.5), Array3f(1.0), 2)
->>> out.T_final   # exp(-(1 * 0.5 + 2 * 0.25)), the deltas swapped within the ray
-[0.367879]
+>>> from drjit.llvm import Float
+>>> from mitsnerf.math.composite import weights
+>>> with planted(MUTATIONS["T_off_by_one"]):
+...     w_bug, _ = weights(Float(1.0, 1.0), Float(1.0, 1.0), 2)
+>>> w_bug  # T_i includes its own interval: e^-1 (1 - e^-1), e^-2 (1 - e^-1)
+[0.232544, 0.0855482]
+>>> weights(Float(1.0, 1.0), Float(1.0, 1.0), 2)[0]  # restored: (1 - e^-1), e^-1 (1 - e^-1)
+[0.632121, 0.232544]
 """
 
 from __future__ import annotations
 
-import drjit as dr
-
-from mitsnerf.math.composite import Composite, composite, one_minus_exp_neg
-
-
-def _finish(sigma, delta, rgb, n, background, t, T, T_final) -> Composite:
-    tau = sigma * delta
-    w = T * one_minus_exp_neg(tau)
-    color = dr.block_sum(w * rgb, n) + T_final * background
-    opacity = 1.0 - T_final
-    depth = dr.block_sum(w * t, n) if t is not None else dr.zeros(type(T_final), dr.width(T_final))
-    return Composite(rgb=color, opacity=opacity, depth=depth, T_final=T_final)
+import __future__
+import contextlib
+import importlib
+import inspect
+import textwrap
+from dataclasses import dataclass
+from typing import Iterator
 
 
-def off_by_one_T(sigma, delta, rgb, n: int, background=0.0, t=None) -> Composite:
-    """``T_i`` from the inclusive prefix sum ``exp(-sum_{j<=i} sigma_j delta_j)``."""
-    tau = sigma * delta
-    T = dr.exp(-dr.block_prefix_sum(tau, n, exclusive=False))
-    T_final = dr.exp(-dr.block_sum(tau, n))
-    return _finish(sigma, delta, rgb, n, background, t, T, T_final)
+@dataclass(frozen=True)
+class Mutation:
+    """A bug: in ``module.qualname``, the source ``snippet`` (exactly once) becomes ``replacement``."""
+
+    name: str
+    description: str
+    module: str
+    qualname: str
+    snippet: str
+    replacement: str
+    kind: str = "value"
+    """``"value"`` (changes what is rendered), ``"training"`` (only jittered, training-mode
+    rendering) or ``"gradient"`` (only derivatives)."""
+
+    @property
+    def where(self) -> str:
+        return f"{self.module.rsplit('.', 1)[-1]}.{self.qualname}"
 
 
-def delta_wrong_end(sigma, delta, rgb, n: int, background=0.0, t=None) -> Composite:
-    """``delta_i = t_i - t_{i-1}``: each ray's deltas rotated by one, ``delta'_i = delta_{(i-1) mod N}``."""
-    Float = type(delta)
-    UInt32 = dr.uint32_array_t(Float)
-    idx = dr.arange(UInt32, dr.width(delta))
-    i = idx % n
-    prev = dr.select(i == 0, idx + (n - 1), idx - 1)
-    return composite(sigma, dr.gather(Float, delta, prev), rgb, n, background=background, t=t)
+class MutationError(RuntimeError):
+    """A mutation no longer applies to the current source (its snippet is gone or ambiguous)."""
 
 
-def no_background(sigma, delta, rgb, n: int, background=0.0, t=None) -> Composite:
-    """The background term ``T_N bg`` dropped."""
-    return composite(sigma, delta, rgb, n, background=0.0, t=t)
+def target(m: Mutation):
+    """The function object ``m`` mutates."""
+    obj = importlib.import_module(m.module)
+    for part in m.qualname.split("."):
+        obj = getattr(obj, part)
+    if not inspect.isfunction(obj):
+        raise MutationError(f"{m.name}: {m.module}.{m.qualname} is not a plain Python function")
+    return obj
 
 
-def detach_T(sigma, delta, rgb, n: int, background=0.0, t=None) -> Composite:
-    """Correct values; ``T_i``, ``T_N`` detached from the AD graph (gradients only through alpha)."""
-    tau = sigma * delta
-    T = dr.detach(dr.exp(-dr.block_prefix_sum(tau, n, exclusive=True)))
-    T_final = dr.detach(dr.exp(-dr.block_sum(tau, n)))
-    return _finish(sigma, delta, rgb, n, background, t, T, T_final)
+def mutated_code(m: Mutation):
+    """The code object of ``m``'s function with the snippet replaced (raises :class:`MutationError`)."""
+    func = target(m)
+    lines, first_line = inspect.getsourcelines(func)
+    source = textwrap.dedent("".join(lines))
+    count = source.count(m.snippet)
+    if count != 1:
+        raise MutationError(f"{m.name}: the snippet occurs {count} times in {m.module}.{m.qualname} "
+                            f"(needs exactly 1); update the mutation to the current source:\n{m.snippet}")
+    mutated = source.replace(m.snippet, m.replacement)
+    # Keep the line numbers of the file, so a traceback through the mutated code points at it.
+    code = compile("\n" * (first_line - 1) + mutated, inspect.getsourcefile(func) or m.module, "exec",
+                   flags=__future__.annotations.compiler_flag, dont_inherit=True)
+    namespace = dict(func.__globals__)
+    exec(code, namespace)
+    new = namespace[func.__name__]
+    if new.__code__.co_freevars != func.__code__.co_freevars:
+        raise MutationError(f"{m.name}: {m.qualname} is a closure; only module-level functions can be mutated")
+    return new.__code__
 
 
-def detach_rgb(sigma, delta, rgb, n: int, background=0.0, t=None) -> Composite:
-    """Correct values; the colour detached from the AD graph."""
-    return composite(sigma, delta, dr.detach(rgb), n, background=background, t=t)
+@contextlib.contextmanager
+def planted(m: Mutation | None) -> Iterator[None]:
+    """Run the body with ``m`` planted in its function (None: no mutation); always restores."""
+    if m is None:
+        yield
+        return
+    func = target(m)
+    original = func.__code__
+    func.__code__ = mutated_code(m)
+    try:
+        yield
+    finally:
+        func.__code__ = original
 
 
-MUTATIONS = {
-    "off_by_one_T": off_by_one_T,
-    "delta_wrong_end": delta_wrong_end,
-    "no_background": no_background,
-    "detach_T": detach_T,
-    "detach_rgb": detach_rgb,
-}
-"""Name -> broken compositing callable."""
+_COMPOSITE = "mitsnerf.math.composite"
+_SAMPLING = "mitsnerf.math.sampling"
+
+MUTATION_LIST: tuple[Mutation, ...] = (
+    Mutation(
+        "T_off_by_one", "T_i = exp(-sum_{j<=i} sigma_j delta_j): each sample's own interval included",
+        _COMPOSITE, "weights",
+        "T = dr.exp(-dr.block_prefix_sum(tau, n, exclusive=True))",
+        "T = dr.exp(-dr.block_prefix_sum(tau, n, exclusive=False))",
+    ),
+    Mutation(
+        "wrong_interval", "alpha_i and T from exp(-sigma_i delta_{i+1}): each density times the next "
+        "interval (the last keeps its own)",
+        _COMPOSITE, "weights",
+        "    tau = sigma * delta\n",
+        "    _k = dr.arange(dr.uint32_array_t(type(delta)), dr.width(delta))\n"
+        "    _last = _k % n == n - 1\n"
+        "    tau = sigma * dr.select(_last, delta, dr.gather(type(delta), delta, _k + 1, ~_last))\n",
+    ),
+    Mutation(
+        "background_T_before_last", "background weighted by T_{N-1} (before the last interval) instead of T_N",
+        _COMPOSITE, "composite",
+        "+ T_final * background",
+        "+ (T_final + dr.gather(type(w), w, dr.arange(dr.uint32_array_t(type(w)), dr.width(T_final)) * n + n - 1))"
+        " * background",
+    ),
+    Mutation(
+        "no_background", "the background term T_N bg dropped",
+        _COMPOSITE, "composite",
+        "+ T_final * background", "+ 0.0 * T_final",
+    ),
+    Mutation(
+        "delta_x1.01", "every interval 1% too long",
+        _SAMPLING, "stratified_t",
+        "    return t, delta\n", "    return t, delta * 1.01\n",
+    ),
+    Mutation(
+        "delta_wrong_end", "delta_i = t_i - t_{i-1} (t_{-1} = t_n): each sample takes the interval before it",
+        _SAMPLING, "stratified_t",
+        "        delta = t_next - t\n",
+        "        delta = t - dr.select(i == 0, tn, tn + (fi - 1 + dr.gather(Float, u, idx - 1, i > 0)) / n * span)\n",
+    ),
+    Mutation(
+        "jitter_ignored", "the training jitter u ignored: every sample at the left edge of its stratum",
+        _SAMPLING, "stratified_t",
+        "        u_next = dr.gather(Float, u, idx + 1, i + 1 < n)\n",
+        "        u = dr.zeros(Float, n_rays * n)\n        u_next = u\n",
+        kind="training",
+    ),
+    Mutation(
+        "jitter_frozen", "the same training jitter at every step (the step's generator ignores the step)",
+        "mitsnerf.train.schedule", "step_rng",
+        "| (int(step) & 0xFFFFFFFF)", "| 0",
+        kind="training",
+    ),
+    Mutation(
+        "T_detached", "T_i cut from the AD graph (gradients through alpha and T_N only)",
+        _COMPOSITE, "weights",
+        "    T = dr.exp(-dr.block_prefix_sum(tau, n, exclusive=True))\n",
+        "    T = dr.detach(dr.exp(-dr.block_prefix_sum(tau, n, exclusive=True)))\n",
+        kind="gradient",
+    ),
+    Mutation(
+        "rgb_detached", "the colour c_i cut from the AD graph",
+        _COMPOSITE, "composite",
+        "dr.block_sum(w * rgb, n)", "dr.block_sum(w * dr.detach(rgb), n)",
+        kind="gradient",
+    ),
+    Mutation(
+        "tau_grad_x1.003", "the gradient of sigma_i delta_i (through T and alpha) 0.3% too large",
+        _COMPOSITE, "weights",
+        "    tau = sigma * delta\n",
+        "    tau = sigma * delta * 1.003 - dr.detach(sigma * delta) * 0.003\n",
+        kind="gradient",
+    ),
+    Mutation(
+        "rgb_grad_x1.003", "the gradient of the colour c_i 0.3% too large",
+        _COMPOSITE, "composite",
+        "dr.block_sum(w * rgb, n)", "dr.block_sum(w * (rgb * 1.003 - dr.detach(rgb) * 0.003), n)",
+        kind="gradient",
+    ),
+    Mutation(
+        "C_grad_x1.003", "the gradient of the composited colour C 0.3% too large",
+        _COMPOSITE, "composite",
+        "    opacity = one_minus_exp_neg(", "    color = color * 1.003 - dr.detach(color) * 0.003\n"
+        "    opacity = one_minus_exp_neg(",
+        kind="gradient",
+    ),
+)
+
+MUTATIONS: dict[str, Mutation] = {m.name: m for m in MUTATION_LIST}
+"""Name -> mutation."""

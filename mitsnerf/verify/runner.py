@@ -1,30 +1,31 @@
-"""Run the verification cases and print their table (``mitsnerf check``).
+"""Run the verification cases and print their table (``mitsnerf check``), or the mutation matrix (``--mutations``).
 
-Each case gives one :class:`CaseResult`: what it was compared with, the measured error, the
-z-statistics where the reference is Monte Carlo (largest per-pixel ``|z|``, pixel tests rejected
-after Holm's correction, the image-mean z), pass/fail and the time. A failing comparison with
-an image writes ``ours.exr``, ``reference.exr``, ``error.exr`` (ours - reference) and ``z.exr``
-(|z|) to ``OUT/CASE/`` and names that directory in its detail line.
+Each case gives one :class:`CaseResult`: what it checks (the integrator, the sampler, the
+plugin, gradients, or Mitsuba itself), what it was compared with, the measured error, the
+z-statistics where the reference is Monte Carlo (largest per-pixel ``|z|``, tests rejected out
+of the scenario's one family), pass/fail and the time. A failing comparison with an image
+writes its images (``ours_*.exr``, ``reference.exr``, ``error_*.exr``, ``z_*.exr``) to
+``OUT/CASE/`` and names that directory in its detail line.
 
-Every run takes an optional ``composite_fn``: the tests pass the broken variants of
-:mod:`mitsnerf.verify.mutations` and require the cases that name them to fail.
+:func:`run_mutations` renders the Mitsuba references once, runs every case clean, then every
+case under every mutation of :mod:`mitsnerf.verify.mutations` (planted in the package's own
+functions) and reports which cases catch each.
 """
 
 from __future__ import annotations
 
-import math
 import tempfile
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Callable, Iterable
+from typing import Callable, Iterable
 
 import numpy as np
 
-from mitsnerf.math.composite import composite
-from mitsnerf.verify import cases as C
-from mitsnerf.verify.stats import compare
 from mitsnerf.math.box import UNIT_BOX
+from mitsnerf.verify import cases as C
+from mitsnerf.verify import scenarios as S
+from mitsnerf.verify.mutations import MUTATION_LIST, Mutation, planted
 
 
 @dataclass(frozen=True)
@@ -32,6 +33,7 @@ class CaseResult:
     """One row of the table."""
 
     name: str
+    checks: str  # what is under test: integrator, training path, sampler, plugin, gradients, Mitsuba
     reference: str
     error: str
     max_abs_z: float | None
@@ -39,6 +41,11 @@ class CaseResult:
     passed: bool | None  # None: a record, not a check
     seconds: float
     detail: str = ""
+    """Why it failed (printed under the table for failures)."""
+    note: str = ""
+    """Printed under the table whatever the result (measured biases and the like)."""
+    evidence: str = ""
+    """The statistic that decides a failure, short (the mutation matrix prints it)."""
 
     @property
     def status(self) -> str:
@@ -67,98 +74,104 @@ class Artifacts:
         return path
 
 
-# --------------------------------------------------------------------------- volpath scenarios
+def _family_result(name: str, checks: str, o: S.Outcome, artifacts: Artifacts | None) -> CaseResult:
+    f = o.family
+    detail = "" if f.passed else f.summary()
+    if not f.passed and artifacts is not None:
+        detail += f"; images in {artifacts.write(name, o.images)}"
+    bound = min(t.max_rel_error for t in f.tests)
+    worst = max(f.tests, key=lambda t: t.rel_mean_error / t.max_rel_error)
+    evidence = (f"mean z {f.z_mean:+.1f}" if f.mean_rejected_any else
+                f"{f.n_rejected} px" if f.n_rejected else f"rel. mean {worst.rel_mean_error:.1e}")
+    return CaseResult(
+        name, checks, o.reference, f"rel. mean {f.rel_mean_error:.1e} (<= {bound:g}), mean z {f.z_mean:+.2f}", f.max_abs_z,
+        f"{f.n_rejected + sum(int(r.sum()) for r in f.mean_rejected)}/{f.n_tests}", f.passed, o.seconds, detail,
+        o.note, evidence)
 
 
-@dataclass(frozen=True)
-class PreparedScenario:
-    """A scenario's Mitsuba reference and the field/background the integrator renders (reusable)."""
-
-    scenario: C.VolpathScenario
-    quality: C.Quality
-    reference: Any  # mitsuba_refs.Reference, (H, W, 3)
-    field: Any
-    background: Any
+# --------------------------------------------------------------------------- deterministic cases
 
 
-def _emitters(s: C.VolpathScenario) -> dict[str, dict]:
-    from mitsnerf.verify import mitsuba_refs as M
+def closed_form_case(case: C.ClosedFormCase) -> CaseResult:
+    from mitsnerf.verify.closed_form import run_closed_form
 
-    emitters: dict[str, dict] = {}
-    if s.environment == "constant":
-        emitters["environment"] = M.constant_environment(s.env_radiance)
-    elif s.environment == "envmap":
-        emitters["environment"] = M.envmap_environment(C.environment_bitmap())
-    if s.sun_direction is not None:
-        emitters["sun"] = M.directional_light(s.sun_direction, s.sun_irradiance)
-    return emitters
+    r = run_closed_form(case)
+    o = r.orders
+    return CaseResult(
+        case.name, "integrator", "closed forms; orders over N = 8..64",
+        f"max rel {r.max_rel_error:.1e} (<= {case.rtol:g}); orders {o['order_exit0']:.2f} (2), "
+        f"{o['order_linear']:.2f} (1), midpoint {o['order_midpoint']:.2f} (2)",
+        None, "-", r.passed, r.seconds, "; ".join(r.failures),
+        evidence=r.failures[0].split(":")[0] if r.failures else "")
 
 
-def prepare_scenario(s: C.VolpathScenario, quality: C.Quality) -> PreparedScenario:
-    """Render the volpath reference of ``s`` (the slow part) and build the matching field."""
+def gradient_case(case: C.GradientCase, quality: C.Quality) -> CaseResult:
+    from mitsnerf.verify.gradients import check_gradients
+
+    r = check_gradients(case, quality)
+    return CaseResult(
+        case.name, "gradients", f"central FD, eps {case.eps:g} (entries), {case.eps_direction:g} (along v)",
+        f"entries max rel {r.max_rel_error:.1e} (<= {case.rtol:g}); along v {r.direction_rel_error:.1e} "
+        f"(<= {case.rtol_direction:g})",
+        None, "-", r.passed, r.seconds, "; ".join(r.failures),
+        evidence=f"along v {r.direction_rel_error:.1e}" if r.direction_rel_error > case.rtol_direction
+        else f"entries {r.max_rel_error:.1e}")
+
+
+def jitter_case(case: C.JitterCase, quality: C.Quality) -> CaseResult:
+    from mitsnerf.verify.jitter import check_jitter
+
+    r = check_jitter(case, quality)
+    detail = "; ".join(list(r.failures) + ([f"rejected: {', '.join(r.rejected)}"] if r.rejected else []))
+    return CaseResult(
+        case.name, "sampler", f"U[0,1) in each stratum, independent; exact intervals ({r.n_rays} rays x {r.n_samples})",
+        f"KS D {r.ks_d:.3f} (p {r.ks_p:.2f}), stratum z {r.worst_stratum_z:+.2f}, neighbours z {r.neighbour_z:+.2f}, "
+        f"steps z {r.steps_z:+.2f}; intervals {r.max_interval_error:.0e}",
+        None, f"{len(r.rejected)}/{r.n_tests}", r.passed, r.seconds, detail,
+        evidence=(r.failures[0].split(":")[0] if r.failures else ", ".join(r.rejected[:2])))
+
+
+def plugin_case(case: C.PluginCase, quality: C.Quality, artifacts: Artifacts | None = None) -> CaseResult:
+    """Render a field through ``mi.render`` with the ``mitsnerf_ea`` plugin; compare with the float64 quadrature."""
     import mitsuba as mi
 
     from mitsnerf.fields.grid import GridField
-    from mitsnerf.render.background import EnvmapBackground
+    from mitsnerf.fields.nerf import NeRFConfig, NeRFField
+    from mitsnerf.render.mitsuba_plugin import NAME, register
     from mitsnerf.verify import mitsuba_refs as M
-    from mitsnerf.verify.sources import SingleScatterSource
+    from mitsnerf.verify import quadrature64 as Q
 
-    sigma_t, albedo = C.scenario_grids(s, quality.resolution)
-    scene = mi.load_dict(M.scene_dict(sigma_t, albedo, _emitters(s), s.max_depth))
-    camera = quality.camera()
-    o, d = camera.pixel_rays()
-    spp = max(16, int(round(quality.spp * s.spp_factor)))
-    names = [x.name for x in C.SCENARIOS]  # a seed of its own per scenario: independent references
-    seed = quality.seed * 1000 + (names.index(s.name) if s.name in names else len(names))
-    ref = M.sample_rays(scene, o, d, spp, seed).reshaped(camera.height, camera.width)
-    # The emitter object volpath saw, evaluated the same way (None: black).
-    env = scene.environment()
-    background = EnvmapBackground(env) if env is not None else None
-    if s.source == "zero":
-        field = GridField.from_arrays(sigma_t, UNIT_BOX, color=(0.0, 0.0, 0.0))
-    elif s.source == "one":
-        field = GridField.from_arrays(sigma_t, UNIT_BOX, color=(1.0, 1.0, 1.0))
-    else:
-        albedo_grid = albedo if np.ndim(albedo) else np.full(sigma_t.shape + (3,), float(albedo), np.float32)
-        field = SingleScatterSource(GridField.from_arrays(sigma_t, UNIT_BOX), GridField.from_arrays(sigma_t, UNIT_BOX, color=albedo_grid),
-                                    s.sun_direction, s.sun_irradiance, C.isotropic_phase())
-    return PreparedScenario(s, quality, ref, field, background)
-
-
-def evaluate_scenario(p: PreparedScenario, composite_fn=composite, artifacts: Artifacts | None = None) -> CaseResult:
-    """Render the integrator's image and test it against the prepared reference."""
-    from mitsnerf.verify.sources import render_image
-
-    s, q, ref = p.scenario, p.quality, p.reference
     start = time.perf_counter()
-    ours = render_image(p.field, q.camera(), q.n_samples, p.background, composite_fn)
-    cmp = compare(ours, ref.mean, ref.var, ref.n, q.alpha, s.max_rel_error)
-    checks = [cmp]
-    reference = f"volpath {ref.n} spp" + (f", max_depth {s.max_depth}" if s.max_depth >= 0 else "")
-    if s.compare_to_one:
-        to_one = compare(np.ones_like(ref.mean), ref.mean, ref.var, ref.n, q.alpha, s.max_rel_error)
-        checks.append(to_one)
-        reference += "; volpath vs 1"
-    passed = all(c.passed for c in checks)
-    detail = "; ".join(c.summary() for c in checks)
+    register()
+    camera = quality.camera()
+    if case.field == "grid":
+        r = quality.resolution
+        field = GridField.from_arrays(C.exit_heavy_sigma_t(r, 8.0), UNIT_BOX, color=C.procedural_albedo(r))
+    else:
+        field = NeRFField.create(NeRFConfig(width=32, depth=2, skip=None), mi.TensorXf, UNIT_BOX,
+                                 seed=quality.seed + 1)
+    env = (M.envmap_environment(C.environment_bitmap()) if case.environment == "envmap"
+           else M.constant_environment((0.6, 0.8, 1.0)))
+    scene = mi.load_dict({"type": "scene", "integrator": {"type": NAME, "n_samples": quality.n_samples},
+                          "sensor": M.sensor_dict(camera, 1, pixel_centres=True), "environment": env})
+    scene.integrator().field = field
+    scene.integrator().box = UNIT_BOX
+    theirs = np.asarray(mi.render(scene), dtype=np.float64)
+    o, d = camera.pixel_rays()
+    reference = Q.render(field, o, d, quality.n_samples, Q.environment_radiance(scene.environment(), d))
+    reference = reference.reshape(theirs.shape)
+    err = float(np.abs(theirs - reference).max())
+    passed = err <= case.atol
+    detail = ""
     if not passed and artifacts is not None:
-        path = artifacts.write(s.name, {"ours": ours, "reference": ref.mean, "error": ours - ref.mean,
-                                        "z": np.abs(cmp.z)})
-        detail += f"; images in {path}"
-    worst = max(checks, key=lambda c: c.max_abs_z)
-    return CaseResult(
-        s.name, reference,
-        f"rel. mean {max(c.rel_mean_error for c in checks):.1e} (<= {s.max_rel_error:g}), "
-        f"mean z {max((c.z_mean for c in checks), key=abs):+.2f}",
-        worst.max_abs_z,
-        f"{sum(c.n_rejected for c in checks)}/{sum(c.z.size for c in checks)}",
-        passed, ref.seconds + time.perf_counter() - start, detail,
-    )
+        path = artifacts.write(case.name, {"ours": theirs, "reference": reference, "error": theirs - reference})
+        detail = f"images in {path}"
+    return CaseResult(case.name, "plugin", "float64 quadrature of the same samples (numpy)",
+                      f"max abs {err:.1e} (<= {case.atol:g})", None, "-", passed, time.perf_counter() - start,
+                      detail, evidence=f"max abs {err:.1e}")
 
 
-def run_scenario(s: C.VolpathScenario, quality: C.Quality, composite_fn=composite,
-                 artifacts: Artifacts | None = None) -> CaseResult:
-    return evaluate_scenario(prepare_scenario(s, quality), composite_fn, artifacts)
+# --------------------------------------------------------------------------- records and Mitsuba
 
 
 def furnace_depths(rec: C.FurnaceDepthRecord, quality: C.Quality) -> CaseResult:
@@ -168,17 +181,18 @@ def furnace_depths(rec: C.FurnaceDepthRecord, quality: C.Quality) -> CaseResult:
     seed, so the depths share their first bounces: their differences are better resolved than
     each mean's ``+/-`` (one standard error) says.
     """
+    import math
+
     import mitsuba as mi
 
-    from mitsnerf.math.rays import to_array3f
     from mitsnerf.verify import mitsuba_refs as M
+    from mitsnerf.verify.quadrature64 import slab
 
     start = time.perf_counter()
     r = quality.resolution
-    camera = quality.camera()
-    o, d = camera.pixel_rays()
-    _, _, hit = intersect_box(to_array3f(mi.Array3f, o), to_array3f(mi.Array3f, d))
-    hit = np.asarray(hit, dtype=bool)
+    o, d = quality.camera().pixel_rays()
+    t_n, t_f = slab(o, d)
+    hit = t_f > t_n
     sigma = np.full((r, r, r), rec.sigma_t, np.float32)
     spp = max(16, int(round(quality.spp * rec.spp_factor)))
     parts, zs = [], []
@@ -190,108 +204,75 @@ def furnace_depths(rec: C.FurnaceDepthRecord, quality: C.Quality) -> CaseResult:
         zs.append((mean - 1.0) / se if se > 0 else 0.0)
         parts.append(f"{'inf' if depth < 0 else depth}: {mean:.4f}+/-{se:.4f}")
     return CaseResult(
-        rec.name, f"volpath sigma_t {rec.sigma_t:g} furnace, {spp} spp, by max_depth",
+        rec.name, "record", f"volpath sigma_t {rec.sigma_t:g} furnace, {spp} spp, by max_depth",
         "mean " + ", ".join(parts), None, "-", None, time.perf_counter() - start,
-        "z of (mean - 1) per depth: " + ", ".join(f"{z:+.1f}" for z in zs),
+        note="z of (mean - 1) per depth: " + ", ".join(f"{z:+.1f}" for z in zs),
     )
-
-
-# --------------------------------------------------------------------------- deterministic cases
-
-
-def closed_form_case(case: C.ClosedFormCase, composite_fn=composite) -> CaseResult:
-    from mitsnerf.verify.closed_form import run_closed_form
-
-    r = run_closed_form(case, composite_fn)
-    orders = r.orders
-    return CaseResult(
-        case.name, "closed forms; orders over N = 8..64",
-        f"max rel {r.max_rel_error:.1e} (<= {case.rtol:g}); orders {orders['order_exit0']:.2f} (2), "
-        f"{orders['order_linear']:.2f} (1)",
-        None, "-", r.passed, r.seconds, "; ".join(r.failures),
-    )
-
-
-def gradient_case(case: C.GradientCase, quality: C.Quality, composite_fn=composite) -> CaseResult:
-    from mitsnerf.verify.gradients import check_gradients
-
-    r = check_gradients(case, quality, composite_fn)
-    return CaseResult(
-        case.name, f"central FD, eps {case.eps:g}",
-        f"max rel {r.max_rel_error:.1e} (<= {case.rtol:g}); fwd {r.forward_ad:.4e} vs {r.forward_fd:.4e}",
-        None, "-", r.passed, r.seconds, "; ".join(r.failures),
-    )
-
-
-def plugin_case(case: C.PluginCase, quality: C.Quality, composite_fn=composite,
-                artifacts: Artifacts | None = None) -> CaseResult:
-    """Render a field through ``mi.render`` with the ``mitsnerf_ea`` plugin and through the package."""
-    import mitsuba as mi
-
-    from mitsnerf.fields.grid import GridField
-    from mitsnerf.fields.nerf import NeRFConfig, NeRFField
-    from mitsnerf.render.background import EnvmapBackground
-    from mitsnerf.render.mitsuba_plugin import NAME, register
-    from mitsnerf.verify import mitsuba_refs as M
-    from mitsnerf.verify.sources import render_image
-
-    start = time.perf_counter()
-    register()
-    camera = quality.camera()
-    if case.field == "grid":
-        r = quality.resolution
-        field = GridField.from_arrays(C.front_heavy_sigma_t(r, 8.0), UNIT_BOX, color=C.procedural_albedo(r))
-    else:
-        field = NeRFField.create(NeRFConfig(width=32, depth=2, skip=None), mi.TensorXf, UNIT_BOX, seed=quality.seed + 1)
-    env = (M.envmap_environment(C.environment_bitmap()) if case.environment == "envmap"
-           else M.constant_environment((0.6, 0.8, 1.0)))
-    scene = mi.load_dict({
-        "type": "scene",
-        "integrator": {"type": NAME, "n_samples": quality.n_samples},
-        "sensor": M.sensor_dict(camera, 1, pixel_centres=True),
-        "environment": env,
-    })
-    integrator = scene.integrator()
-    integrator.field = field
-    integrator.box = UNIT_BOX
-    integrator.composite_fn = composite_fn
-    theirs = np.asarray(mi.render(scene), dtype=np.float64)
-    ours = render_image(field, camera, quality.n_samples, EnvmapBackground(scene.environment()))
-    err = float(np.abs(theirs - ours).max())
-    passed = err <= case.atol
-    detail = ""
-    if not passed and artifacts is not None:
-        path = artifacts.write(case.name, {"ours": ours, "reference": theirs, "error": ours - theirs})
-        detail = f"images in {path}"
-    return CaseResult(case.name, "package render_rays, same pixels", f"max abs {err:.1e} (<= {case.atol:g})",
-                      None, "-", passed, time.perf_counter() - start, detail)
 
 
 # --------------------------------------------------------------------------- all of them
 
 
-def run_checks(quality: C.Quality | str = "quick", out: str | Path | None = None,
-               only: Iterable[str] | None = None, composite_fn=composite,
-               progress: Callable[[CaseResult], None] | None = None) -> list[CaseResult]:
-    """Run every case (or those named in ``only``); failing cases write images under ``out``."""
-    if isinstance(quality, str):
-        if quality not in C.QUALITIES:
-            raise ValueError(f"unknown quality {quality!r}; choose one of {', '.join(C.QUALITIES)}")
-        quality = C.QUALITIES[quality]
+@dataclass
+class Suite:
+    """The cases of one quality; Mitsuba references are rendered on first use and kept."""
+
+    quality: C.Quality
+    artifacts: Artifacts | None = None
+    prepared: dict[str, S.PreparedScenario] = field(default_factory=dict)
+
+    def scenario(self, name: str) -> S.PreparedScenario:
+        if name not in self.prepared:
+            self.prepared[name] = S.prepare_scenario(next(s for s in C.SCENARIOS if s.name == name), self.quality)
+        return self.prepared[name]
+
+    def jobs(self) -> list[tuple[str, Callable[[], CaseResult]]]:
+        """``(name, run)`` of every case, in table order."""
+        q, a = self.quality, self.artifacts
+        jobs: list[tuple[str, Callable[[], CaseResult]]] = [(C.CLOSED_FORM.name, lambda: closed_form_case(C.CLOSED_FORM))]
+        jobs += [(s.name, lambda s=s: _family_result(s.name, "integrator", S.evaluate_scenario(self.scenario(s.name)), a))
+                 for s in C.SCENARIOS]
+        t = C.TRAINING_PATH
+        jobs += [(t.name, lambda: _family_result(t.name, "training path",
+                                                 S.evaluate_training_path(t, self.scenario(t.scenario)), a))]
+        jobs += [(C.JITTER.name, lambda: jitter_case(C.JITTER, q))]
+        jobs += [(g.name, lambda g=g: gradient_case(g, q)) for g in C.GRADIENT_CASES]
+        jobs += [(p.name, lambda p=p: plugin_case(p, q, a)) for p in C.PLUGIN_CASES]
+        f = C.MITSUBA_FURNACE
+        jobs += [(f.name, lambda: _family_result(f.name, "Mitsuba", S.mitsuba_furnace(f, q), a))]
+        jobs += [(C.FURNACE_DEPTHS.name, lambda: furnace_depths(C.FURNACE_DEPTHS, q))]
+        return jobs
+
+
+MITSUBA_ONLY = (C.MITSUBA_FURNACE.name, C.FURNACE_DEPTHS.name)
+"""Cases that run no package code under test (mutations cannot reach them; ``--mutations`` skips them)."""
+
+
+def _quality(quality: C.Quality | str) -> C.Quality:
+    if isinstance(quality, C.Quality):
+        return quality
+    if quality not in C.QUALITIES:
+        raise ValueError(f"unknown quality {quality!r}; choose one of {', '.join(C.QUALITIES)}")
+    return C.QUALITIES[quality]
+
+
+def _wanted(only: Iterable[str] | None) -> set[str] | None:
     wanted = set(only) if only else None
     if wanted:
         unknown = wanted - set(C.ALL_CASE_NAMES)
         if unknown:
             raise ValueError(f"unknown case(s) {', '.join(sorted(unknown))}; known: {', '.join(C.ALL_CASE_NAMES)}")
-    artifacts = Artifacts(out)
-    jobs: list[tuple[str, Callable[[], CaseResult]]] = [
-        (C.CLOSED_FORM.name, lambda: closed_form_case(C.CLOSED_FORM, composite_fn))]
-    jobs += [(s.name, lambda s=s: run_scenario(s, quality, composite_fn, artifacts)) for s in C.SCENARIOS]
-    jobs += [(C.FURNACE_DEPTHS.name, lambda: furnace_depths(C.FURNACE_DEPTHS, quality))]
-    jobs += [(g.name, lambda g=g: gradient_case(g, quality, composite_fn)) for g in C.GRADIENT_CASES]
-    jobs += [(p.name, lambda p=p: plugin_case(p, quality, composite_fn, artifacts)) for p in C.PLUGIN_CASES]
+    return wanted
+
+
+def run_checks(quality: C.Quality | str = "quick", out: str | Path | None = None,
+               only: Iterable[str] | None = None,
+               progress: Callable[[CaseResult], None] | None = None) -> list[CaseResult]:
+    """Run every case (or those named in ``only``); failing cases write images under ``out``."""
+    suite = Suite(_quality(quality), Artifacts(out))
+    wanted = _wanted(only)
     results = []
-    for name, job in jobs:
+    for name, job in suite.jobs():
         if wanted is None or name in wanted:
             results.append(job())
             if progress is not None:
@@ -299,16 +280,84 @@ def run_checks(quality: C.Quality | str = "quick", out: str | Path | None = None
     return results
 
 
-def format_table(results: list[CaseResult]) -> str:
-    """A fixed-width ASCII table: case, reference, measured error, max |z|, rejections, result, time."""
-    header = ("case", "reference", "measured error", "max|z|", "rejected", "result", "time")
+@dataclass(frozen=True)
+class MutationReport:
+    """The clean run and, per mutation, every case's result under it."""
+
+    clean: list[CaseResult]
+    matrix: dict[str, list[CaseResult]]  # mutation name -> results in case order
+
+    def caught_by(self, mutation: str) -> list[CaseResult]:
+        return [r for r in self.matrix[mutation] if r.passed is False]
+
+    @property
+    def escaped(self) -> list[str]:
+        return [m for m in self.matrix if not self.caught_by(m)]
+
+    @property
+    def passed(self) -> bool:
+        return all(r.passed is not False for r in self.clean) and not self.escaped
+
+
+def run_mutations(quality: C.Quality | str = "quick", mutations: Iterable[Mutation] = MUTATION_LIST,
+                  only: Iterable[str] | None = None,
+                  progress: Callable[[str, CaseResult], None] | None = None) -> MutationReport:
+    """Every case clean, then under each mutation (references rendered once; Mitsuba-only cases skipped)."""
+    suite = Suite(_quality(quality))
+    wanted = _wanted(only)
+    jobs = [(n, j) for n, j in suite.jobs() if n not in MITSUBA_ONLY and (wanted is None or n in wanted)]
+    report = MutationReport([], {})
+    for label, mutation in [("clean", None)] + [(m.name, m) for m in mutations]:
+        results = []
+        for _, job in jobs:
+            with planted(mutation):
+                results.append(job())
+            if progress is not None:
+                progress(label, results[-1])
+        if mutation is None:
+            report.clean.extend(results)
+        else:
+            report.matrix[label] = results
+    return report
+
+
+def format_table(results: list[CaseResult], alpha: float | None = None) -> str:
+    """A fixed-width ASCII table: case, checks, reference, measured error, max |z|, rejections, result, time."""
+    header = ("case", "checks", "reference", "measured error", "max|z|", "rejected", "result", "time")
     rows = [header] + [
-        (r.name, r.reference, r.error, "-" if r.max_abs_z is None else f"{r.max_abs_z:.2f}", r.rejected,
+        (r.name, r.checks, r.reference, r.error, "-" if r.max_abs_z is None else f"{r.max_abs_z:.2f}", r.rejected,
          r.status, f"{r.seconds:.1f} s")
         for r in results
     ]
     widths = [max(len(row[i]) for row in rows) for i in range(len(header))]
     lines = ["  ".join(cell.ljust(w) for cell, w in zip(row, widths)).rstrip() for row in rows]
     lines.insert(1, "  ".join("-" * w for w in widths))
-    notes = [f"{r.name}: {r.detail}" for r in results if r.detail and r.passed is not True]
+    notes = [f"{r.name}: {r.note}" for r in results if r.note]
+    notes += [f"{r.name}: {r.detail}" for r in results if r.detail and r.passed is not True]
+    if alpha is not None and any(r.rejected != "-" for r in results):
+        notes.append(f"rejected: tests rejected out of the case's one family (the pixels and channel means of all "
+                     f"its comparisons, weighted Holm), family-wise alpha {alpha:g} per case")
     return "\n".join(lines + ([""] + notes if notes else []))
+
+
+def format_mutations(report: MutationReport) -> str:
+    """Per mutation: where it is planted, which cases catch it (with the deciding statistic), and the 0/1 matrix."""
+    by_name = {m.name: m for m in MUTATION_LIST}
+    header = ("mutation", "planted in", "kind", "caught by")
+    rows = [header]
+    for name, results in report.matrix.items():
+        m = by_name.get(name)
+        caught = ", ".join(f"{r.name} ({r.evidence})" for r in results if r.passed is False) or "NOT CAUGHT"
+        rows.append((name, m.where if m else "?", m.kind if m else "?", caught))
+    widths = [max(len(row[i]) for row in rows) for i in range(3)]
+    lines = ["  ".join(cell.ljust(w) for cell, w in zip(row[:3], widths)) + "  " + row[3] for row in rows]
+    lines.insert(1, "  ".join("-" * w for w in widths) + "  " + "-" * 9)
+    cases = [r.name for r in report.clean]
+    lines += ["", "matrix (x: the case fails under the mutation; columns in case order):"]
+    lines += [f"  {i + 1:2d} {name}" for i, name in enumerate(cases)]
+    width = max(len(n) for n in report.matrix) if report.matrix else 8
+    lines.append(" " * (width + 2) + " ".join(f"{i + 1:2d}" for i in range(len(cases))))
+    lines.append("clean".ljust(width + 2) + " ".join(" ." if r.passed is not False else " X" for r in report.clean))
+    for name, results in report.matrix.items():
+        lines.append(name.ljust(width + 2) + " ".join(" x" if r.passed is False else " ." for r in results))
+    return "\n".join(lines)

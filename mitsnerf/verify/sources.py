@@ -4,14 +4,18 @@ Emission-absorption renders ``C = int_0^L T(t) sigma_t(t) c(t) dt + T(L) bg`` wi
 ``T(t) = exp(-int_0^t sigma_t)``. Physics says when that equals volpath's radiance:
 
 - albedo 0: nothing scatters, so ``c = 0`` and ``C = T(L) bg`` (transmittance only);
-- albedo 1 in an environment of constant radiance 1 (white furnace): the radiance is 1
-  everywhere, which ``c = 1``, ``bg = 1`` reproduce (``int T sigma_t + T(L) = 1``);
 - single scattering of a directional light (irradiance ``E``, travelling along ``w_L``)::
 
       c(x) = albedo(x) p E T_light(x),   p = 1 / (4 pi),
       T_light(x) = exp(-int_0^{s_f} sigma_t(x - s w_L) ds)       (s_f: where the ray leaves the box)
 
   because ``sigma_t c = sigma_s p E T_light`` is the in-scattered radiance per unit length.
+
+A scenario's ``source`` names its builder in :data:`SOURCE_BUILDERS`: a function of the
+scenario, its ``sigma_t`` and albedo grids, the loaded Mitsuba scene and the quality, returning
+the field ``(x, d) -> (c, sigma_t)``. A new kind of source (say, an in-scattered radiance
+``J`` estimated by Mitsuba itself) is one builder there and its name in
+:data:`mitsnerf.verify.cases.SOURCES`.
 """
 
 from __future__ import annotations
@@ -22,9 +26,8 @@ from typing import Any, Callable
 import drjit as dr
 import numpy as np
 
-from mitsnerf.math.box import UNIT_BOX, Box
 from mitsnerf.math.camera import Camera
-from mitsnerf.math.composite import composite
+from mitsnerf.math.box import UNIT_BOX, Box
 from mitsnerf.math.rays import camera_rays_numpy, to_array3f
 from mitsnerf.render.volume import render_rays
 
@@ -82,9 +85,13 @@ class SingleScatterSource:
         return albedo * scale * T_light, sigma
 
 
-def render_image(field, camera: Camera, n_samples: int, background=None, composite_fn=composite,
-                 chunk_rays: int = 1024) -> np.ndarray:
-    """Render ``camera``'s pixel-centre rays through ``field`` (midpoints); linear RGB ``(H, W, 3)``."""
+def render_image(field, camera: Camera, n_samples: int, background=None, quadrature: str = "seed",
+                 jitter: Callable[[int], Any] | None = None, chunk_rays: int = 1024) -> np.ndarray:
+    """Render ``camera``'s pixel-centre rays through ``field``; linear RGB ``(H, W, 3)``.
+
+    ``jitter(size)`` gives the per-sample ``u`` of a chunk of rays (training mode), None
+    the stratum midpoints (evaluation).
+    """
     import mitsuba as mi
 
     o_np, d_np = camera_rays_numpy([camera])
@@ -93,6 +100,33 @@ def render_image(field, camera: Camera, n_samples: int, background=None, composi
         for start in range(0, len(o_np), chunk_rays):
             o = to_array3f(mi.Array3f, o_np[start:start + chunk_rays])
             d = to_array3f(mi.Array3f, d_np[start:start + chunk_rays])
-            comp = render_rays(field, o, d, n_samples, background=background, composite_fn=composite_fn, box=UNIT_BOX)
+            u = jitter(dr.width(o) * n_samples) if jitter is not None else None
+            comp = render_rays(field, o, d, n_samples, box=UNIT_BOX, u=u, background=background,
+                               quadrature=quadrature)
             out.append(np.stack([np.asarray(c, dtype=np.float64) for c in comp.rgb], axis=-1))
     return np.concatenate(out).reshape(camera.height, camera.width, 3)
+
+
+def absorption_source(scenario, sigma_t, albedo, scene, quality):
+    """``c = 0``: the true ``sigma_t``, no emission (albedo 0)."""
+    from mitsnerf.fields.grid import GridField
+
+    return GridField.from_arrays(sigma_t, UNIT_BOX, color=(0.0, 0.0, 0.0))
+
+
+def single_scatter_source(scenario, sigma_t, albedo, scene, quality):
+    """``c = albedo p E T_light`` of the scenario's directional light (:class:`SingleScatterSource`)."""
+    from mitsnerf.fields.grid import GridField
+    from mitsnerf.verify.cases import isotropic_phase
+
+    albedo_grid = albedo if np.ndim(albedo) else np.full(sigma_t.shape + (3,), float(albedo), np.float32)
+    return SingleScatterSource(GridField.from_arrays(sigma_t, UNIT_BOX),
+                               GridField.from_arrays(sigma_t, UNIT_BOX, color=albedo_grid),
+                               scenario.sun_direction, scenario.sun_irradiance, isotropic_phase())
+
+
+SOURCE_BUILDERS: dict[str, Callable[..., Any]] = {
+    "zero": absorption_source,
+    "single_scatter": single_scatter_source,
+}
+"""Source name (:data:`mitsnerf.verify.cases.SOURCES`) -> ``builder(scenario, sigma_t, albedo, scene, quality)``."""

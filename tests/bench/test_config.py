@@ -25,6 +25,17 @@ def test_the_shipped_configs_load_and_plan(tmp_path):
             assert len(cells) == len(config.scenes) * len(config.methods) * len(config.seeds)
 
 
+@pytest.mark.parametrize("name", ["default", "full", "targets"])
+def test_shipped_budgets_are_steps(name):
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        config = load_bench_config(name)
+    for quick in (False, True):
+        for method in config.methods:
+            _, train = config.method_settings(method, quick)
+            assert "seconds" not in train and train.get("steps", 0) >= 1, (name, method.label, quick)
+
+
 def test_full_runs_every_scene_and_method_with_three_seeds():
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
@@ -39,7 +50,7 @@ def test_default_quick_profile_merges_over_the_method_settings():
     method = config.methods[0]
     _, train = config.method_settings(method, quick=False)
     mconfig, qtrain = config.method_settings(method, quick=True)
-    assert train["seconds"] > 0 and qtrain["seconds"] == 0 and qtrain["steps"] < train["steps"]
+    assert "seconds" not in train and "seconds" not in qtrain and qtrain["steps"] < train["steps"]  # step budgets
     assert qtrain["batch_rays"] < train["batch_rays"] and mconfig["n_samples"] == 32
     assert config.eval_config(True).curve_points < config.eval_config(False).curve_points
 
@@ -120,7 +131,7 @@ BAD_BENCH = [  # (raw config, quick, field, message); every error names benchmar
     ({"scenes": ["cloud"], "methods": NERF, "quick": {"train": {"steps": -3}}}, True, "quick.train.steps",
      "must be an integer in [1, 100000000], got -3 (method nerf)"),
     ({"scenes": ["cloud"], "methods": [{"name": "nerf", "quick": {"config": {"n_samples": 0}}}]}, True,
-     "methods.0.quick.config.n_samples", "must be >= 1, got 0 (method nerf)"),
+     "methods.0.quick.config.n_samples", "must be an integer in [1, 4096], got 0 (method nerf)"),
     ({"scenes": ["cloud"], "methods": NERF, "quick": {"scene": {"cameras.width": 0}}}, True,
      "quick.scene.cameras.width", "must be an integer in [1, 8192], got 0 (scene cloud)"),
     ({"scenes": ["cloud"], "methods": NERF, "quick": {"scene": {"lights.5.radiance": [1, 1, 1]}}}, True,
@@ -128,7 +139,7 @@ BAD_BENCH = [  # (raw config, quick, field, message); every error names benchmar
     ({"scenes": ["cloud"], "methods": NERF, "quick": {"eval": {"curve_pionts": 1}}}, True, "quick.eval.curve_pionts",
      "unknown field (did you mean 'curve_points'?)"),
     ({"scenes": ["cloud"], "methods": "all", "method_settings": {"nerf": {"config": {"n_samples": 0}}}}, False,
-     "method_settings.nerf.config.n_samples", "must be >= 1, got 0 (method nerf)"),
+     "method_settings.nerf.config.n_samples", "must be an integer in [1, 4096], got 0 (method nerf)"),
     ({"scenes": ["cloud"], "methods": "all", "method_settings": {"nerf": {"label": "a/b"}}}, False,
      "method_settings.nerf.label", "must not contain '/' or start with '.', got 'a/b'"),
 ]

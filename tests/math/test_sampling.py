@@ -43,6 +43,35 @@ def test_stratified_rejects_bad_arguments():
         stratified_t(mi.Float(0.0), mi.Float(1.0), 0)
     with pytest.raises(ValueError):
         stratified_t(mi.Float(0.0, 0.0), mi.Float(1.0, 1.0), 4, mi.Float([0.5] * 7))
+    with pytest.raises(ValueError, match="seed, midpoint"):
+        stratified_t(mi.Float(0.0), mi.Float(1.0), 4, quadrature="trapezoid")
+
+
+def test_midpoint_rule_places_the_same_samples_and_gives_each_its_whole_stratum():
+    R, N = 30, 8
+    rng = np.random.default_rng(2)
+    t_n = rng.uniform(0.0, 1.0, R).astype(np.float32)
+    t_f = t_n + rng.uniform(0.1, 2.0, R).astype(np.float32)
+    u = mi.Float(rng.uniform(0.0, 1.0, R * N).astype(np.float32))
+    t_seed, _ = stratified_t(mi.Float(t_n), mi.Float(t_f), N, u)
+    t, delta = stratified_t(mi.Float(t_n), mi.Float(t_f), N, u, quadrature="midpoint")
+    np.testing.assert_array_equal(_np(t), _np(t_seed))
+    delta = _np(delta).reshape(R, N)
+    np.testing.assert_allclose(delta, np.repeat(((t_f - t_n) / N)[:, None], N, axis=1), rtol=1e-6)
+    np.testing.assert_allclose(delta.sum(1), t_f - t_n, rtol=1e-5)  # the strata tile [t_n, t_f]
+
+
+def test_midpoint_rule_is_second_order_where_the_seed_rule_is_first():
+    # sigma(t) = 1 + 2 t on [0, 1] (dense at the exit): tau = 2. The midpoint rule is exact for a
+    # linear sigma; the seed's rule is it minus (h/2) sigma(t_{N-1}) = (h/2)(3 - h), first order.
+    for n in (8, 32):
+        h = 1.0 / n
+        errors = {}
+        for rule in ("seed", "midpoint"):
+            t, delta = stratified_t(mi.Float(0.0), mi.Float(1.0), n, quadrature=rule)
+            errors[rule] = float(np.sum((1 + 2 * _np(t)) * _np(delta))) - 2.0
+        assert errors["seed"] == pytest.approx(-(h / 2) * (3 - h), rel=1e-4)
+        assert abs(errors["midpoint"]) < 1e-5
 
 
 def _sample_pdf_numpy(bins, weights, u, eps):

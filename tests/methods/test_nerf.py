@@ -114,3 +114,60 @@ def test_config_is_validated():
         NeRFMethodConfig(n_importance=-1)
     with pytest.raises(ValueError, match="skip"):
         NeRFConfig(skip=-1)
+
+
+def test_empty_space_skipping_is_exact_where_it_claims(blob_grid):
+    """Both passes skip what the grid marks empty. With a medium of compact support (as the scenes' are:
+    exactly 0 beyond their envelope) as both networks, nothing of it lies below the grid's threshold, so
+    the render with skipping equals the unskipped one while most samples are never evaluated. (Where a
+    medium has long thin tails, the difference is bounded by the skipped optical depth:
+    tests/fields/test_occupancy.py.)"""
+    blob_grid = np.where(blob_grid > 1.0, blob_grid, 0.0).astype(np.float32)  # compact support
+    from mitsnerf.fields.grid import GridField
+    from mitsnerf.fields.occupancy import OccupancyConfig
+    from mitsnerf.math.camera import Camera, look_at
+    from mitsnerf.math.rays import camera_rays
+
+    info = SceneInfo(UNIT_BOX, ConstantBackground((0.2, 0.3, 0.4)), 1.0)
+    config = NeRFMethodConfig(network=SMALL, coarse_network=SMALL, n_samples=32, n_importance=32,
+                              occupancy=OccupancyConfig(resolution=24, update_every=1))
+    model = NeRFModel(config, info)
+    truth = GridField.from_arrays(blob_grid, UNIT_BOX, color=(1.0, 0.9, 0.1))
+    model.base_field, model._coarse = truth, truth  # the true field as the fine and the coarse network
+    model.grid.update(truth.density, seed=0, step=0)
+    cams = [Camera.from_fov(look_at(p), 12, 12, 40.0) for p in ((0.0, -2.0, 0.3), (1.5, 1.2, -0.4))]
+    rays = camera_rays(mi.Array3f, cams)
+    with dr.suspend_grad():
+        skipped = model.render_rays(rays.o, rays.d).rgb
+        mask = model.grid.sample_mask(*_fine_samples(model, rays))
+        grid, model.grid = model.grid, None
+        full = model.render_rays(rays.o, rays.d).rgb
+    diff = max(float(dr.max(dr.abs(a - b))[0]) for a, b in zip(skipped, full))
+    assert diff < 1e-4, diff
+    assert 0.01 < float(dr.mean(mi.Float(mask))[0]) < 0.4  # most fine samples are never evaluated
+
+
+def _fine_samples(model, rays):
+    """Positions and deltas of stratified samples (the density the grid's mask needs), N = 64 per ray."""
+    from mitsnerf.render.volume import sample_rays
+
+    s, _ = sample_rays(rays.o, rays.d, 64, UNIT_BOX)
+    return s.x, s.delta, 64
+
+
+def test_proposal_sampling_trains_the_fine_network_and_the_proposal(tiny_views):
+    data, info = tiny_views()
+    config = NeRFMethodConfig(network=SMALL, sampler="proposal", n_samples=16, n_importance=16)
+    model = NeRFModel(config, info)
+    params = model.parameters()
+    assert "coarse.trunk.0.weights" in params and "coarse.head.0.weights" not in params  # density only
+    assert model.samples_per_ray() == 32 and model.jitter_size() == 32
+    before = {k: np.array(v) for k, v in params.items() if k.startswith("coarse.")}
+    result, _ = train(model, data, TrainConfig(steps=60, batch_rays=256, log_every=10), 2e-2, progress=False)
+    losses = [h["loss"] for h in result.history]
+    assert np.mean(losses[-2:]) < 0.5 * losses[0]
+    moved = [k for k, v in before.items() if not np.array_equal(v, np.array(model.parameters()[k]))]
+    assert moved  # the interlevel loss reaches the proposal network
+    rays = RayBatch(*data.pixels.rays(mi.UInt32(np.arange(64, dtype=np.uint32)), mi.Float(0.5), mi.Float(0.5)))
+    out = model.render_rays(rays.o, rays.d)
+    assert not out.extra_losses and dr.all(dr.isfinite(out.rgb.x))

@@ -1,4 +1,4 @@
-"""The table and the ``mitsnerf check`` command (on the fast deterministic cases only)."""
+"""The table, the mutation matrix and the ``mitsnerf check`` command (on the fast deterministic cases only)."""
 
 import dataclasses
 
@@ -6,7 +6,8 @@ import pytest
 
 from mitsnerf import cli
 from mitsnerf.verify import cases as C
-from mitsnerf.verify.runner import CaseResult, format_table, run_checks
+from mitsnerf.verify.mutations import MUTATIONS
+from mitsnerf.verify.runner import CaseResult, format_mutations, format_table, run_checks, run_mutations
 
 
 def test_run_checks_runs_the_named_cases_and_the_table_has_a_row_each():
@@ -15,7 +16,7 @@ def test_run_checks_runs_the_named_cases_and_the_table_has_a_row_each():
     assert all(r.passed for r in results)
     table = format_table(results)
     header, rule, *rows = table.splitlines()
-    assert header.split()[:3] == ["case", "reference", "measured"] and set(rule) <= {"-", " "}
+    assert header.split()[:4] == ["case", "checks", "reference", "measured"] and set(rule) <= {"-", " "}
     assert len(rows) == 2 and all(" pass " in row for row in rows)
 
 
@@ -26,12 +27,29 @@ def test_unknown_case_and_quality_are_errors_that_list_the_choices():
         run_checks("fast")
 
 
-def test_info_rows_and_failures_are_marked_and_explained():
-    rows = [CaseResult("a", "r", "e", 1.5, "0/3", None, 0.1, "recorded"),
-            CaseResult("b", "r", "e", None, "-", False, 0.2, "why it failed")]
-    table = format_table(rows)
+def test_info_rows_failures_and_notes_are_marked_and_explained():
+    rows = [CaseResult("a", "record", "r", "e", 1.5, "0/3", None, 0.1, note="recorded"),
+            CaseResult("b", "integrator", "r", "e", None, "2/15", False, 0.2, "why it failed")]
+    table = format_table(rows, alpha=0.001)
     assert " info " in table and " FAIL " in table
-    assert "a: recorded" in table and "b: why it failed" in table
+    assert "a: recorded" in table and "b: why it failed" in table and "family-wise alpha 0.001" in table
+
+
+def test_the_mutation_matrix_names_the_cases_that_catch_each_mutation():
+    muts = [MUTATIONS["T_off_by_one"], MUTATIONS["jitter_frozen"]]
+    report = run_mutations("quick", muts, only=["closed_form", "sampler_jitter", "grad_color"])
+    assert [r.name for r in report.clean] == ["closed_form", "sampler_jitter", "grad_color"]
+    assert [r.name for r in report.caught_by("T_off_by_one")] == ["closed_form"]
+    assert [r.name for r in report.caught_by("jitter_frozen")] == ["sampler_jitter"]
+    assert report.passed and not report.escaped
+    text = format_mutations(report)
+    assert "composite.weights" in text and "schedule.step_rng" in text and "sampler_jitter (steps independent)" in text
+
+
+def test_a_mutation_no_case_catches_is_reported():
+    report = run_mutations("quick", [MUTATIONS["T_detached"]], only=["closed_form"])
+    assert report.escaped == ["T_detached"] and not report.passed
+    assert "NOT CAUGHT" in format_mutations(report)
 
 
 def test_cli_check_exits_zero_when_all_pass_and_one_on_a_failure(monkeypatch, capsys):
@@ -41,6 +59,14 @@ def test_cli_check_exits_zero_when_all_pass_and_one_on_a_failure(monkeypatch, ca
     assert cli.main(["check", "--case", "closed_form", "--no-progress"]) == 1
     captured = capsys.readouterr()
     assert " FAIL " in captured.out and "1 case(s) failed: closed_form" in captured.err
+
+
+def test_cli_check_mutations_prints_the_matrix_and_fails_when_a_mutation_escapes(capsys):
+    # closed_form alone cannot see gradient or jitter bugs: those escape, so the exit status is 1.
+    assert cli.main(["check", "--mutations", "--case", "closed_form", "--no-progress"]) == 1
+    captured = capsys.readouterr()
+    assert "caught by" in captured.out and "NOT CAUGHT" in captured.out
+    assert "caught by no case: jitter_ignored" in captured.err
 
 
 def test_cli_check_rejects_an_unknown_case(capsys):

@@ -1,7 +1,7 @@
-"""Cases 2-4: the integrator against Mitsuba's volpath on the same rays, and the mutations it must catch.
+"""The integrator against Mitsuba's volpath on the same rays, and the planted bugs it must catch.
 
-The four volpath references are rendered once per module (quick quality: 12x12 pixels,
-1024-4096 spp, about 10 s on two cores).
+The volpath references are rendered once per module (quick quality: 12x12 pixels,
+4096-16384 spp).
 """
 
 import dataclasses
@@ -12,9 +12,10 @@ import pytest
 
 from mitsnerf.verify import cases as C
 from mitsnerf.verify import mitsuba_refs as M
-from mitsnerf.verify.mutations import MUTATIONS
-from mitsnerf.verify.runner import Artifacts, evaluate_scenario, prepare_scenario
-from mitsnerf.verify.sources import render_image
+from mitsnerf.verify.mutations import MUTATIONS, planted
+from mitsnerf.verify.runner import Artifacts, _family_result
+from mitsnerf.verify.scenarios import (_render, evaluate_scenario, evaluate_training_path, mitsuba_furnace,
+                                       prepare_scenario, seed_bias_factor)
 from mitsnerf.verify.stats import compare
 
 QUALITY = C.QUALITIES["quick"]
@@ -28,26 +29,50 @@ def prepared():
 
 @pytest.mark.parametrize("name", list(SCENARIOS))
 def test_integrator_agrees_with_volpath(prepared, name):
-    result = evaluate_scenario(prepared[name])
-    assert result.passed, result.detail
+    outcome = evaluate_scenario(prepared[name])
+    assert outcome.family.passed, outcome.family.summary()
 
 
 @pytest.mark.parametrize("name,mutation", [(s.name, m) for s in C.SCENARIOS for m in s.detects])
 def test_mutation_is_detected(prepared, name, mutation):
-    result = evaluate_scenario(prepared[name], MUTATIONS[mutation])
-    assert not result.passed, f"{mutation} went unnoticed: {result.detail}"
+    with planted(MUTATIONS[mutation]):
+        outcome = evaluate_scenario(prepared[name])
+    assert not outcome.family.passed, f"{mutation} went unnoticed: {outcome.family.summary()}"
 
 
-def test_every_mutation_of_the_values_is_detected_by_some_scenario():
-    detected = {m for s in C.SCENARIOS for m in s.detects}
-    assert {"off_by_one_T", "delta_wrong_end", "no_background"} <= detected
+def test_each_rule_is_one_comparison_of_one_family(prepared):
+    family = evaluate_scenario(prepared["box_absorption"]).family
+    assert [t.label.split()[0] for t in family.tests] == ["seed", "midpoint"]
+    assert family.n_tests == 2 * (QUALITY.width**2 * 3 + 3)
+
+
+def test_the_seed_rule_fails_against_raw_volpath_where_the_medium_is_dense_at_the_exit(prepared):
+    # The cases are not kind to the quadrature: without the closed-form correction (box) or the
+    # midpoint rule (exit-heavy), the seed's first-order exit bias is detected.
+    for name in ("box_absorption", "exit_absorption"):
+        p = prepared[name]
+        ref = p.reference
+        seed = _render(p, "seed")
+        assert not compare(seed, ref.mean, ref.var, ref.n, QUALITY.alpha).passed, name
+    p = prepared["box_absorption"]
+    k = seed_bias_factor(p)
+    assert float(k.max()) > 1.01  # the correction is not negligible: exp(sigma_t L / 2N) with sigma_t L up to ~2.5
+
+
+def test_training_path_agrees_with_volpath(prepared):
+    outcome = evaluate_training_path(C.TRAINING_PATH, prepared[C.TRAINING_PATH.scenario])
+    assert outcome.family.passed, outcome.family.summary()
+    assert "N = 512" in outcome.note
 
 
 def test_failing_case_writes_the_images_and_names_the_directory(prepared, tmp_path):
-    result = evaluate_scenario(prepared["absorption_constant"], MUTATIONS["no_background"], Artifacts(tmp_path))
-    case_dir = tmp_path / "absorption_constant"
-    assert str(case_dir) in result.detail
-    assert sorted(p.name for p in case_dir.iterdir()) == ["error.exr", "ours.exr", "reference.exr", "z.exr"]
+    with planted(MUTATIONS["no_background"]):
+        outcome = evaluate_scenario(prepared["box_absorption"])
+    result = _family_result("box_absorption", "integrator", outcome, Artifacts(tmp_path))
+    case_dir = tmp_path / "box_absorption"
+    assert not result.passed and str(case_dir) in result.detail and result.evidence.startswith("mean z")
+    assert sorted(p.name for p in case_dir.iterdir()) == sorted(
+        [f"{k}_{q}.exr" for k in ("ours", "error", "z") for q in ("seed", "midpoint")] + ["reference.exr"])
 
 
 def test_volpath_max_depth_2_is_single_scattering_and_3_is_not(prepared):
@@ -56,19 +81,16 @@ def test_volpath_max_depth_2_is_single_scattering_and_3_is_not(prepared):
     p = prepared["single_scatter"]
     s = dataclasses.replace(p.scenario, max_depth=3, spp_factor=1.0)
     ref3 = prepare_scenario(s, QUALITY).reference
-    ours = render_image(p.field, QUALITY.camera(), QUALITY.n_samples, p.background)
+    ours = _render(p, "seed")
     cmp = compare(ours, ref3.mean, ref3.var, ref3.n, QUALITY.alpha, s.max_rel_error)
     assert not cmp.passed and cmp.z_mean < 0  # max_depth 3 is brighter
     assert ref3.mean.sum() > p.reference.mean.sum()
 
 
-def test_white_furnace_sees_the_energy_volpath_loses_at_finite_depth(prepared):
-    # The furnace comparison against 1 passes at unlimited depth (test above) and must fail when
-    # volpath stops after a few bounces in the same medium.
-    s = dataclasses.replace(SCENARIOS["white_furnace"], max_depth=6)
-    ref = prepare_scenario(s, QUALITY).reference
-    cmp = compare(np.ones_like(ref.mean), ref.mean, ref.var, ref.n, QUALITY.alpha, s.max_rel_error)
-    assert not cmp.passed
+def test_mitsuba_furnace_is_one_and_sees_the_energy_volpath_loses_at_finite_depth():
+    assert mitsuba_furnace(C.MITSUBA_FURNACE, QUALITY).family.passed
+    outcome = mitsuba_furnace(dataclasses.replace(C.MITSUBA_FURNACE, max_depth=6), QUALITY)
+    assert not outcome.family.passed and outcome.family.z_mean > 0  # 1 is brighter than volpath
 
 
 def test_grids_are_laid_out_as_mitsuba_reads_them():
