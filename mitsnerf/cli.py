@@ -184,7 +184,9 @@ box_max); colour averaged over --directions view directions spread over the sphe
 or seen along --direction. sigma_t transfers exactly; a NeRF's colour is radiance, not albedo,
 so albedo.vol is only an approximation (for mitsuba-inverse it is the learned albedo itself).
 
-Use it in Mitsuba (gridvolume maps [0, 1]^3 onto the box; here mitsnerf's unit box [-0.5, 0.5]^3):
+Use it in Mitsuba (gridvolume maps [0, 1]^3 onto the box; here the unit box [-0.5, 0.5]^3 of a
+default-scale dataset; for another box: translate(box_min).scale(box_max - box_min) for the grids,
+translate(centre).scale(size / 2) for the cube):
 
   grid = lambda f: {"type": "gridvolume", "filename": "OUT/" + f,
                     "to_world": mi.ScalarTransform4f().translate(-0.5)}
