@@ -61,10 +61,14 @@ def make_background(desc: Mapping[str, Any] | None, root: Path | None = None):
             path = Path(root) / path
         if not path.exists():
             raise DatasetError(path, "background.file", "environment map not found")
+        from mitsnerf.data.images import read_exr
+
+        # The map is read here and handed over as a bitmap: Mitsuba's own EXR reader deadlocks once
+        # Dr.Jit runs with one thread (dr.set_thread_count(1), as `bench --cpus-per-cell 1` does).
         emitter = mi.load_dict(
             {
                 "type": "envmap",
-                "filename": str(path),
+                "bitmap": mi.Bitmap(read_exr(path)[..., :3]),
                 "scale": float(desc.get("scale", 1.0)),
                 "to_world": mi.ScalarTransform4f(desc.get("to_world", [[1, 0, 0, 0], [0, 1, 0, 0], [0, 0, 1, 0], [0, 0, 0, 1]])),
             }
