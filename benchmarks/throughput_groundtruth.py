@@ -69,7 +69,7 @@ def raw_sensor(frame: dict, fov_x: float, width: int, height: int, spp: int) -> 
 
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--scene", default="cloud", help="a scene of scenes/ (constant, directional, point lights)")
+    ap.add_argument("--scene", default="cloud", help="a scene name (mitsnerf scenes lists them; constant, directional, point lights)")
     ap.add_argument("--views", type=int, default=4, help="views rendered by each path (the first one includes compilation)")
     ap.add_argument("--size", type=int, default=64, help="image width and height")
     ap.add_argument("--spp", type=int, default=64)

@@ -1,14 +1,14 @@
 #!/usr/bin/env python3
-"""Network training throughput: mitsnerf's Dr.Jit MLPs against the JAX peer, and against this CPU's peak.
+"""Network training throughput: mitsnerf's Dr.Jit MLPs against a JAX peer, and against this CPU's peak.
 
-The network is the peer's (``../shared/peers/jax_mlp.py``): x in [0, 1)^3 -> [sin(2^k pi x),
-cos(2^k pi x)], k < 10 (60 features) -> 2 hidden layers of 64, ReLU -> 4 outputs; one step is the
-encoding, forward, MSE against 4 smooth targets, backward and an Adam update (lr 1e-3) on the
-peer's synthetic batch (same formula, seed 0). Two mitsnerf paths:
+The problem (``mlp_problem.py``, shared with the peer): x in [0, 1)^3 -> [sin(2^k pi x), cos(2^k pi x)],
+k < 10 (60 features) -> 2 hidden layers of 64, ReLU -> 4 outputs; one step is the encoding, forward,
+MSE against 4 smooth targets, backward and an Adam update (lr 1e-3) on the same synthetic batch
+(seed 0). The peer is ``jax_mlp_peer.py``, the same step in JAX (``jax.jit``). Two mitsnerf paths:
 
 - ``channel-major``: ``drjit.nn.Sequential`` on (C, N) tensors (``SinEncode`` + ``Linear``), as the
   ``nerf`` field evaluates its network; the encoding's frequencies match the peer's (x / 2 in);
-- ``point-major``: ``mitsnerf.fields.mlp.DenseStack`` on (N, C) tensors (``X W + b``), as the
+- ``point-major``: ``mitsnerf.fields.mlp.dense_apply`` on (N, C) tensors (``X W + b``), as the
   ``ngp`` field does; the encoding from ``dr.sin``/``dr.cos`` on each coordinate.
 
 FLOPs per point are the peer's count, 3 x 2 x sum(d_i d_{i+1}) (forward, and twice that backward);
@@ -16,7 +16,7 @@ the peak is measured as numpy's float32 matrix product of two 4096^2 matrices (t
 here can reach), and a nominal figure is printed from the core count, clock and SIMD width
 (assuming two FMA units per core; stated as such).
 
-Set-up for the peer (outside the project, once): ``python3 -m venv /tmp/jaxenv &&
+Set-up for the peer (a throw-away venv, once): ``python3 -m venv /tmp/jaxenv &&
 /tmp/jaxenv/bin/pip install "jax[cpu]"``. Run (only on an otherwise idle machine):
     .venv/bin/python benchmarks/throughput_mlp.py [--batch-log2 14 16 18] [--jax-python /tmp/jaxenv/bin/python]
 Prints one JSON line per (path, batch), the peer's lines, and a summary with the ratios.
@@ -38,24 +38,10 @@ import numpy as np
 import mitsnerf  # noqa: F401  (libLLVM before drjit)
 from mitsnerf import env
 
-DIMS = (60, 64, 64, 4)
-FREQS = 10
-PEER = Path(__file__).resolve().parents[1].parent / "shared" / "peers" / "jax_mlp.py"
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from mlp_problem import DIMS, FREQS, LR, batch, flops_per_point  # noqa: E402
 
-
-def batch(n: int, seed: int = 0) -> tuple[np.ndarray, np.ndarray]:
-    """The peer's synthetic batch: x uniform in [0, 1)^3 (numpy default_rng(seed)) and 4 smooth targets
-    (products of sin(2 pi x) pairs and a Gaussian bump), float32."""
-    rng = np.random.default_rng(seed)
-    x = rng.random((n, 3), dtype=np.float32)
-    s = np.sin(2 * np.pi * x)
-    t = np.stack([s[:, 0] * s[:, 1], s[:, 1] * s[:, 2], s[:, 2] * s[:, 0],
-                  np.exp(-8 * np.sum((x - 0.5) ** 2, 1))], 1).astype(np.float32)
-    return x, t
-
-
-def flops_per_point() -> int:
-    return 3 * 2 * sum(a * b for a, b in zip(DIMS[:-1], DIMS[1:]))
+PEER = Path(__file__).resolve().parent / "jax_mlp_peer.py"
 
 
 def sgemm_flops(n: int = 4096, repeats: int = 5) -> float:
@@ -118,7 +104,7 @@ def channel_major(n: int, steps: int) -> float:
     xn, tn = batch(n)
     x = mi.TensorXf(np.ascontiguousarray(xn.T / 2))  # sin(2 pi 2^k (x/2)) = sin(2^k pi x): the peer's frequencies
     t = mi.TensorXf(np.ascontiguousarray(tn.T))
-    opt = dr.opt.Adam(lr=1e-3)
+    opt = dr.opt.Adam(lr=LR)
     for key, value in net.items():
         opt[key] = value
 
@@ -138,25 +124,25 @@ def point_major(n: int, steps: int) -> float:
     import drjit.opt  # noqa: F401
     import mitsuba as mi
 
-    from mitsnerf.fields.mlp import DenseStack, rows_tensor
+    from mitsnerf.fields.mlp import dense_apply, dense_init, rows_tensor
 
-    net = DenseStack(list(DIMS), mi.TensorXf, dr.rng(seed=0), prefix="mlp.")
+    params = dense_init(list(DIMS), mi.TensorXf, dr.rng(seed=0), prefix="mlp.")
     xn, tn = batch(n)
     xs = [mi.Float(np.ascontiguousarray(xn[:, c])) for c in range(3)]
     t = mi.TensorXf(np.ascontiguousarray(tn))
-    opt = dr.opt.Adam(lr=1e-3)
-    for key, value in net.parameters().items():
+    opt = dr.opt.Adam(lr=LR)
+    for key, value in params.items():
         opt[key] = value
 
     def step() -> float:
-        for key in opt.keys():
-            net.set_parameter(key, opt[key])
+        params.update({key: opt[key] for key in opt.keys()})
         rows = []
         for c in range(3):
             for k in range(FREQS):
                 a = xs[c] * (2.0**k * math.pi)
                 rows += [dr.sin(a), dr.cos(a)]
-        loss = dr.mean(dr.square(net(rows_tensor(mi.TensorXf, rows, n)) - t), axis=None)
+        loss = dr.mean(dr.square(dense_apply(params, "mlp.", len(DIMS) - 1, rows_tensor(mi.TensorXf, rows, n)) - t),
+                       axis=None)
         dr.backward(loss)
         opt.step()
         return loss.item()
@@ -165,8 +151,7 @@ def point_major(n: int, steps: int) -> float:
 
 
 def run_peer(python: str, logs: list[int], steps: int) -> list[dict]:
-    cmd = [python, str(PEER), "--batch-log2", *map(str, logs), "--width", str(DIMS[1]), "--depth", "2",
-           "--freqs", str(FREQS), "--steps", str(steps)]
+    cmd = [python, str(PEER), "--batch-log2", *map(str, logs), "--steps", str(steps)]
     out = subprocess.run(cmd, capture_output=True, text=True, check=True).stdout
     return [json.loads(line) for line in out.splitlines() if line.startswith("{")]
 
@@ -193,12 +178,12 @@ def main() -> int:
                               "median_step_s": med, "pts_per_s": n / med, "gflops": fpp * n / med / 1e9,
                               "threads": dr.thread_count(), "variant": variant}), flush=True)
     peer: dict[int, float] = {}
-    if Path(args.jax_python).exists() and PEER.is_file():
+    if Path(args.jax_python).exists():
         for line in run_peer(args.jax_python, args.batch_log2, args.steps):
             peer[int(line["batch"])] = float(line["pts_per_s"])
             print(json.dumps(line), flush=True)
     else:
-        print(json.dumps({"peer": "jax", "skipped": f"no {args.jax_python} or no {PEER}"}), flush=True)
+        print(json.dumps({"impl": "jax", "skipped": f"no {args.jax_python}"}), flush=True)
     roof = None if args.no_peak else sgemm_flops()
     nominal, how = nominal_flops()
     for (name, n), pts in ours.items():

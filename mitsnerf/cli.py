@@ -7,7 +7,9 @@ Errors the user can act on (bad spec, missing data, no LLVM, NaN loss) print one
 from __future__ import annotations
 
 import argparse
+import functools
 import json
+import os
 import sys
 from pathlib import Path
 
@@ -25,6 +27,38 @@ def _overrides(pairs: list[str] | None) -> dict:
     return out
 
 
+def _with_user_dirs(command):
+    """``command`` with the ``--scenes DIR`` and ``--config DIR`` directories put before those of
+    ``$MITSNERF_SCENES`` and ``$MITSNERF_BENCHMARKS`` while it runs (the package, and any worker
+    process it starts, look names up there); the environment is restored afterwards."""
+
+    @functools.wraps(command)
+    def run(args) -> int:
+        from mitsnerf.bench.config import BENCHMARKS_ENV
+        from mitsnerf.errors import SpecError
+        from mitsnerf.scene.spec import SCENES_ENV
+
+        added = {SCENES_ENV: (getattr(args, "scenes", None), "--scenes"),
+                 BENCHMARKS_ENV: (getattr(args, "config_dirs", None), "--config")}
+        saved = {env_var: os.environ.get(env_var) for env_var in added}
+        for env_var, (dirs, flag) in added.items():
+            for d in dirs or ():
+                if not Path(d).is_dir():
+                    raise SpecError(d, None, f"no such directory (given to {flag})")
+            if dirs:
+                os.environ[env_var] = os.pathsep.join([*dirs, *filter(None, [saved[env_var]])])
+        try:
+            return command(args)
+        finally:
+            for env_var, value in saved.items():
+                if value is None:
+                    os.environ.pop(env_var, None)
+                else:
+                    os.environ[env_var] = value
+
+    return run
+
+
 def cmd_env(args) -> int:
     from mitsnerf import env
 
@@ -32,6 +66,7 @@ def cmd_env(args) -> int:
     return 0
 
 
+@_with_user_dirs
 def cmd_scenes(args) -> int:
     from mitsnerf.errors import SpecError
     from mitsnerf.scene.spec import list_scenes, load_scene
@@ -53,6 +88,25 @@ def _scene_overrides(args) -> dict:
     return {**(nerf_synthetic_overrides() if args.nerf_synthetic else {}), **_overrides(args.set)}
 
 
+def cmd_methods(args) -> int:
+    from mitsnerf.config import doc_table
+    from mitsnerf.errors import SpecError
+    from mitsnerf.methods import METHODS
+
+    if not args.name:
+        for name, entry in METHODS.items():
+            print(f"{name:16s} {entry.description}")
+        return 0
+    if args.name not in METHODS:
+        raise SpecError(None, "NAME", f"unknown method {args.name!r} (known: {', '.join(METHODS)})")
+    entry = METHODS[args.name]
+    print(f"{entry.name}: {entry.description}\n\n{doc_table(entry.config_type, nested=True)}\n\n"
+          f"Set with: mitsnerf train DATASET --method {entry.name} --set KEY=VALUE "
+          "(or in a bench file's [[methods]] config table).")
+    return 0
+
+
+@_with_user_dirs
 def cmd_generate(args) -> int:
     from mitsnerf.generate import generate_all, generate_dataset
     from mitsnerf.scene.spec import load_scene
@@ -139,7 +193,7 @@ def cmd_score(args) -> int:
     dataset = _load(args, args.dataset)
     renders = Path(args.renders)
     result = score_renders(dataset, renders, density=Path(args.density) if args.density else None, name=args.name,
-                           fmt=args.format)
+                           fmt=args.format, footprint=args.footprint)
     record = result.record(dataset, renders)
     scene = (dataset.manifest or {}).get("name") or Path(dataset.root).resolve().name
     row = scene_rows([{"scene": scene, "method": f"{result.name} (external)", "seed": 0, "metrics": result.metrics}])
@@ -199,6 +253,7 @@ translate(centre).scale(size / 2) for the cube):
 """
 
 
+@_with_user_dirs
 def cmd_bench(args) -> int:
     from mitsnerf.bench.config import load_bench_config
     from mitsnerf.bench.runner import BenchOptions, default_data_root, run_benchmark
@@ -256,6 +311,10 @@ def cmd_check(args) -> int:
     return 0
 
 
+SCENES_HELP = ("a directory of your own scene specs (NAME.toml), searched before the library "
+               "(repeatable; also $MITSNERF_SCENES)")
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="mitsnerf",
@@ -263,17 +322,34 @@ def build_parser() -> argparse.ArgumentParser:
     )
     parser.add_argument("--variant", help="Mitsuba variant (default: $MITSNERF_VARIANT, else cuda_ad_rgb if a GPU is usable, else llvm_ad_rgb)")
     sub = parser.add_subparsers(dest="command", required=True)
+    for add_command in COMMANDS:
+        add_command(sub)
+    return parser
 
+
+def _env_parser(sub) -> None:
     p = sub.add_parser("env", help="print the environment: variant, versions, LLVM, commit")
     p.set_defaults(func=cmd_env)
 
-    p = sub.add_parser("scenes", help="list the scene library")
+
+def _scenes_parser(sub) -> None:
+    p = sub.add_parser("scenes", help="list the scene library (and your own scene directories)")
+    p.add_argument("--scenes", action="append", metavar="DIR", help=SCENES_HELP)
     p.set_defaults(func=cmd_scenes)
 
+
+def _methods_parser(sub) -> None:
+    p = sub.add_parser("methods", help="list the methods, or one method's settings (what --set takes)")
+    p.add_argument("name", nargs="?", metavar="NAME", help="a method: print its settings, ranges and defaults")
+    p.set_defaults(func=cmd_methods)
+
+
+def _generate_parser(sub) -> None:
     p = sub.add_parser("generate", help="render a scene's ground-truth dataset with Mitsuba's volpath")
-    p.add_argument("scene", nargs="?", help="scene name (scenes/NAME.toml) or path to a spec")
+    p.add_argument("scene", nargs="?", help="a scene name (mitsnerf scenes lists them) or the path of a spec")
+    p.add_argument("--scenes", action="append", metavar="DIR", help=SCENES_HELP)
     p.add_argument("--out", default="data", help="dataset root; the dataset goes to OUT/NAME-HASH (default: data)")
-    p.add_argument("--all", action="store_true", help="render every scene of the library")
+    p.add_argument("--all", action="store_true", help="render every scene of the library and of --scenes")
     p.add_argument("--force", action="store_true", help="render again even if cached")
     p.add_argument("--set", action="append", metavar="KEY=VALUE", help="override a spec field, e.g. cameras.width=32")
     p.add_argument("--nerf-synthetic", action="store_true",
@@ -281,6 +357,8 @@ def build_parser() -> argparse.ArgumentParser:
                         "cameras at radius 4, where those readers' near/far 2..6 work; --set wins over it")
     p.set_defaults(func=cmd_generate)
 
+
+def _train_parser(sub) -> None:
     p = sub.add_parser("train", help="fit a method to a dataset and evaluate it on the test views")
     p.add_argument("dataset", nargs="?", help="dataset directory (mitsnerf generate output or NeRF-synthetic); "
                                               "with --resume, default: the one the checkpoint names")
@@ -307,10 +385,12 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--background", type=float, nargs=3, metavar=("R", "G", "B"), help="background for foreign PNG data (default white)")
     p.set_defaults(func=cmd_train)
 
+
+def _score_parser(sub) -> None:
     p = sub.add_parser("score", help="score any tool's renders of a dataset's test views, as a benchmark cell",
                        description="Score RENDERS (a folder of PNG or EXR images) against DATASET's test views: "
-                                   "PSNR/SSIM linear and sRGB, medium PSNR, the noise floor, the oracle (if "
-                                   "DATASET/oracle/scores.json exists), and with --density the density errors. "
+                                   "PSNR/SSIM linear and sRGB, medium PSNR, the noise floor, the oracle (when the "
+                                   "dataset has one cached, DATASET/oracle/), and with --density the density errors. "
                                    "Images are matched to the test frames by file name (r_000.png ...) or, when no "
                                    "name is a frame's, by the frame number in each name; PNG alpha is composited "
                                    "over the dataset's background, EXR is linear radiance used as is.")
@@ -320,12 +400,17 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--name", help="the row's name (default: the renders folder's name)")
     p.add_argument("--format", choices=("png", "exr"), help="read only these images (needed when both are there)")
     p.add_argument("--out", help="JSON record to write (default: RENDERS/scores.json)")
+    p.add_argument("--footprint", type=int, default=1, metavar="K",
+                   help="the tool's rays per pixel side (default 1: one through each pixel centre): which of the "
+                        "cached oracle's renders the renders are held against")
     p.add_argument("--box", type=float, nargs=6, metavar=("X0", "Y0", "Z0", "X1", "Y1", "Z1"),
                    help="the scene box (default: from the data, as mitsnerf train)")
     p.add_argument("--pixel-center", type=float, help="0.5 (Mitsuba, mitsnerf) or 0 (original NeRF loader); default from the data")
     p.add_argument("--background", type=float, nargs=3, metavar=("R", "G", "B"), help="background for foreign PNG data (default white)")
     p.set_defaults(func=cmd_score)
 
+
+def _render_parser(sub) -> None:
     p = sub.add_parser("render", help="render a trained run from any camera or an orbit, with depth and opacity maps",
                        description="Render RUN: a dataset view (--split/--index, default the first test view), "
                                    "a point (--look-from), or an orbit (--orbit N: frames, orbit.gif, and orbit.mp4 "
@@ -346,6 +431,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--fps", type=float, default=12.0, help="orbit animation frame rate (default 12)")
     p.set_defaults(func=cmd_render)
 
+
+def _export_parser(sub) -> None:
     p = sub.add_parser("export", help="sample a run's learned field on a grid: Mitsuba .vol files + numpy arrays",
                        epilog=EXPORT_EPILOG, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("run", help="run directory (mitsnerf train --out)")
@@ -357,8 +444,16 @@ def build_parser() -> argparse.ArgumentParser:
                    help="number of view directions the colour is averaged over (default 16)")
     p.set_defaults(func=cmd_export)
 
+
+def _bench_parser(sub) -> None:
     p = sub.add_parser("bench", help="run a benchmark and print its table")
-    p.add_argument("config", nargs="?", default="default", help="benchmarks/NAME.toml or a path (default: default)")
+    p.add_argument("config", nargs="?", default="default",
+                   help="a benchmark name (one shipped with mitsnerf, or NAME.toml in a --config directory) or the "
+                        "path of a config (default: default)")
+    p.add_argument("--config", dest="config_dirs", action="append", metavar="DIR",
+                   help="a directory of your own benchmark configs, searched before the shipped ones (repeatable; "
+                        "also $MITSNERF_BENCHMARKS)")
+    p.add_argument("--scenes", action="append", metavar="DIR", help=SCENES_HELP)
     p.add_argument("--quick", action="store_true", help="the config's quick profile (tiny scenes, few steps)")
     p.add_argument("--data", help="dataset cache root (default: $MITSNERF_DATA or ./data)")
     p.add_argument("--results", default="results", help="results root (default: results)")
@@ -374,6 +469,8 @@ def build_parser() -> argparse.ArgumentParser:
                    help="recompute every cell (default: skip cells with a result for the same config and code)")
     p.set_defaults(func=cmd_bench)
 
+
+def _check_parser(sub) -> None:
     p = sub.add_parser("check", help="verify the integrator against Mitsuba's volpath, closed forms and finite differences",
                        description="Run the verification cases (mitsnerf.verify) and print a table; "
                                    "exit status 1 if any case fails.")
@@ -386,7 +483,11 @@ def build_parser() -> argparse.ArgumentParser:
                         "and print which cases catch each; exit status 1 if one is caught by none")
     p.add_argument("--no-progress", action="store_true")
     p.set_defaults(func=cmd_check)
-    return parser
+
+
+COMMANDS = (_env_parser, _scenes_parser, _methods_parser, _generate_parser, _train_parser, _render_parser, _export_parser,
+            _score_parser, _bench_parser, _check_parser)
+"""Each adds its command's parser to the subparsers; in the order ``mitsnerf --help`` lists them."""
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -29,10 +29,11 @@ nested dataclasses (a table; over the field's own default key by key), ``X | Non
 ``Mapping`` and unions of dataclasses tagged by a ``type`` class attribute (dispatched on the
 table's ``type`` key) are understood. :func:`to_dict` turns a config back into plain data,
 :func:`apply_overrides` applies dotted overrides (``{"lights.0.radiance": [1, 1, 1]}``) to plain
-data, :func:`parse_value` reads a command-line value, :func:`read_toml` reads a file.
+data, :func:`parse_value` reads a command-line value, :func:`read_toml` reads a file, and
+:func:`search_dirs` / :func:`named_files` find files by name (the user's directories, then the package's).
 
-Fields declared without :func:`param` (the method and training configs) keep their older wording:
-``expected an integer`` and ``unknown key``.
+Every config of the package declares its fields with :func:`param`; a dataclass whose fields are
+plain (``x: int = 1``) is read too, with the wording ``expected an integer`` and ``unknown key``.
 """
 
 from __future__ import annotations
@@ -44,6 +45,7 @@ import difflib
 import inspect
 import json
 import math
+import os
 import re
 import sys
 import textwrap
@@ -239,8 +241,11 @@ def _attribute_docstrings(klass) -> dict[str, str]:
     return out
 
 
-def doc_table(cls) -> str:
+def doc_table(cls, nested: bool = False) -> str:
     """The fields of config ``cls`` as a markdown table: name, what it must be, default, meaning.
+
+    With ``nested``, a field holding a config of its own is listed field by field under dotted
+    names (``network.width``, the keys ``--set`` takes), with that field's own defaults.
 
     >>> @dataclasses.dataclass(frozen=True)
     ... class Rig:
@@ -252,16 +257,25 @@ def doc_table(cls) -> str:
     | fov | a number in (0, 180) | required | field of view, degrees |
     | seed | an integer >= 0 | 0 | rig randomisation |
     """
+    rows = ["| field | must be | default | meaning |", "|---|---|---|---|"]
+    return "\n".join(rows + _doc_rows(cls, None, "", nested))
+
+
+def _doc_rows(cls, defaults: Any, prefix: str, nested: bool) -> list[str]:
+    """Table rows of ``cls``'s fields named ``prefix + name``; defaults from the instance ``defaults`` if given."""
     hints = typing.get_type_hints(cls)
     docs = field_docs(cls)
-    rows = ["| field | must be | default | meaning |", "|---|---|---|---|"]
+    rows = []
     for f in dataclasses.fields(cls):
         if f.name not in docs:
             continue
-        default = _default(f)
+        default = _default(f) if defaults is None else getattr(defaults, f.name)
+        if nested and dataclasses.is_dataclass(hints[f.name]) and dataclasses.is_dataclass(default):
+            rows += _doc_rows(hints[f.name], default, f"{prefix}{f.name}.", nested)
+            continue
         shown = "required" if default is dataclasses.MISSING else json.dumps(plain(default))
-        rows.append(f"| {f.name} | {describe(hints[f.name], _bounds(f))} | {shown} | {docs[f.name] or '...'} |")
-    return "\n".join(rows)
+        rows.append(f"| {prefix}{f.name} | {describe(hints[f.name], _bounds(f))} | {shown} | {docs[f.name] or '...'} |")
+    return rows
 
 
 # --------------------------------------------------------------------------- from_dict
@@ -539,6 +553,28 @@ def parse_value(text: str) -> Any:
         return json.loads(text)
     except json.JSONDecodeError:
         return text
+
+
+def search_dirs(env_var: str, shipped: Path) -> list[Path]:
+    """Where named files are looked up, first match first: the user's directories listed in
+    ``$env_var`` (``os.pathsep``-separated), then the ``shipped`` one (package data).
+
+    >>> import os
+    >>> os.environ["MITSNERF_DOCTEST_DIRS"] = os.pathsep.join(["mine", "ours"])
+    >>> [p.name for p in search_dirs("MITSNERF_DOCTEST_DIRS", Path("lib"))]
+    ['mine', 'ours', 'lib']
+    >>> del os.environ["MITSNERF_DOCTEST_DIRS"]
+    """
+    return [Path(p) for p in os.environ.get(env_var, "").split(os.pathsep) if p] + [Path(shipped)]
+
+
+def named_files(dirs: list[Path], suffix: str = ".toml") -> dict[str, Path]:
+    """Each name (a file's stem) found in ``dirs`` -> its file in the first directory that has one, by name."""
+    out: dict[str, Path] = {}
+    for d in dirs:
+        for path in sorted(d.glob(f"*{suffix}")) if d.is_dir() else ():
+            out.setdefault(path.stem, path)
+    return dict(sorted(out.items()))
 
 
 def read_toml(path: str | Path, what: str = "a TOML file") -> dict:

@@ -25,8 +25,11 @@ without a number or two with the same number.
 ``[z, y, x]``, as ``.npy`` (``(R, R, R)``) or Mitsuba ``.vol`` (one channel; its bounding box must
 be the dataset's), looked up trilinearly as Mitsuba's ``gridvolume``.
 
-**Oracle** (:func:`read_oracle`): ``DATASET/oracle/scores.json`` when it exists, its metrics
-(``psnr_test``, ``psnr_test_medium``) at the top level or under ``metrics``.
+**Oracle** (:func:`read_oracle`): the dataset's cached emission-absorption oracle
+(``DATASET/oracle/<key>/``, :mod:`mitsnerf.oracle.cache`, computed by ``mitsnerf bench``), its
+scores at the renders' footprint (1: one ray through each pixel centre, what most tools render;
+``K``: the mean of ``K x K`` rays over the pixel). Of several cached oracles, the one with the
+default settings is taken. None cached: "no oracle".
 """
 
 from __future__ import annotations
@@ -46,7 +49,6 @@ from mitsnerf.math.box import Box
 from mitsnerf.math.color import srgb_to_linear
 
 FORMATS = ("png", "exr")
-ORACLE_FILE = "oracle/scores.json"
 _NUMBER = re.compile(r"(\d+)(?!.*\d)")
 
 
@@ -173,20 +175,19 @@ def read_density(path: Path, box: Box) -> np.ndarray:
     return np.ascontiguousarray(grid, dtype=np.float32)
 
 
-def read_oracle(root: Path) -> tuple[dict | None, str]:
-    """The oracle's test metrics of the dataset at ``root`` and where they came from (``"no oracle"``)."""
-    from mitsnerf.data.transforms import read_json
+def read_oracle(dataset: Dataset, footprint: int = 1):
+    """``(oracle, source)``: the cached :class:`mitsnerf.oracle.cache.Oracle` of ``dataset`` with scores at
+    ``footprint`` (the default settings' first), and where it is; ``(None, "no oracle ...")`` without one."""
+    from mitsnerf.config import to_dict
+    from mitsnerf.oracle.cache import ORACLE_DIR, OracleConfig, load_oracle
 
-    path = Path(root) / ORACLE_FILE
-    if not path.is_file():
-        return None, "no oracle"
-    doc = read_json(path)
-    if not isinstance(doc, dict):
-        raise DatasetError(path, None, f"must hold a JSON object, got {type(doc).__name__}")
-    metrics = doc if "psnr_test_medium" in doc or "psnr_test" in doc else doc.get("metrics")
-    if not isinstance(metrics, dict):
-        raise DatasetError(path, "psnr_test_medium", "missing (at the top level or under 'metrics')")
-    return metrics, str(path)
+    found = [o for o in (load_oracle(p.parent) for p in sorted((Path(dataset.root) / ORACLE_DIR).glob("*/oracle.json")))
+             if o is not None and f"footprint_{int(footprint)}" in o.scores]
+    if not found:
+        return None, f"no oracle (none cached in {Path(dataset.root) / ORACLE_DIR} at footprint {footprint})"
+    default = to_dict(OracleConfig())
+    oracle = next((o for o in found if o.info.get("config") == default), found[0])
+    return oracle, f"oracle {oracle.path} at footprint {footprint}"
 
 
 @dataclass(frozen=True)
@@ -205,6 +206,8 @@ class ExternalScore:
     slices: dict
     reference: scoring.Reference
     """What they were scored against (the test views, their medium masks)."""
+    oracle_used: Any = None
+    """The :class:`mitsnerf.oracle.cache.Oracle` whose scores are in ``metrics`` (None: no oracle)."""
 
     def record(self, dataset: Dataset, folder: Path) -> dict[str, Any]:
         """The JSON record ``mitsnerf score`` writes."""
@@ -216,20 +219,26 @@ class ExternalScore:
 
 
 def score_renders(dataset: Dataset, folder: Path, *, density: Path | None = None, name: str | None = None,
-                  fmt: str | None = None) -> ExternalScore:
+                  fmt: str | None = None, footprint: int = 1, oracle=None) -> ExternalScore:
     """Score the renders in ``folder`` against ``dataset``'s test views: the metrics of a benchmark
-    cell (:func:`mitsnerf.scoring.score_views`), the oracle's where the dataset has one."""
+    cell (:func:`mitsnerf.scoring.score_views`), with the oracle's at ``footprint`` (``oracle``, else
+    :func:`read_oracle`'s) where there is one."""
     if fmt is not None and fmt not in FORMATS:
         raise ValueError(f"--format: must be one of {', '.join(FORMATS)}, got {fmt!r}")
+    if footprint < 1:
+        raise ValueError(f"--footprint: must be >= 1, got {footprint}")
     folder = Path(folder)
     grid = read_density(density, dataset.box) if density is not None else None  # bad input before the work
     images, paths, rule = read_renders(dataset, folder, fmt)
-    oracle, oracle_source = read_oracle(dataset.root)
+    if oracle is None or f"footprint_{footprint}" not in oracle.scores:
+        oracle, oracle_source = read_oracle(dataset, footprint)
+    else:
+        oracle_source = f"oracle {oracle.path} at footprint {footprint}"
     ref = scoring.reference(dataset, "test")
     fn = None if grid is None else scoring.true_density(grid, dataset.box)
-    metrics, slices = scoring.score_views(images, ref, fn, oracle=oracle)
+    metrics, slices = scoring.score_views(images, ref, fn, oracle=None if oracle is None else oracle.metrics(footprint))
     if fn is None and ref.sigma_t is not None:
         metrics["density_note"] = "no density grid given (--density)"
     views = dataset.views("test")
     return ExternalScore(name or folder.resolve().name, metrics, {n: str(p) for n, p in zip(views.names, paths)}, rule,
-                         None if density is None else str(density), oracle_source, images, slices, ref)
+                         None if density is None else str(density), oracle_source, images, slices, ref, oracle)

@@ -1,11 +1,14 @@
-"""Shared fixtures: the Mitsuba variant, and tiny synthetic scenes that need no Mitsuba render."""
+"""Shared fixtures: the Mitsuba variant, the tiny scene spec, the checkout's files, and tiny synthetic grids."""
 
 from __future__ import annotations
+
+import subprocess
+from pathlib import Path
 
 import numpy as np
 import pytest
 
-import mitsnerf  # noqa: F401  (configures libLLVM before drjit loads)
+import mitsnerf  # (configures libLLVM before drjit loads)
 from mitsnerf import env
 
 
@@ -13,6 +16,39 @@ from mitsnerf import env
 def variant() -> str:
     """Every test runs on the variant the package would choose here (override: MITSNERF_VARIANT)."""
     return env.set_variant()
+
+
+TINY_SCENE = {
+    "name": "tiny",
+    "description": "a 16^3 cloud, 8x8 views",
+    "volume": {"family": "cloud", "resolution": 16, "seed": 1, "sigma_t_scale": 30.0, "params": {"albedo": [0.8, 0.8, 0.8]}},
+    "lights": [
+        {"type": "constant", "radiance": [0.5, 0.55, 0.6]},
+        {"type": "directional", "direction": [-0.4, -0.8, -0.45], "irradiance": [4.0, 3.8, 3.5]},
+    ],
+    "cameras": {"rig": "sphere", "n_train": 3, "n_test": 2, "width": 8, "height": 8, "fov": 40.0, "radius": 2.2, "seed": 0},
+    "render": {"spp_train": 4, "spp_test": 8, "max_depth": -1, "seed": 0, "noise_floor": True},
+}
+"""The tiny scene of the tests that render (plain spec data): a 16^3 cloud, 8x8 views, a few spp."""
+
+
+def tiny_scene(overrides: dict | None = None) -> dict:
+    """A fresh copy of :data:`TINY_SCENE` with dotted overrides (``{"cameras.width": 12}``)."""
+    from mitsnerf.config import apply_overrides
+
+    return apply_overrides(TINY_SCENE, overrides or {})
+
+
+@pytest.fixture(scope="session")
+def checkout_files() -> tuple[Path, list[str]]:
+    """The checkout's root and the files git would commit (tracked, and untracked ones it does not ignore)."""
+    root = Path(mitsnerf.__file__).resolve().parents[1]
+    try:
+        out = subprocess.run(["git", "ls-files", "-z", "--cached", "--others", "--exclude-standard"], cwd=root,
+                             capture_output=True, check=True).stdout.decode()
+    except (OSError, subprocess.CalledProcessError):
+        pytest.skip("not a git checkout")
+    return root, [name for name in out.split("\0") if name and (root / name).exists()]
 
 
 @pytest.fixture

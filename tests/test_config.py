@@ -236,3 +236,87 @@ def test_read_toml_names_the_file(tmp_path):
         assert (info.value.where, info.value.field, info.value.message) == (str(path), None, message)
     with pytest.raises(SpecError, match=r"bad\.toml: TOML syntax error: .*line 1"):
         read_toml(bad)
+
+
+# ---------------------------------------------------------------- the method and field configs
+
+
+def _param_configs():
+    from mitsnerf.fields.ngp import NGPConfig
+    from mitsnerf.fields.occupancy import OccupancyConfig
+    from mitsnerf.fields.voxel import VoxelFieldConfig
+    from mitsnerf.methods.mitsuba_inverse import MitsubaInverseConfig
+    from mitsnerf.methods.ngp import NGPMethodConfig
+    from mitsnerf.methods.voxel import VoxelMethodConfig
+
+    return [NGPMethodConfig, NGPConfig, OccupancyConfig, VoxelMethodConfig, VoxelFieldConfig, MitsubaInverseConfig]
+
+
+@pytest.mark.parametrize("cls", _param_configs(), ids=lambda c: c.__name__)
+def test_method_and_field_configs_declare_every_field_once(cls):
+    import dataclasses
+
+    from mitsnerf.config import _BOUNDS
+
+    undeclared = [f.name for f in dataclasses.fields(cls) if _BOUNDS not in f.metadata]
+    undocumented = [name for name, doc in field_docs(cls).items() if not doc]
+    assert not undeclared and not undocumented, (undeclared, undocumented)
+    assert "| name " not in (cls.__doc__ or "") and "| field " not in (cls.__doc__ or "")  # no second table
+    assert from_dict(cls, to_dict(cls())) == cls()
+
+
+CODE_BUILT = [  # (config, kwargs, message): built in code, checked as from_dict checks a file
+    ("OccupancyConfig", {"decay": 2.0}, "decay: must be a number in [0, 1], got 2.0"),
+    ("OccupancyConfig", {"resolution": 1}, "resolution: must be an integer in [2, 512], got 1"),
+    ("NGPConfig", {"features_per_level": 3}, "features_per_level: must be one of 2, 4, 8, got 3"),
+    ("NGPMethodConfig", {"lr": 0.0}, "lr: must be a number > 0, got 0.0"),
+    ("VoxelFieldConfig", {"sh_degree": 4}, "sh_degree: must be an integer in [0, 3], got 4"),
+    ("VoxelMethodConfig", {"upsample_steps": (-1,)}, "upsample_steps.0: must be an integer >= 0, got -1"),
+    ("MitsubaInverseConfig", {"max_depth": -2}, "max_depth: must be an integer >= -1, got -2"),
+    ("MitsubaInverseConfig", {"init_sigma_t": 300.0}, "init_sigma_t: must be <= sigma_t_max (200), got 300"),
+]
+
+
+@pytest.mark.parametrize("name, kwargs, message", CODE_BUILT, ids=[c[2][:24] for c in CODE_BUILT])
+def test_configs_built_in_code_are_checked(name, kwargs, message):
+    cls = {c.__name__: c for c in _param_configs()}[name]
+    with pytest.raises(ValueError) as info:
+        cls(**kwargs)
+    assert str(info.value) == message
+    with pytest.raises(SpecError) as info:  # and from a file: the same words, the file and the field
+        from_dict(cls, kwargs, source="m.toml")
+    assert str(info.value) == f"m.toml: {message}"
+
+
+def test_a_nested_table_lists_the_dotted_keys_with_the_fields_own_defaults():
+    from mitsnerf.methods.voxel import VoxelMethodConfig
+
+    table = doc_table(VoxelMethodConfig, nested=True)
+    assert "| grid.sh_degree | an integer in [0, 3] | 1 | Highest SH band L" in table
+    assert "| occupancy.early_stop_T | a number in [0, 1) | 0.0001 |" in table
+    assert "| grid |" not in table and "| grid | a table |" in doc_table(VoxelMethodConfig)
+    small = doc_table(Outer, nested=True)  # Outer.small's default is Inner(width=32, depth=2), not Inner()
+    assert "| small.width | an integer | 32 |" in small and "| main.width | an integer | 64 |" in small
+
+
+def test_the_methods_command_prints_a_methods_settings(capsys):
+    from mitsnerf.cli import main
+    from mitsnerf.methods import METHODS
+
+    assert main(["methods"]) == 0
+    assert [line.split()[0] for line in capsys.readouterr().out.splitlines()] == list(METHODS)
+    assert main(["methods", "mitsuba-inverse"]) == 0
+    out = capsys.readouterr().out
+    assert "| max_depth | an integer >= -1 | 0 | prbvolpath path length" in out and "--method mitsuba-inverse" in out
+    assert main(["methods", "nope"]) == 2
+    assert capsys.readouterr().err.startswith("mitsnerf: error: NAME: unknown method 'nope' (known: ")
+
+
+def test_a_nested_method_config_error_names_the_dotted_field():
+    from mitsnerf.methods.ngp import NGPMethodConfig
+
+    with pytest.raises(SpecError) as info:
+        from_dict(NGPMethodConfig, {"network": {"log2_hashmap_size": 30}}, source="--set")
+    assert str(info.value) == "--set: network.log2_hashmap_size: must be an integer in [8, 24], got 30"
+    with pytest.raises(SpecError, match=r"^--set: occupancy\.decy: unknown field \(did you mean 'decay'\?\)$"):
+        from_dict(NGPMethodConfig, {"occupancy": {"decy": 0.5}}, source="--set")

@@ -3,7 +3,7 @@
 Every ``import`` and ``from ... import`` in ``mitsnerf/`` counts, also those inside functions
 (a lazy import is still a dependency). Layers, lowest first: infrastructure; ``math`` (the
 floor: box, rays, sampling, compositing, metrics); ``volumes`` and ``data``; ``scene``;
-``fields``; ``render``; ``scoring``; ``methods``; training and generation; ``run``; commands
+``fields``; ``render``; ``scoring`` and the oracle; ``methods``; training and generation; ``run``; commands
 built on a run; ``verify`` and ``bench``; the CLI.
 """
 
@@ -21,7 +21,7 @@ LAYERS = (
     ("mitsnerf.scene",),
     ("mitsnerf.fields",),
     ("mitsnerf.render",),
-    ("mitsnerf.scoring",),
+    ("mitsnerf.scoring", "mitsnerf.oracle"),
     ("mitsnerf.methods",),
     ("mitsnerf.train", "mitsnerf.checkpoint", "mitsnerf.evaluate", "mitsnerf.generate"),
     ("mitsnerf.run",),

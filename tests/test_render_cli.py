@@ -11,17 +11,11 @@ from mitsnerf.cli import main
 from mitsnerf.data.images import read_exr, read_png
 from mitsnerf.errors import TrainingError
 
-TINY = {
-    "name": "tiny-cli",
-    "description": "a 16^3 cloud, 12x12 views",
-    "volume": {"family": "cloud", "resolution": 16, "seed": 1, "sigma_t_scale": 30.0, "params": {"albedo": [0.8, 0.8, 0.8]}},
-    "lights": [
-        {"type": "constant", "radiance": [0.5, 0.55, 0.6]},
-        {"type": "directional", "direction": [-0.4, -0.8, -0.45], "irradiance": [4.0, 3.8, 3.5]},
-    ],
-    "cameras": {"rig": "sphere", "n_train": 3, "n_test": 2, "width": 12, "height": 12, "fov": 40.0, "radius": 2.2, "seed": 0},
-    "render": {"spp_train": 4, "spp_test": 4, "max_depth": 8, "seed": 0, "noise_floor": False},
-}
+from .conftest import tiny_scene
+
+TINY = tiny_scene({"name": "tiny-cli", "description": "a 16^3 cloud, 12x12 views", "cameras.width": 12, "cameras.height": 12,
+                   "render.spp_test": 4, "render.max_depth": 8, "render.noise_floor": False})
+
 NERF = ["--method", "nerf", "--set", "network.width=8", "--set", "network.depth=1", "--set", "network.head_width=8",
         "--set", "network.features=4", "--set", "n_samples=8"]
 

@@ -79,7 +79,7 @@ def test_png_with_alpha_is_composited_over_the_background(dataset, tmp_path):
 
 
 def test_density_grid_and_oracle(dataset, tmp_path):
-    import mitsnerf.external as ext
+    from mitsnerf.oracle.cache import ORACLE_DIR, ORACLE_FORMAT
 
     renders = _copy(dataset / "test_ref", tmp_path / "r")
     ds = load_dataset(dataset)
@@ -92,15 +92,19 @@ def test_density_grid_and_oracle(dataset, tmp_path):
     write_vol(elsewhere, np.load(dataset / "volume" / "sigma_t.npy"), (-1, -1, -1), (1, 1, 1))
     with pytest.raises(DatasetError, match=r"elsewhere.vol: bbox: \[\[-1.0, -1.0, -1.0\], \[1.0, 1.0, 1.0\]\] is not the dataset's box"):
         score_renders(ds, renders, density=elsewhere)
-    assert s.oracle == "no oracle" and s.metrics["oracle_psnr_test_medium"] is None
+    assert s.oracle.startswith("no oracle") and s.metrics["oracle_psnr_test_medium"] is None
     copy_root = tmp_path / "with_oracle"
     shutil.copytree(dataset, copy_root)
-    (copy_root / "oracle").mkdir()
-    (copy_root / "oracle" / "scores.json").write_text(json.dumps({"footprint": 3, "metrics": {"psnr_test": 50.0,
-                                                                                              "psnr_test_medium": 40.0}}))
-    o = score_renders(load_dataset(copy_root), renders)
-    assert o.oracle.endswith(ext.ORACLE_FILE) and o.metrics["oracle_psnr_test_medium"] == 40.0
-    assert o.metrics["gap_to_oracle"] == pytest.approx(40.0 - o.metrics["psnr_test_medium"], abs=1e-5)
+    cached = copy_root / ORACLE_DIR / "0123456789ab"  # a cached oracle's index and scores (mitsnerf.oracle.cache)
+    cached.mkdir(parents=True)
+    (cached / "oracle.json").write_text(json.dumps({"format": ORACLE_FORMAT, "config": {}, "footprint": 3}))
+    (cached / "scores.json").write_text(json.dumps({"footprint_1": {"psnr_test": 50.0, "psnr_test_medium": 40.0},
+                                                    "footprint_3": {"psnr_test": 51.0, "psnr_test_medium": 41.0}}))
+    for k, medium in ((1, 40.0), (3, 41.0)):
+        o = score_renders(load_dataset(copy_root), renders, footprint=k)
+        assert str(cached) in o.oracle and o.metrics["oracle_psnr_test_medium"] == medium
+        assert o.metrics["gap_to_oracle"] == pytest.approx(medium - o.metrics["psnr_test_medium"], abs=1e-5)
+    assert score_renders(load_dataset(copy_root), renders, footprint=2).oracle.startswith("no oracle")
 
 
 def _bad_count(d, r):

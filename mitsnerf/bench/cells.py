@@ -77,6 +77,8 @@ class Cell:
     out_dir: str
     """The cell's directory (absolute)."""
     quick: bool = False
+    oracle: Mapping[str, Any] | None = None
+    """``OracleConfig`` resolved (the dataset's oracle, scored at the eval footprint); None: no oracle."""
 
     @property
     def key(self) -> str:
@@ -96,6 +98,7 @@ class Cell:
             "train": self.train,
             "eval": self.eval,
             "variant": self.variant,
+            "oracle": self.oracle,
         }
 
     @property

@@ -1,13 +1,15 @@
-"""Benchmark configurations (``benchmarks/*.toml``) as frozen, validated dataclasses.
+"""Benchmark configurations (TOML; the shipped ones: ``mitsnerf/bench/configs/*.toml``) as frozen, validated dataclasses.
 
 ```toml
 name = "default"                 # default: the file's stem
 description = "..."
-scenes = ["cloud"]               # scene names or spec paths, or "all" (every scene of scenes/)
+scenes = ["cloud"]               # scene names or spec paths, or "all" (every scene mitsnerf scenes lists)
 seeds = [0]
 train = { seconds = 240 }        # training settings shared by every method (TrainConfig keys)
 [eval]                           # EvalConfig: what is measured besides the final test PSNR
 curve_points = 8
+[oracle]                         # OracleConfig: the dataset's emission-absorption ceiling (cached with it)
+spp = 64
 [[methods]]                      # or: methods = "all" (every registered method, see below)
 name = "nerf"                    # a registered method
 label = "nerf"                   # column label (default: name); unique
@@ -23,6 +25,7 @@ quick = { renders = { cloud = "..." } }          # renders of the --quick datase
 scene = { "cameras.width" = 16 } # SceneSpec.with_overrides keys
 train = { steps = 40, seconds = 0 }
 eval = { curve_points = 3 }
+oracle = { spp = 8 }
 ```
 
 External renders are matched and scored as ``mitsnerf score`` does (:mod:`mitsnerf.external`);
@@ -43,12 +46,18 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Mapping
 
-from mitsnerf.config import INTERNAL, as_spec_error, deep_merge, from_dict, param, read_toml, source_field, to_dict
+from mitsnerf.config import (INTERNAL, as_spec_error, deep_merge, from_dict, named_files, param, read_toml, search_dirs,
+                             source_field, to_dict)
 from mitsnerf.errors import SpecError
 from mitsnerf.evaluate import EvalConfig
 from mitsnerf.methods import METHODS
+from mitsnerf.oracle.cache import OracleConfig
 
+#: Environment variable listing a user's benchmark config directories (``os.pathsep``-separated),
+#: searched before the shipped configs (``mitsnerf bench --config DIR`` adds to it).
 BENCHMARKS_ENV = "MITSNERF_BENCHMARKS"
+#: The shipped benchmark configs, package data.
+SHIPPED = Path(__file__).resolve().parent / "configs"
 
 
 @dataclass(frozen=True)
@@ -95,6 +104,8 @@ class ExternalRun(ExternalFiles):
 
     name: str = param(doc='the row reads "NAME (external)"; unique')
     format: str = param("", choices=("", "png", "exr"), doc="read only these images (empty: both)")
+    footprint: int = param(1, lo=1, hi=64, doc="the tool's rays per pixel side (1: one through each pixel centre): "
+                                               "the oracle's renders it is held against")
     quick: ExternalFiles = param(default_factory=ExternalFiles,
                                  doc="the same for the --quick profile's datasets (none: left out of --quick)")
 
@@ -121,6 +132,7 @@ class QuickProfile:
     config: Mapping[str, Any] = param(default_factory=dict, doc="method config keys, for every method")
     train: Mapping[str, Any] = param(default_factory=dict, doc="training settings, for every method")
     eval: Mapping[str, Any] = param(default_factory=dict, doc="EvalConfig keys")
+    oracle: Mapping[str, Any] = param(default_factory=dict, doc="OracleConfig keys")
 
 
 @dataclass(frozen=True)
@@ -133,6 +145,8 @@ class BenchConfig:
     """Training settings shared by every method (a method's own ``train`` wins)."""
     eval: EvalConfig = param(default_factory=EvalConfig, doc="what is measured besides the test PSNR")
     quick: QuickProfile = param(default_factory=QuickProfile, doc="the --quick profile")
+    oracle: OracleConfig = param(default_factory=OracleConfig,
+                                 doc="the emission-absorption oracle of each dataset (the ceiling row)")
     external: tuple[ExternalRun, ...] = param((), doc="[[external]] tables: other tools' renders, scored beside the methods")
     description: str = param("", doc="one line")
     source: str | None = source_field()
@@ -194,6 +208,13 @@ class BenchConfig:
         field_name = f"{path}.{error.field}" if error.field else path
         return SpecError(self.source, field_name, f"{error.message} (method {method.label})")
 
+    def oracle_config(self, quick: bool) -> OracleConfig:
+        """The oracle's settings, with the quick profile's ``oracle`` keys over them."""
+        if not quick or not self.quick.oracle:
+            return self.oracle
+        return from_dict(OracleConfig, deep_merge(to_dict(self.oracle), self.quick.oracle), source=self.source,
+                         prefix="quick.oracle")
+
     def eval_config(self, quick: bool) -> EvalConfig:
         if not quick or not self.quick.eval:
             return self.eval
@@ -202,8 +223,13 @@ class BenchConfig:
 
 
 def benchmarks_dir() -> Path:
-    """Where named benchmark configs live: ``$MITSNERF_BENCHMARKS`` or the repo's ``benchmarks/``."""
-    return Path(os.environ.get(BENCHMARKS_ENV) or Path(__file__).resolve().parents[2] / "benchmarks")
+    """The benchmark configs shipped with the package (``mitsnerf/bench/configs``)."""
+    return SHIPPED
+
+
+def benchmark_dirs() -> list[Path]:
+    """Where benchmark names are looked up, first match first: ``$MITSNERF_BENCHMARKS``'s directories, then the shipped ones."""
+    return search_dirs(BENCHMARKS_ENV, SHIPPED)
 
 
 def _expand(raw: dict, source: str) -> dict:
@@ -258,11 +284,11 @@ def parse_bench_config(raw: Mapping[str, Any], source: str | os.PathLike = "<con
 
 
 def load_bench_config(name_or_path: str | os.PathLike) -> BenchConfig:
-    """A benchmark config by name (``benchmarks/<name>.toml``) or path; SpecError on any problem."""
+    """A benchmark config by name (``NAME.toml`` in :func:`benchmark_dirs`) or path; SpecError on any problem."""
     path = Path(name_or_path)
+    known = named_files(benchmark_dirs())
     if path.suffix != ".toml" and not path.exists():
-        path = benchmarks_dir() / f"{name_or_path}.toml"
+        path = known.get(str(name_or_path), path)
     if not path.exists():
-        known = sorted(p.stem for p in benchmarks_dir().glob("*.toml"))
         raise SpecError(path, None, f"no such benchmark config (known: {', '.join(known) or 'none'})")
     return parse_bench_config(read_toml(path, "a benchmark config"), path)

@@ -55,18 +55,22 @@ def plan_externals(config: BenchConfig, quick: bool, cells: Sequence) -> list[Ex
     return entries
 
 
-def score_external(entry: ExternalEntry, report_view: int = 0) -> tuple[dict[str, Any], dict[str, np.ndarray]]:
-    """``(record, artefacts)`` of one entry, shaped as a cell's (:mod:`mitsnerf.bench.cells`)."""
+def score_external(entry: ExternalEntry, report_view: int = 0, oracle=None) -> tuple[dict[str, Any], dict[str, np.ndarray]]:
+    """``(record, artefacts)`` of one entry, shaped as a cell's (:mod:`mitsnerf.bench.cells`); ``oracle``:
+    the dataset's (:class:`mitsnerf.oracle.cache.Oracle`, the cells'), else whatever is cached."""
     from mitsnerf import env
+    from mitsnerf.bench.worker import oracle_summary
     from mitsnerf.data.dataset import load_dataset
     from mitsnerf.external import score_renders
 
     dataset = load_dataset(entry.dataset_dir)
-    s = score_renders(dataset, entry.renders, density=entry.density, name=entry.run.name, fmt=entry.run.format or None)
+    k = entry.run.footprint
+    s = score_renders(dataset, entry.renders, density=entry.density, name=entry.run.name, fmt=entry.run.format or None,
+                      footprint=k, oracle=oracle)
     record = {"key": entry.key, "scene": entry.scene, "method": entry.run.label, "method_name": "external",
               "seed": 0, "external": True, "renders": str(entry.renders), "matched_by": s.matched_by,
-              "density": s.density, "oracle": s.oracle, "dataset": str(dataset.root), "metrics": s.metrics,
-              "provenance": env.provenance()}
+              "density": s.density, "oracle_source": s.oracle, "oracle": oracle_summary(s.oracle_used, k),
+              "dataset": str(dataset.root), "metrics": {**s.metrics, "footprint": k}, "provenance": env.provenance()}
     ref = s.reference
     v = min(report_view, len(ref.cameras) - 1)
     artefacts = {"ref": np.asarray(ref.images[v], np.float32), "render": s.renders[v], "view": np.int32(v), **s.slices}

@@ -31,6 +31,16 @@ def _figure(width: float, height: float):
     return fig
 
 
+def _label(ax, xlabel: str, ylabel: str, title: str) -> None:
+    """Axis labels, title, a light grid, and a legend when something is labelled."""
+    ax.set_xlabel(xlabel)
+    ax.set_ylabel(ylabel)
+    ax.set_title(title)
+    ax.grid(alpha=0.3)
+    if ax.get_legend_handles_labels()[0]:
+        ax.legend(fontsize=8)
+
+
 def _save(fig, path: Path) -> Path:
     from mitsnerf.data.atomic import atomic_path
 
@@ -60,6 +70,9 @@ def psnr_time(scene: str, records: Sequence[dict], methods: Sequence[str], path:
     colours = _colours(methods)
     for ax, key, title, floor_key in ((fig.add_subplot(1, 2, 1), "psnr", "whole image", "noise_floor_psnr"),
                                       (fig.add_subplot(1, 2, 2), "psnr_medium", "medium pixels", "noise_floor_psnr_medium")):
+        ceiling = _floor(records, floor_key.replace("noise_floor_psnr", "oracle_psnr_test"))
+        if ceiling is not None:
+            ax.axhline(ceiling, color="tab:red", ls=":", lw=1.5, label="oracle (EA ceiling)")
         for method in methods:
             first = True
             for r in records:
@@ -74,12 +87,7 @@ def psnr_time(scene: str, records: Sequence[dict], methods: Sequence[str], path:
         floor = _floor(records, floor_key)
         if floor is not None:
             ax.axhline(floor, color="k", ls="--", lw=1, label="GT noise floor")
-        ax.set_xlabel("training time, s (evaluation excluded)")
-        ax.set_ylabel("held-out PSNR, dB (linear)")
-        ax.set_title(f"{scene}: {title}")
-        ax.grid(alpha=0.3)
-        if ax.get_legend_handles_labels()[0]:
-            ax.legend(fontsize=8)
+        _label(ax, "training time, s (evaluation excluded)", "held-out PSNR, dB (linear)", f"{scene}: {title}")
     fig.tight_layout()
     return _save(fig, path)
 
@@ -100,15 +108,15 @@ def per_view(scene: str, records: Sequence[dict], methods: Sequence[str], path: 
                   if r["metrics"].get("noise_floor_psnr_per_view")), None)
     if floor:
         ax.plot(np.arange(len(floor)), [np.nan if v is None else v for v in floor], "k--", lw=1, label="GT noise floor")
+    ceiling = next(((r.get("oracle") or {}).get("psnr_test_per_view") for r in records
+                    if (r.get("oracle") or {}).get("psnr_test_per_view")), None)
+    if ceiling:
+        ax.plot(np.arange(len(ceiling)), [np.nan if v is None else v for v in ceiling], ":", color="tab:red",
+                lw=1.5, label="oracle (EA ceiling)")
     from matplotlib.ticker import MaxNLocator
 
     ax.xaxis.set_major_locator(MaxNLocator(integer=True))
-    ax.set_xlabel("test view")
-    ax.set_ylabel("PSNR, dB (linear, whole image)")
-    ax.set_title(f"{scene}: test PSNR per view (mean over seeds)")
-    ax.grid(alpha=0.3)
-    if ax.get_legend_handles_labels()[0]:
-        ax.legend(fontsize=8)
+    _label(ax, "test view", "PSNR, dB (linear, whole image)", f"{scene}: test PSNR per view (mean over seeds)")
     fig.tight_layout()
     return _save(fig, path)
 

@@ -8,7 +8,7 @@ import json
 from pathlib import Path
 from typing import Any, Sequence
 
-from mitsnerf.bench.tables import BEST, COST, LEGEND, QUALITY, Column, _fmt, best_values
+from mitsnerf.bench.tables import BEST, COST, LEGEND, QUALITY, Column, _cell_text, best_values
 
 STYLE = """
 body { font-family: sans-serif; margin: 2em; color: #222; }
@@ -19,6 +19,7 @@ td.best { font-weight: bold; background: #e6f4e6; }
 img { max-width: 100%; border: 1px solid #ddd; margin: 0.3em 0; }
 pre { background: #f6f6f6; padding: 0.6em; font-size: 12px; overflow-x: auto; }
 .legend { font-size: 12px; color: #555; max-width: 70em; }
+tr.ceiling td { font-style: italic; background: #fbeaea; }
 """
 
 
@@ -32,8 +33,8 @@ def html_table(rows: Sequence[dict], columns: Sequence[Column], group: str | Non
             mark = marks.get((row.get(group) if group else None, key))
             best = mark is not None and row.get(key) == mark
             attr = ' class="best"' if best else ""
-            cells.append(f"<td{attr}>{html.escape(_fmt(row.get(key), digits))}</td>")
-        out.append("<tr>" + "".join(cells) + "</tr>")
+            cells.append(f"<td{attr}>{html.escape(_cell_text(row, key, digits))}</td>")
+        out.append(("<tr class='ceiling'>" if row.get("ceiling") else "<tr>") + "".join(cells) + "</tr>")
     out.append("</table>")
     return "\n".join(out)
 

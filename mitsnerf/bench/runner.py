@@ -5,7 +5,9 @@
 2. **Skip** cells whose ``result.json`` has the same config hash and code version
    (:func:`mitsnerf.bench.cells.is_done`) unless ``force``; an interrupted sweep resumes.
 3. **Ground truth**: the datasets of scenes with pending cells are generated once, here
-   (cached by :func:`mitsnerf.generate.generate_dataset`).
+   (cached by :func:`mitsnerf.generate.generate_dataset`), and so is each dataset's
+   emission-absorption oracle (:func:`mitsnerf.oracle.cache.ensure_oracle`, cached in the
+   dataset directory: the ceiling row of the tables, and every cell's error budget).
 4. **Run** the pending cells on an executor (:mod:`mitsnerf.bench.executors`); each finished
    cell is written at once, atomically (a failed one as ``error.json``, retried next time).
 5. **Outputs** from every cell on disk (:func:`write_outputs`), under ``results/<bench>[-quick]/``:
@@ -32,8 +34,8 @@ from mitsnerf import env
 from mitsnerf.bench.cells import (ARTEFACTS_FILE, ERROR_FILE, Cell, cell_dir, code_version, is_done, read_record,
                                   write_error, write_result)
 from mitsnerf.bench.config import BenchConfig
-from mitsnerf.bench.tables import (average_rows, best_rules, cell_row, csv_keys, csv_table, markdown_report,
-                                   scene_rows)
+from mitsnerf.bench.tables import (ORACLE, average_rows, best_rules, cell_row, csv_keys, csv_table, markdown_report,
+                                   oracle_row, scene_rows, with_oracle_rows)
 from mitsnerf.config import from_dict, to_dict
 from mitsnerf.data.atomic import atomic_write_json, atomic_write_text
 from mitsnerf.errors import SpecError
@@ -100,6 +102,8 @@ def plan_cells(config: BenchConfig, options: BenchOptions) -> list[Cell]:
     out_root = out_root_of(config, options).resolve()
     data_root = Path(options.data_root).resolve()
     evalc = to_dict(config.eval_config(options.quick))
+    oracle = config.oracle_config(options.quick)
+    oracle_data = to_dict(oracle) if oracle.enabled else None
     specs = _scene_specs(config, options.quick)
     cells = []
     for spec in specs:
@@ -111,6 +115,7 @@ def plan_cells(config: BenchConfig, options: BenchOptions) -> list[Cell]:
                     spec=spec.to_dict(), method_config=resolved, train=train[seed], eval=evalc,
                     variant=variant, code_version=version, dataset_dir=ds_dir, data_root=str(data_root),
                     out_dir=str(cell_dir(out_root, spec.name, method.label, seed)), quick=options.quick,
+                    oracle=oracle_data,
                 ))
     return cells
 
@@ -174,6 +179,11 @@ def _generate(cells: list[Cell], options: BenchOptions, log: Callable[[str], Non
                                 progress=options.progress)
         if str(path.resolve()) != str(Path(cell.dataset_dir).resolve()):  # pragma: no cover (hash drift)
             raise RuntimeError(f"dataset of {cell.scene} went to {path}, planned {cell.dataset_dir}")
+        if cell.oracle is not None:
+            from mitsnerf.bench.worker import cell_oracle
+
+            cell_oracle(cell, log=lambda line, scene=cell.scene: log(f"[{scene}] {line}"))
+
 
 
 def _load_artefacts(cell: Cell) -> dict[str, np.ndarray]:
@@ -185,6 +195,19 @@ def _load_artefacts(cell: Cell) -> dict[str, np.ndarray]:
             return {k: z[k] for k in z.files}
     except (OSError, ValueError):
         return {}
+
+
+def oracle_rows(records: list[dict], scenes: list[str]) -> list[dict]:
+    """The ceiling row of every scene whose cells name a cached oracle (:func:`mitsnerf.bench.tables.oracle_row`)."""
+    from mitsnerf.oracle.cache import load_oracle
+
+    rows = []
+    for scene in scenes:
+        summary = next((r["oracle"] for r in records if r["scene"] == scene and r.get("oracle")), None)
+        oracle = load_oracle(Path(summary["path"])) if summary else None
+        if oracle is not None:
+            rows.append(oracle_row(scene, oracle.metrics(summary["footprint"]), oracle.info))
+    return rows
 
 
 def collect(cells: list[Cell]) -> tuple[list[dict], list[dict]]:
@@ -208,8 +231,11 @@ def write_outputs(config: BenchConfig, options: BenchOptions, cells: list[Cell],
     records += [record for record, _ in result.external]
     scenes = list(dict.fromkeys(c.scene for c in cells))
     methods = [m.label for m in config.methods] + list(dict.fromkeys(r["method"] for r, _ in result.external))
-    per_scene = scene_rows(records, failed, scenes, methods)
+    ceilings = oracle_rows(records, scenes)
+    per_scene = with_oracle_rows(scene_rows(records, failed, scenes, methods), ceilings)
     average = average_rows(per_scene, methods)
+    if len(ceilings) > 1:
+        average = [{**r, "ceiling": True} for r in average_rows(ceilings, [ORACLE])] + average
     best = best_rules(records)
     markdown = markdown_report(per_scene, average, best)
     files = {"table.md": out_root / "table.md", "table.csv": out_root / "table.csv",
@@ -269,10 +295,14 @@ def _score_externals(config: BenchConfig, options: BenchOptions, cells: list[Cel
     if not entries:
         return []
     _generate([c for c in cells if c.scene in {e.scene for e in entries}], options, log)
+    from mitsnerf.bench.worker import cell_oracle
+
     view = config.eval_config(options.quick).report_view
+    first = {c.scene: c for c in reversed(cells)}
+    oracles = {scene: cell_oracle(first[scene], log=log) for scene in dict.fromkeys(e.scene for e in entries)}
     scored = []
     for entry in entries:
-        record, artefacts = score_external(entry, view)
+        record, artefacts = score_external(entry, view, oracles[entry.scene])
         scored.append((record, artefacts))
         log(f"[external] {entry.key}: PSNR {record['metrics']['psnr_test']:.2f} dB (renders matched by "
             f"{record['matched_by']}, {entry.renders})")

@@ -2,8 +2,10 @@
 Markdown (terminal and file), CSV and JSON-ready rows; the best value per column marked.
 
 Two tables each: *quality* (image scores in both encodings, whole image and medium pixels,
-the ground truth's noise floor next to them, density-field errors) and *cost* (training
-time, throughput, peak memory, parameters).
+the ground truth's noise floor and the oracle next to them, density-field errors) and *cost*
+(training time, throughput, peak memory, parameters). Each scene with an oracle
+(:mod:`mitsnerf.oracle`) gets an ``oracle`` row first (:func:`oracle_row`): the ceiling any
+emission-absorption method can reach on that dataset, never marked best.
 """
 
 from __future__ import annotations
@@ -23,6 +25,8 @@ QUALITY: tuple[Column, ...] = KEYS + (
     ("psnr_test_medium", "PSNR lin medium", 2),
     ("noise_floor_psnr", "GT floor", 2),
     ("noise_floor_psnr_medium", "GT floor medium", 2),
+    ("oracle_psnr_test_medium", "oracle medium", 2),
+    ("gap_to_oracle", "gap to oracle", 2),
     ("psnr_test_srgb", "PSNR sRGB", 2),
     ("psnr_test_medium_srgb", "PSNR sRGB medium", 2),
     ("ssim_test", "SSIM lin", 4),
@@ -58,7 +62,10 @@ LEGEND = (
     "PSNR/SSIM of the test views; lin: linear radiance clipped to [0, 1]; sRGB: the clipped values "
     "sRGB-encoded; medium: only pixels whose ray crosses the true medium. GT floor: PSNR between two "
     "independent ground-truth renders of the test views (manifest noise_floor; a noise-free model scores "
-    "about 3 dB above it). sigma: learned against true density on the voxel centres; tau: optical depth "
+    "about 3 dB above it). oracle (the ceiling row): the true sigma_t with the in-scattered radiance J "
+    "estimated by volpath, rendered by the package's integrator at the same footprint: the best an "
+    "emission-absorption model can do on the dataset at the oracle's grid resolution; gap to oracle: "
+    "oracle medium PSNR minus the method's. sigma: learned against true density on the voxel centres; tau: optical depth "
     "along every test ray; T MAE: mean abs error of the transmittance exp(-tau). budget: what set the run's "
     "length (steps: the table is the same on any machine and load; a seconds cap makes it machine-dependent). "
     "footprint K: each test pixel is the mean of K x K rays over its area (1: its centre ray). "
@@ -89,6 +96,12 @@ def _fmt(value: Any, digits: int) -> str:
     return str(value)
 
 
+def _cell_text(row: dict, key: str, digits: int) -> str:
+    """A table cell: the formatted value; a ceiling row's method reads ``oracle (ceiling)``."""
+    text = _fmt(row.get(key), digits)
+    return f"{text} (ceiling)" if key == "method" and row.get("ceiling") else text
+
+
 def best_values(rows: Sequence[dict], best: dict[str, str], group: str | None = None) -> dict[tuple[Any, str], Any]:
     """``{(group value, key): best value}`` over rows with at least two numbers in the column."""
     marks: dict[tuple[Any, str], Any] = {}
@@ -96,6 +109,7 @@ def best_values(rows: Sequence[dict], best: dict[str, str], group: str | None = 
     for row in rows:
         groups.setdefault(row.get(group) if group else None, []).append(row)
     for g, members in groups.items():
+        members = [r for r in members if not r.get("ceiling")]
         for key, how in best.items():
             values = [r[key] for r in members if _is_number(r.get(key))]
             if len(values) > 1:
@@ -121,7 +135,7 @@ def markdown_table(rows: Sequence[dict], columns: Sequence[Column], best: dict[s
     for row in rows:
         cells = []
         for key, _, digits in columns:
-            text = _fmt(row.get(key), digits)
+            text = _cell_text(row, key, digits)
             mark = marks.get((row.get(group) if group else None, key))
             if mark is not None and row.get(key) == mark:
                 text = f"**{text}**"
@@ -202,7 +216,7 @@ def average_rows(rows: Sequence[dict], methods: Sequence[str] = ()) -> list[dict
         if not members:
             continue
         row = _aggregate(members, {"scene": f"mean of {len(members)}", "method": method,
-                                   "seeds": sum(r["seeds"] for r in members)})
+                                   "seeds": sum(r["seeds"] or 0 for r in members)})
         row["note"] = "; ".join(sorted({r["note"] for r in members if r.get("note")})) or None
         out.append(row)
     return out
@@ -249,3 +263,42 @@ def csv_keys(rows: Sequence[dict]) -> list[str]:
     for row in rows:
         keys.extend(k for k in row if k not in keys)
     return keys
+
+
+ORACLE = "oracle"
+"""The method label of the ceiling rows."""
+
+
+def oracle_row(scene: str, metrics: dict, info: dict) -> dict:
+    """The ceiling row of ``scene``: the oracle's scores at the evaluation footprint, its settings in the note.
+
+    >>> row = oracle_row("cloud", {"psnr_test_medium": 43.0, "psnr_test_medium_per_view": [43.0]},
+    ...                  {"config": {"spp": 64, "resolution": 32, "n_samples": 128}, "footprint": 3,
+    ...                   "psnr_test_medium": {"footprint_1": 38.0}, "seconds": {"volpath": 60.0}})
+    >>> row["method"], row["ceiling"], row["psnr_test_medium"], row["psnr_test_medium_k1"]
+    ('oracle', True, 43.0, 38.0)
+    >>> row["note"]
+    'ceiling: J by volpath (64 directions, 32^3 grid), N = 128, footprint 3; medium at footprint 1: 38.00'
+    """
+    row: dict = {"scene": scene, "method": ORACLE, "seeds": None, "ceiling": True}
+    row.update({k: v for k, v in metrics.items() if v is None or _is_number(v)})
+    cfg = info.get("config") or {}
+    k1 = (info.get("psnr_test_medium") or {}).get("footprint_1")
+    row["psnr_test_medium_k1"] = k1
+    row["oracle_seconds"] = sum((info.get("seconds") or {}).values()) or None
+    res = cfg.get("resolution") or "true"
+    row["note"] = (f"ceiling: J by volpath ({cfg.get('spp')} directions, {res}^3 grid), N = {cfg.get('n_samples')}, "
+                   f"footprint {info.get('footprint')}; medium at footprint 1: {_fmt(k1, 2)}")
+    return row
+
+
+def with_oracle_rows(rows: Sequence[dict], oracle_rows: Sequence[dict]) -> list[dict]:
+    """``rows`` with each scene's oracle row put before that scene's methods."""
+    by_scene = {r["scene"]: r for r in oracle_rows}
+    out: list[dict] = []
+    for row in rows:
+        ceiling = by_scene.pop(row["scene"], None)
+        if ceiling is not None:
+            out.append(ceiling)
+        out.append(row)
+    return out + list(by_scene.values())

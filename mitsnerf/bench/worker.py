@@ -105,6 +105,35 @@ def _open_dataset(cell: Cell, progress: bool):
     return load_dataset(generate_dataset(spec, Path(cell.data_root), progress=progress))
 
 
+def cell_oracle(cell: Cell, dataset=None, log=lambda line: None):
+    """The cached oracle (:class:`mitsnerf.oracle.cache.Oracle`) of the cell's dataset at its eval
+    footprint, computed and cached first if missing; None when the cell has none (or foreign data)."""
+    from mitsnerf.config import from_dict
+    from mitsnerf.data.dataset import load_dataset
+    from mitsnerf.oracle.cache import OracleConfig, ensure_oracle
+
+    if cell.oracle is None:
+        return None
+    if dataset is None:
+        if not (Path(cell.dataset_dir) / "manifest.json").is_file():
+            return None
+        dataset = load_dataset(Path(cell.dataset_dir))
+    config = from_dict(OracleConfig, dict(cell.oracle))
+    return ensure_oracle(dataset, config, int(cell.eval.get("footprint", 1)), log)
+
+
+def oracle_summary(oracle, footprint: int) -> dict[str, Any] | None:
+    """What a cell's record keeps of its dataset's oracle: where, its settings and medium PSNRs."""
+    if oracle is None:
+        return None
+    info = oracle.info
+    return {"path": str(oracle.path), "key": info.get("key"), "config": info.get("config"),
+            "footprint": footprint, "psnr_test_medium": info.get("psnr_test_medium"),
+            "psnr_test": {k: s.get("psnr_test") for k, s in oracle.scores.items()},
+            "psnr_test_per_view": oracle.metrics(footprint).get("psnr_test_per_view"),
+            "error_split": info.get("error_split"), "seconds": info.get("seconds")}
+
+
 def run_cell(cell: Cell, *, progress: bool = False, threads: int = 0, executor: str = "sequential",
              fresh_process: bool = False) -> tuple[dict[str, Any], bytes]:
     """Train and score one cell; returns ``(record, artefacts)`` (see :mod:`mitsnerf.bench.cells`).
@@ -131,13 +160,15 @@ def run_cell(cell: Cell, *, progress: bool = False, threads: int = 0, executor: 
     evalc = from_dict(EvalConfig, dict(cell.eval))
     train_config = from_dict(TrainConfig, dict(cell.train))
     dataset = _open_dataset(cell, progress)
+    oracle = cell_oracle(cell, dataset)
     ref = reference(dataset, "test")
     k = len(ref.cameras) if evalc.curve_views == 0 else min(evalc.curve_views, len(ref.cameras))
     curve_ref = replace(ref, images=ref.images[:k], cameras=ref.cameras[:k],
                         masks=None if ref.masks is None else ref.masks[:k])
     curve = CurveRecorder(curve_ref, train_config.steps, evalc.curve_points, evalc.footprint)
     run = fit(dataset, cell.method, dict(cell.method_config), train_config, Path(cell.out_dir) / "run",
-              eval_config=evalc, progress=progress, on_log=curve, reference=ref)
+              eval_config=evalc, progress=progress, on_log=curve, reference=ref,
+              oracle=None if oracle is None else oracle.metrics(evalc.footprint))
 
     metrics = run.metrics()
     metrics.pop("method", None)
@@ -152,6 +183,7 @@ def run_cell(cell: Cell, *, progress: bool = False, threads: int = 0, executor: 
     metrics["peak_rss_mb"] = peak_rss_mb()
 
     record = _record(cell, dataset, metrics, points, k, evalc, run.train.history)
+    record["oracle"] = oracle_summary(oracle, evalc.footprint)
     record["worker"] = {"executor": executor, "host": platform.node(), "pid": os.getpid(),
                         "fresh_process": fresh_process, "threads": dr.thread_count(),
                         "peak_rss_mb_at_start": rss_before, "peak_memory_note": PEAK_MEMORY_NOTE}

@@ -10,16 +10,18 @@ Architecture (Mueller et al. 2022, sizes configurable)::
     sigma   = exp(min(s + sigma_bias, 15))                                (position only)
     c       = c_max * sigmoid(MLP_c([g, SH_0..(L_sh+1)^2-1(d)]))          (features + direction)
 
-Defaults, measured on the default cloud (64^3 fBm, 40 training views at 64 spp, whose
-noise is ~32 dB on medium pixels; 600 steps of 2048 rays), test PSNR (medium pixels):
+Grid sizes and SH degrees measured on the default cloud (64^3 fBm, 40 training views at
+64 spp, whose noise is ~32 dB on medium pixels; 600 steps of 2048 rays), test PSNR
+(medium pixels):
 
     16 levels to 256, SH degree 3 (680 steps):        39.6 dB (30.9)  train 48.5: fits the noise
     12 levels to 128, SH degree 2:                    39.4 dB (30.7)
      8 levels to  64, SH degree 1:                    40.6 dB (32.0)
-     8 levels to  64, SH degree 0 (the default):      43.4 dB (34.7)
+     8 levels to  64, SH degree 0:                    43.4 dB (34.7)
 
 Capacity above the data's own resolution, and any direction input, let the field follow
-the training views' per-pixel noise. The scenes mitsnerf generates have an isotropic
+the training views' per-pixel noise; the defaults (:class:`NGPConfig`: 3 levels from 16
+to 24, SH degree 0) are smaller still. The scenes mitsnerf generates have an isotropic
 phase function, so their exact emission ``albedo * J(x)`` does not depend on the
 direction; ``sh_degree`` 1-3 remain for anisotropic media or foreign data.
 
@@ -40,6 +42,7 @@ from typing import Any
 import drjit as dr
 import drjit.nn as nn
 
+from mitsnerf.config import check_fields, param
 from mitsnerf.fields.mlp import column, dense_apply, dense_init, rows_tensor
 from mitsnerf.fields.sh import MAX_DEGREE, num_coefficients, sh_basis
 from mitsnerf.math.activations import sigmoid
@@ -53,60 +56,45 @@ SIGMA_RAW_MAX = 15.0
 class NGPConfig:
     """Sizes of the hash grid and the MLPs of the ngp field.
 
-    | name               | type  | default | meaning                                                 |
-    |--------------------|-------|---------|---------------------------------------------------------|
-    | n_levels           | int   | 3       | resolution levels L                                     |
-    | features_per_level | int   | 2       | features F per level (even)                             |
-    | log2_hashmap_size  | int   | 15      | T: at most 2^T entries per level                        |
-    | base_resolution    | int   | 16      | N_min, the coarsest level's resolution                  |
-    | max_resolution     | int   | 24      | N_max, the finest level's resolution                    |
-    | hidden             | int   | 64      | width of the density MLP's hidden layer                 |
-    | geo_features       | int   | 15      | features passed from the density MLP to the colour MLP  |
-    | color_hidden       | int   | 64      | width of the colour MLP's hidden layers                 |
-    | color_layers       | int   | 1       | hidden layers of the colour MLP (instant-ngp: 2)        |
-    | sh_degree          | int   | 0       | highest SH band of the direction encoding (0: constant) |
-    | sigma_bias         | float | 0.0     | added to the density pre-activation (0: sigma starts ~1)|
-    | c_max              | float | 1.0     | largest colour (radiance) the colour MLP can output     |
-    | init_scale         | float | 1e-4    | hash-table entries start uniform in +-init_scale        |
-
     The defaults suit 64-pixel views of 64^3 media trained from 64-spp images: with 8 levels up to
     64 the grid memorised the training noise (train PSNR 52 dB, test 41.6 dB on the default cloud
     after 1700 steps of 2048 rays); 3 levels from 16 to 24 gave 47.7 dB test (39.0 dB on medium
     pixels) in the same steps. Finer media or larger images want a larger ``max_resolution``.
     """
 
-    n_levels: int = 3
-    features_per_level: int = 2
-    log2_hashmap_size: int = 15
-    base_resolution: int = 16
-    max_resolution: int = 24
-    hidden: int = 64
-    geo_features: int = 15
-    color_hidden: int = 64
-    color_layers: int = 1
-    sh_degree: int = 0
-    sigma_bias: float = 0.0
-    c_max: float = 1.0
-    init_scale: float = 1e-4
+    n_levels: int = param(3, lo=1, hi=32)
+    """Resolution levels L."""
+    features_per_level: int = param(2, choices=(2, 4, 8))
+    """Features F per level (drjit's hash grid takes an even F dividing the table size)."""
+    log2_hashmap_size: int = param(15, lo=8, hi=24)
+    """T: at most 2^T entries per level."""
+    base_resolution: int = param(16, lo=1)
+    """N_min, the coarsest level's resolution."""
+    max_resolution: int = param(24, lo=1)
+    """N_max, the finest level's resolution (>= ``base_resolution``)."""
+    hidden: int = param(64, lo=1)
+    """Width of the density MLP's hidden layer."""
+    geo_features: int = param(15, lo=1)
+    """Features passed from the density MLP to the colour MLP."""
+    color_hidden: int = param(64, lo=1)
+    """Width of the colour MLP's hidden layers."""
+    color_layers: int = param(1, lo=0)
+    """Hidden layers of the colour MLP (instant-ngp: 2)."""
+    sh_degree: int = param(0, lo=0, hi=MAX_DEGREE)
+    """Highest SH band of the direction encoding (0: constant, no direction input)."""
+    sigma_bias: float = param(0.0)
+    """Added to the density pre-activation (0: sigma starts near 1)."""
+    c_max: float = param(1.0, lo=0.0, lo_open=True)
+    """Largest colour (radiance) the colour MLP can output."""
+    init_scale: float = param(1e-4, lo=0.0, lo_open=True)
+    """Hash-table entries start uniform in ``+-init_scale``."""
 
     def __post_init__(self) -> None:
-        for name in ("n_levels", "features_per_level", "base_resolution", "hidden", "geo_features", "color_hidden"):
-            if getattr(self, name) < 1:
-                raise ValueError(f"{name}: must be >= 1, got {getattr(self, name)}")
-        if self.features_per_level % 2:
-            raise ValueError(f"features_per_level: must be even (drjit's hash grid), got {self.features_per_level}")
-        if not 8 <= self.log2_hashmap_size <= 24:
-            raise ValueError(f"log2_hashmap_size: must be in [8, 24], got {self.log2_hashmap_size}")
+        check_fields(self)
         if self.max_resolution < self.base_resolution:
             raise ValueError(
                 f"max_resolution: must be >= base_resolution ({self.base_resolution}), got {self.max_resolution}"
             )
-        if self.color_layers < 0:
-            raise ValueError(f"color_layers: must be >= 0, got {self.color_layers}")
-        if not 0 <= self.sh_degree <= MAX_DEGREE:
-            raise ValueError(f"sh_degree: must be in [0, {MAX_DEGREE}], got {self.sh_degree}")
-        if not (self.c_max > 0 and self.init_scale > 0):
-            raise ValueError("c_max, init_scale: must be > 0")
 
     @property
     def per_level_scale(self) -> float:

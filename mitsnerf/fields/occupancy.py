@@ -53,6 +53,7 @@ from typing import Any, Callable
 import drjit as dr
 import numpy as np
 
+from mitsnerf.config import check_fields, param
 from mitsnerf.math.box import Box
 
 
@@ -61,38 +62,23 @@ _STREAM = 0x9E3779B97F4A7C15
 
 @dataclass(frozen=True)
 class OccupancyConfig:
-    """Settings of the occupancy grid.
+    """Settings of the occupancy grid."""
 
-    | name          | type  | default | meaning                                                     |
-    |---------------|-------|---------|-------------------------------------------------------------|
-    | resolution    | int   | 64      | cells per axis R (the grid is R^3)                           |
-    | update_every  | int   | 8       | training steps between updates                               |
-    | decay         | float | 0.6     | factor applied to the kept maximum at each update            |
-    | threshold     | float | 0.5     | density (1/length) above which a cell counts as occupied     |
-    | dilate        | int   | 1       | cells by which occupancy is grown (0: none)                  |
-    | early_stop_T  | float | 1e-4    | samples behind this estimated transmittance are skipped (0: off) |
-    """
-
-    resolution: int = 64
-    update_every: int = 8
-    decay: float = 0.6
-    threshold: float = 0.5
-    dilate: int = 1
-    early_stop_T: float = 1e-4
+    resolution: int = param(64, lo=2, hi=512)
+    """Cells per axis R (the grid is R^3)."""
+    update_every: int = param(8, lo=1)
+    """Training steps between updates."""
+    decay: float = param(0.6, lo=0.0, hi=1.0)
+    """Factor applied to each cell's kept maximum at each update."""
+    threshold: float = param(0.5, lo=0.0)
+    """Density (1/length) above which a cell counts as occupied (lowered to the grid's mean for thin media)."""
+    dilate: int = param(1, lo=0)
+    """Cells by which occupancy is grown (0: none)."""
+    early_stop_T: float = param(1e-4, lo=0.0, hi=1.0, hi_open=True)
+    """Samples behind this estimated transmittance are skipped (0: off)."""
 
     def __post_init__(self) -> None:
-        if not 2 <= self.resolution <= 512:
-            raise ValueError(f"resolution: must be in [2, 512], got {self.resolution}")
-        if self.update_every < 1:
-            raise ValueError(f"update_every: must be >= 1, got {self.update_every}")
-        if not 0.0 <= self.decay <= 1.0:
-            raise ValueError(f"decay: must be in [0, 1], got {self.decay}")
-        if not self.threshold >= 0.0:
-            raise ValueError(f"threshold: must be >= 0, got {self.threshold}")
-        if self.dilate < 0:
-            raise ValueError(f"dilate: must be >= 0, got {self.dilate}")
-        if not 0.0 <= self.early_stop_T < 1.0:
-            raise ValueError(f"early_stop_T: must be in [0, 1), got {self.early_stop_T}")
+        check_fields(self)
 
 
 class OccupancyGrid:

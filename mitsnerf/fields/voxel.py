@@ -25,6 +25,7 @@ from dataclasses import dataclass
 import drjit as dr
 import numpy as np
 
+from mitsnerf.config import check_fields, param
 from mitsnerf.fields.sh import MAX_DEGREE, num_coefficients, sh_basis
 from mitsnerf.math.activations import sigmoid, softplus
 from mitsnerf.math.box import Box
@@ -32,26 +33,19 @@ from mitsnerf.math.box import Box
 
 @dataclass(frozen=True)
 class VoxelFieldConfig:
-    """Activations and initial values of the voxel field.
+    """Activations and initial values of the voxel field."""
 
-    | name        | type  | default | meaning                                                    |
-    |-------------|-------|---------|------------------------------------------------------------|
-    | sh_degree   | int   | 1       | highest SH band L of the colour (K = 4 coefficients)       |
-    | sigma_scale | float | 10.0    | sigma = sigma_scale * softplus(s)                          |
-    | sigma_init  | float | 0.1     | initial density everywhere (world units^-1)                |
-    | c_max       | float | 1.0     | largest colour (radiance)                                  |
-    """
-
-    sh_degree: int = 1
-    sigma_scale: float = 10.0
-    sigma_init: float = 0.1
-    c_max: float = 1.0
+    sh_degree: int = param(1, lo=0, hi=MAX_DEGREE)
+    """Highest SH band L of the colour (K = (L + 1)^2 coefficients per channel)."""
+    sigma_scale: float = param(10.0, lo=0.0, lo_open=True)
+    """``sigma = sigma_scale * softplus(s)``."""
+    sigma_init: float = param(0.1, lo=0.0, lo_open=True)
+    """Initial density everywhere (world units^-1)."""
+    c_max: float = param(1.0, lo=0.0, lo_open=True)
+    """Largest colour (radiance)."""
 
     def __post_init__(self) -> None:
-        if not 0 <= self.sh_degree <= MAX_DEGREE:
-            raise ValueError(f"sh_degree: must be in [0, {MAX_DEGREE}], got {self.sh_degree}")
-        if not (self.sigma_scale > 0 and self.sigma_init > 0 and self.c_max > 0):
-            raise ValueError("sigma_scale, sigma_init, c_max: must be > 0")
+        check_fields(self)
 
     @property
     def raw_sigma_init(self) -> float:

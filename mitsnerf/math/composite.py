@@ -1,4 +1,4 @@
-"""Emission-absorption compositing along rays (the quadrature of DEVELOPERS.md).
+"""Emission-absorption compositing along rays (the quadrature of docs/conventions.md).
 
 With samples ``i = 0 .. N-1`` of a ray (flat ray-major layout, see
 :mod:`mitsnerf.math.sampling`)::
@@ -31,26 +31,6 @@ def one_minus_exp_neg(tau):
     return dr.select(tau < 1e-2, taylor, 1.0 - dr.exp(-tau))
 
 
-def alpha(sigma, delta):
-    """Opacity of each interval: ``1 - exp(-sigma * delta)``.
-
-    >>> from drjit.llvm import Float
-    >>> alpha(Float(0.0, 1.0), Float(1.0, 2.0))  # doctest: +ELLIPSIS
-    [0, 0.8646...]
-    """
-    return one_minus_exp_neg(sigma * delta)
-
-
-def transmittance(sigma, delta, n: int):
-    """Transmittance up to each sample: ``T_i = exp(-sum_{j<i} sigma_j delta_j)``, shape (R*N,).
-
-    >>> from drjit.llvm import Float
-    >>> transmittance(Float(1.0, 1.0, 1.0), Float(0.5, 0.5, 0.5), 3)  # doctest: +ELLIPSIS
-    [1, 0.6065..., 0.3678...]
-    """
-    return dr.exp(-dr.block_prefix_sum(sigma * delta, n, exclusive=True))
-
-
 def weights(sigma, delta, n: int):
     """Compositing weights ``w_i = T_i alpha_i`` (R*N,) and the final transmittance ``T_N`` (R,).
 
@@ -68,16 +48,6 @@ def weights(sigma, delta, n: int):
     w = T * one_minus_exp_neg(tau)
     T_final = dr.exp(-dr.block_sum(tau, n))
     return w, T_final
-
-
-def accumulate(w, values, n: int):
-    """Per-ray weighted sum ``sum_i w_i v_i`` of a per-sample value (scalar or colour).
-
-    >>> from drjit.llvm import Float, Array3f
-    >>> accumulate(Float(0.5, 0.25), Float(2.0, 4.0), 2)
-    [2]
-    """
-    return dr.block_sum(w * values, n)
 
 
 @dataclass(frozen=True)

@@ -75,11 +75,6 @@ class RayBatch:
     def size(self) -> int:
         return dr.width(self.o)
 
-    def take(self, index) -> "RayBatch":
-        """The rays at ``index`` (UInt32 array)."""
-        Array3f = type(self.o)
-        return RayBatch(dr.gather(Array3f, self.o, index), dr.gather(Array3f, self.d, index))
-
 
 def camera_rays(Array3f, cameras: Sequence[Camera], pixel_center: float = 0.5) -> RayBatch:
     """All pixels of ``cameras`` (through their sample points) as one :class:`RayBatch`."""

@@ -20,7 +20,7 @@ QUADRATURES = ("seed", "midpoint")
 def stratified_t(t_n, t_f, n: int, u=None, quadrature: str = "seed"):
     """Stratified sample distances and their interval lengths along each ray.
 
-    Formula (0-based ``i = 0 .. N-1``; DEVELOPERS.md writes it 1-based), ``h = (t_f - t_n) / N``::
+    Formula (0-based ``i = 0 .. N-1``; docs/conventions.md writes it 1-based), ``h = (t_f - t_n) / N``::
 
         t_i     = t_n + (i + u_i) h,     u_i ~ U[0, 1)
 

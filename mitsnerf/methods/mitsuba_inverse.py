@@ -21,25 +21,8 @@ here). After every step ``sigma_t`` is clamped to ``[0, sigma_t_max]`` -- Mitsub
 heterogeneous medium uses one global majorant, so a single spiking voxel would slow every
 step -- and ``albedo`` to ``[0, 1]``.
 
-Parameters (``[method.mitsuba-inverse]`` / ``--set``):
-
-=====================  ==========  =====================================================
-name                   default     meaning
-=====================  ==========  =====================================================
-resolutions            16, 32, 64  grid resolution of each stage
-upsample_at            100, 250    steps after which the next stage starts
-init_sigma_t           1.0         initial constant extinction
-init_albedo            0.6         initial constant albedo
-optimize_albedo        true        optimise the albedo grid (else it stays constant)
-lr                     0.5         Adam learning rate of sigma_t (world units^-1 / step)
-albedo_lr_factor       0.04        albedo's learning rate relative to sigma_t's
-upsample_lr_factor     0.5         learning-rate factor per upsampling
-sigma_t_max            200.0       clamp of sigma_t
-spp                    8           samples per pixel of a training render
-views_per_step         1           training views rendered per step
-max_depth              0           path length; 0: the dataset's render.max_depth
-eval_spp               128         samples per pixel of evaluation renders
-=====================  ==========  =====================================================
+The settings (a bench file's ``[[methods]] config`` table, ``--set`` on the command line) are
+:class:`MitsubaInverseConfig`'s fields.
 
 Not supported: foreign datasets (no manifest spec: the lights are unknown), pixel centres
 other than Mitsuba's ``+0.5``, per-ray rendering: it is a whole-view model
@@ -57,6 +40,7 @@ import drjit as dr
 import mitsuba as mi
 import numpy as np
 
+from mitsnerf.config import check_fields, param
 from mitsnerf.errors import DatasetError
 from mitsnerf.fields.grid import GridField
 from mitsnerf.render.camera import Rendered, render_view
@@ -70,55 +54,46 @@ EVAL_SEED = 0x5EED
 
 @dataclass(frozen=True)
 class MitsubaInverseConfig:
-    """Configuration of the ``mitsuba-inverse`` method (see the module docstring's table)."""
+    """Configuration of the ``mitsuba-inverse`` method."""
 
-    resolutions: tuple[int, ...] = (16, 32, 64)
-    """Grid resolution of each coarse-to-fine stage."""
-    upsample_at: tuple[int, ...] = (100, 250)
-    """Step counts after which the grids are resampled to the next resolution."""
-    init_sigma_t: float = 1.0
-    """Initial constant extinction (world units^-1)."""
-    init_albedo: float = 0.6
+    resolutions: tuple[int, ...] = param((16, 32, 64), lo=2, hi=512)
+    """Grid resolution of each coarse-to-fine stage (one or more)."""
+    upsample_at: tuple[int, ...] = param((100, 250), lo=1)
+    """Step counts (increasing) after which the grids are resampled to the next resolution."""
+    init_sigma_t: float = param(1.0, lo=0.0)
+    """Initial constant extinction (world units^-1, at most ``sigma_t_max``)."""
+    init_albedo: float = param(0.6, lo=0.0, hi=1.0)
     """Initial constant albedo."""
-    optimize_albedo: bool = True
+    optimize_albedo: bool = param(True)
     """Optimise the albedo grid too (else it stays ``init_albedo``)."""
-    lr: float = 0.5
-    """Adam learning rate of sigma_t."""
-    albedo_lr_factor: float = 0.04
+    lr: float = param(0.5, lo=0.0, lo_open=True)
+    """Adam learning rate of sigma_t (world units^-1 per step)."""
+    albedo_lr_factor: float = param(0.04, lo=0.0, lo_open=True)
     """The albedo's learning rate relative to sigma_t's (albedo lives in [0, 1])."""
-    upsample_lr_factor: float = 0.5
+    upsample_lr_factor: float = param(0.5, lo=0.0, lo_open=True)
     """Learning-rate factor applied once per upsampling."""
-    sigma_t_max: float = 200.0
+    sigma_t_max: float = param(200.0, lo=0.0, lo_open=True)
     """Clamp of sigma_t after each step (one spiking voxel raises the global majorant)."""
-    spp: int = 8
+    spp: int = param(8, lo=1)
     """Samples per pixel of each training render."""
-    views_per_step: int = 1
+    views_per_step: int = param(1, lo=1)
     """Training views rendered (and summed into the loss) per step."""
-    max_depth: int = 0
+    max_depth: int = param(0, lo=-1)
     """prbvolpath path length: 0 takes the dataset's ``render.max_depth`` (-1: unlimited)."""
-    eval_spp: int = 128
+    eval_spp: int = param(128, lo=1)
     """Samples per pixel of evaluation renders."""
 
     def __post_init__(self) -> None:
-        if not self.resolutions or any(r < 2 for r in self.resolutions):
-            raise ValueError(f"resolutions: must be one or more sizes >= 2, got {list(self.resolutions)}")
+        check_fields(self)
+        if not self.resolutions:
+            raise ValueError("resolutions: must be one or more sizes, got []")
         if len(self.upsample_at) != len(self.resolutions) - 1:
             raise ValueError(f"upsample_at: needs {len(self.resolutions) - 1} steps (one per later resolution), "
                              f"got {list(self.upsample_at)}")
-        if any(b <= a for a, b in zip(self.upsample_at, self.upsample_at[1:])) or any(s < 1 for s in self.upsample_at):
-            raise ValueError(f"upsample_at: must be increasing steps >= 1, got {list(self.upsample_at)}")
-        for name in ("lr", "albedo_lr_factor", "upsample_lr_factor", "sigma_t_max"):
-            if not getattr(self, name) > 0:
-                raise ValueError(f"{name}: must be > 0, got {getattr(self, name)}")
-        if not 0 <= self.init_sigma_t <= self.sigma_t_max:
-            raise ValueError(f"init_sigma_t: must be in [0, sigma_t_max], got {self.init_sigma_t}")
-        if not 0 <= self.init_albedo <= 1:
-            raise ValueError(f"init_albedo: must be in [0, 1], got {self.init_albedo}")
-        for name in ("spp", "views_per_step", "eval_spp"):
-            if getattr(self, name) < 1:
-                raise ValueError(f"{name}: must be >= 1, got {getattr(self, name)}")
-        if self.max_depth < -1:
-            raise ValueError(f"max_depth: must be -1 (unlimited), 0 (the dataset's) or >= 1, got {self.max_depth}")
+        if any(b <= a for a, b in zip(self.upsample_at, self.upsample_at[1:])):
+            raise ValueError(f"upsample_at: must be increasing, got {list(self.upsample_at)}")
+        if self.init_sigma_t > self.sigma_t_max:
+            raise ValueError(f"init_sigma_t: must be <= sigma_t_max ({self.sigma_t_max:g}), got {self.init_sigma_t:g}")
 
 
 def _rgb_sensor(camera, spp: int):

@@ -11,11 +11,12 @@ every ``occupancy.update_every`` steps.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from typing import Any, Mapping
 
 import mitsuba as mi
 
+from mitsnerf.config import check_fields, param
 from mitsnerf.fields.ngp import NGPConfig, NGPField
 from mitsnerf.fields.occupancy import OccupancyConfig
 from mitsnerf.methods.base import RenderOutput, SceneInfo, cover_radiance
@@ -24,28 +25,21 @@ from mitsnerf.methods.occupancy import OccupancyModel
 
 @dataclass(frozen=True)
 class NGPMethodConfig:
-    """Configuration of the ``ngp`` method.
+    """Configuration of the ``ngp`` method."""
 
-    | name          | type            | default | meaning                                        |
-    |---------------|-----------------|---------|------------------------------------------------|
-    | network       | NGPConfig       |         | hash grid and MLP sizes                        |
-    | occupancy     | OccupancyConfig |         | occupancy grid (resolution, updates, threshold)|
-    | use_occupancy | bool            | true    | skip empty space and stop rays early           |
-    | n_samples     | int             | 128     | stratified samples per ray before skipping     |
-    | lr            | float           | 1e-2    | Adam learning rate (instant-ngp's)             |
-    """
-
-    network: NGPConfig = field(default_factory=NGPConfig)
-    occupancy: OccupancyConfig = field(default_factory=OccupancyConfig)
-    use_occupancy: bool = True
-    n_samples: int = 128
-    lr: float = 1e-2
+    network: NGPConfig = param(default_factory=NGPConfig)
+    """Hash grid and MLP sizes."""
+    occupancy: OccupancyConfig = param(default_factory=OccupancyConfig)
+    """The occupancy grid (resolution, updates, threshold)."""
+    use_occupancy: bool = param(True)
+    """Skip empty space and stop rays early."""
+    n_samples: int = param(128, lo=1)
+    """Stratified samples per ray before skipping."""
+    lr: float = param(1e-2, lo=0.0, lo_open=True)
+    """Adam learning rate (instant-ngp's)."""
 
     def __post_init__(self) -> None:
-        if self.n_samples < 1:
-            raise ValueError(f"n_samples: must be >= 1, got {self.n_samples}")
-        if not self.lr > 0:
-            raise ValueError(f"lr: must be > 0, got {self.lr}")
+        check_fields(self)
 
 
 class NGPModel(OccupancyModel):

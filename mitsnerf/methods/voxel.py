@@ -14,31 +14,18 @@ test PSNR (36.5 dB on medium pixels; 1002 steps); SH degree 0 ran 1.8x more step
 reached 44.4 dB (35.9). Training starts at ``initial_resolution`` and doubles the grids
 (trilinearly, :func:`mitsnerf.fields.voxel.upsample`) after each step listed in
 ``upsample_steps`` until ``resolution``; the upsampled grids replace the optimiser's
-entries (their Adam state restarts).
-
-| name               | type             | default   | meaning                                           |
-|--------------------|------------------|-----------|---------------------------------------------------|
-| grid               | VoxelFieldConfig |           | SH degree, activations, initial density           |
-| resolution         | int              | 64        | final grid resolution R                           |
-| initial_resolution | int              | 32        | resolution training starts at                     |
-| upsample_steps     | tuple of int     | (150,)    | steps after which the resolution doubles          |
-| n_samples          | int              | 128       | stratified samples per ray                        |
-| use_occupancy      | bool             | true      | skip empty space with an occupancy grid (as ngp)  |
-| occupancy          | OccupancyConfig  |           | its resolution, update period, threshold          |
-| tv_sigma           | float            | 1e-3      | weight of TV on the raw density grid              |
-| tv_sh              | float            | 1e-3      | weight of TV on the SH coefficient grid           |
-| lr                 | float            | 0.3       | Adam learning rate                                |
-| lr_sh_factor       | float            | 1.0       | the SH grid's learning rate relative to lr        |
+entries (their Adam state restarts). The settings are :class:`VoxelMethodConfig`'s fields.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from typing import Any, Mapping
 
 import drjit as dr
 import mitsuba as mi
 
+from mitsnerf.config import check_fields, param
 from mitsnerf.fields.occupancy import OccupancyConfig
 from mitsnerf.fields.voxel import VoxelField, VoxelFieldConfig, total_variation, upsample
 from mitsnerf.methods.base import RenderOutput, SceneInfo, cover_radiance
@@ -50,43 +37,40 @@ SH_KEY = "sh"
 
 @dataclass(frozen=True)
 class VoxelMethodConfig:
-    """Configuration of the ``voxel`` method (see the module docstring's table)."""
+    """Configuration of the ``voxel`` method."""
 
-    grid: VoxelFieldConfig = field(default_factory=VoxelFieldConfig)
+    grid: VoxelFieldConfig = param(default_factory=VoxelFieldConfig)
     """What each voxel holds: SH degree, activations, initial density."""
-    resolution: int = 64
+    resolution: int = param(64, lo=2, hi=512)
     """Final grid resolution R (voxels per axis)."""
-    initial_resolution: int = 32
+    initial_resolution: int = param(32, lo=2, hi=512)
     """Resolution at the start; doubled after each of ``upsample_steps`` until ``resolution``."""
-    upsample_steps: tuple[int, ...] = (150,)
-    """Steps (0-based) after which the grids are doubled; the list must cover the doublings needed."""
-    n_samples: int = 128
+    upsample_steps: tuple[int, ...] = param((150,), lo=0)
+    """Steps (0-based, increasing) after which the grids are doubled; one per doubling needed."""
+    n_samples: int = param(128, lo=1)
     """Stratified samples per ray."""
-    use_occupancy: bool = True
+    use_occupancy: bool = param(True)
     """Skip samples in empty cells of an occupancy grid refreshed from the voxel density (as ngp)."""
-    occupancy: OccupancyConfig = field(default_factory=OccupancyConfig)
+    occupancy: OccupancyConfig = param(default_factory=OccupancyConfig)
     """The occupancy grid's settings."""
-    tv_sigma: float = 1e-3
+    tv_sigma: float = param(1e-3, lo=0.0)
     """Weight of the total-variation prior on the raw density grid."""
-    tv_sh: float = 1e-3
+    tv_sh: float = param(1e-3, lo=0.0)
     """Weight of the total-variation prior on the SH coefficient grid."""
-    lr: float = 0.3
+    lr: float = param(0.3, lo=0.0, lo_open=True)
     """Adam learning rate."""
-    lr_sh_factor: float = 1.0
+    lr_sh_factor: float = param(1.0, lo=0.0, lo_open=True)
     """The SH grid's learning rate as a fraction of the scheduled one."""
 
     def __post_init__(self) -> None:
-        object.__setattr__(self, "upsample_steps", tuple(int(s) for s in self.upsample_steps))
-        if not 2 <= self.initial_resolution <= self.resolution <= 512:
-            raise ValueError(
-                f"initial_resolution, resolution: need 2 <= initial_resolution <= resolution <= 512, "
-                f"got {self.initial_resolution}, {self.resolution}"
-            )
-        doublings, r = 0, self.initial_resolution
-        while r < self.resolution:
-            r *= 2
-            doublings += 1
-        if r != self.resolution:
+        if isinstance(self.upsample_steps, list):
+            object.__setattr__(self, "upsample_steps", tuple(self.upsample_steps))
+        check_fields(self)
+        if self.initial_resolution > self.resolution:
+            raise ValueError(f"initial_resolution, resolution: need initial_resolution <= resolution, "
+                             f"got {self.initial_resolution}, {self.resolution}")
+        doublings = (self.resolution // self.initial_resolution).bit_length() - 1
+        if self.initial_resolution << doublings != self.resolution:
             raise ValueError(
                 f"resolution: must be initial_resolution ({self.initial_resolution}) times a power of 2, got {self.resolution}"
             )
@@ -95,14 +79,8 @@ class VoxelMethodConfig:
                 f"upsample_steps: {self.initial_resolution} -> {self.resolution} takes {doublings} doubling(s), "
                 f"got {len(self.upsample_steps)} step(s) {list(self.upsample_steps)}"
             )
-        if any(b <= a for a, b in zip(self.upsample_steps, self.upsample_steps[1:])) or any(s < 0 for s in self.upsample_steps):
-            raise ValueError(f"upsample_steps: must be increasing and >= 0, got {list(self.upsample_steps)}")
-        if self.n_samples < 1:
-            raise ValueError(f"n_samples: must be >= 1, got {self.n_samples}")
-        if self.tv_sigma < 0 or self.tv_sh < 0:
-            raise ValueError("tv_sigma, tv_sh: must be >= 0")
-        if not (self.lr > 0 and self.lr_sh_factor > 0):
-            raise ValueError("lr, lr_sh_factor: must be > 0")
+        if any(b <= a for a, b in zip(self.upsample_steps, self.upsample_steps[1:])):
+            raise ValueError(f"upsample_steps: must be increasing, got {list(self.upsample_steps)}")
 
     def resolution_at(self, step: int) -> int:
         """Grid resolution used at (0-based) ``step``.
@@ -154,7 +132,7 @@ class VoxelModel(OccupancyModel):
         ``occupancy.update_every`` steps."""
         new = {}
         if step in self.config.upsample_steps:
-            r = 2 * self.resolution
+            r = self.config.resolution_at(step + 1)
             new = {key: upsample(params[key], r) for key in (SIGMA_KEY, SH_KEY)}
             self.set_parameters(new)
         super().after_step(step, params)

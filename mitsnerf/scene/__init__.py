@@ -1,4 +1,4 @@
-"""Scene specifications (``scenes/*.toml``), their Mitsuba scenes, and rendering the ground truth.
+"""Scene specifications (the library: ``library/*.toml``), their Mitsuba scenes, and rendering the ground truth.
 
 - :mod:`.spec`: parse and validate specs (:func:`load_scene`, :class:`SceneSpec`);
 - :mod:`.rigs`: camera placements (:func:`camera_rig`);

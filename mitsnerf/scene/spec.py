@@ -1,4 +1,4 @@
-"""Scene specifications: ``scenes/NAME.toml`` parsed into frozen, validated dataclasses.
+"""Scene specifications: TOML files (the library: ``mitsnerf/scene/library/NAME.toml``) parsed into frozen, validated dataclasses.
 
 A spec names a volume (a :mod:`mitsnerf.volumes` family, its grid and optical thickness), the
 lights, a camera rig and the render settings; see ``docs/conventions.md`` ("Scene specs") for
@@ -36,13 +36,17 @@ from pathlib import Path
 from types import MappingProxyType
 from typing import Any, ClassVar, Mapping, Union
 
-from mitsnerf.config import from_dict, param, plain, read_toml, source_field, to_dict, with_overrides
+from mitsnerf.config import (from_dict, named_files, param, plain, read_toml, search_dirs, source_field, to_dict,
+                             with_overrides)
 from mitsnerf.errors import SpecError
 
 #: The world's up axis (Z-up). Rigs' "upper half" and the sky's zenith are +Z.
 UP = (0.0, 0.0, 1.0)
-#: Environment variable naming the directory that holds the scene library.
+#: Environment variable listing a user's scene directories (``os.pathsep``-separated), searched
+#: before the library shipped with the package (``mitsnerf --scenes DIR`` adds to it).
 SCENES_ENV = "MITSNERF_SCENES"
+#: The scene library, package data.
+LIBRARY = Path(__file__).resolve().parent / "library"
 RIGS = ("sphere", "hemisphere", "ring")
 #: Cameras must stay outside the scene box's bounding sphere (radius sqrt(3)/2 times ``world.scale``).
 MIN_CAMERA_RADIUS = math.sqrt(3.0) / 2.0
@@ -334,17 +338,18 @@ def parse_scene(data: Mapping[str, Any], source: str | os.PathLike | None = None
 
 
 def scenes_dir() -> Path:
-    """The scene library: ``$MITSNERF_SCENES``, else ``scenes/`` at the repository root."""
-    env = os.environ.get(SCENES_ENV)
-    if env:
-        return Path(env)
-    return Path(__file__).resolve().parents[2] / "scenes"
+    """The scene library shipped with the package (``mitsnerf/scene/library``)."""
+    return LIBRARY
+
+
+def scene_dirs() -> list[Path]:
+    """Where scene names are looked up, first match first: ``$MITSNERF_SCENES``'s directories, then the library."""
+    return search_dirs(SCENES_ENV, LIBRARY)
 
 
 def list_scenes() -> list[str]:
-    """Names of the specs in :func:`scenes_dir`, sorted."""
-    d = scenes_dir()
-    return sorted(p.stem for p in d.glob("*.toml")) if d.is_dir() else []
+    """Names of the specs in :func:`scene_dirs`, sorted."""
+    return list(named_files(scene_dirs()))
 
 
 def load_scene(name_or_path: str | os.PathLike) -> SceneSpec:
@@ -361,12 +366,10 @@ def _spec_path(name_or_path: str | os.PathLike) -> Path:
         if not path.exists():
             raise SpecError(path, None, "no such spec file")
         return path  # a directory is reported by read_toml
-    path = scenes_dir() / f"{text}.toml"
-    if path.exists():
-        return path
+    found = named_files(scene_dirs())
+    if text in found:
+        return found[text]
     if Path(text).is_dir():
         raise SpecError(text, None, "is a directory, not a scene name or spec file")
-    known = list_scenes()
-    raise SpecError(
-        path, None, f"unknown scene {text!r} (known: {', '.join(known) if known else f'none in {scenes_dir()}'})"
-    )
+    where = ", ".join(map(str, scene_dirs()))
+    raise SpecError(text, None, f"unknown scene {text!r} (known: {', '.join(found) if found else f'none in {where}'})")

@@ -26,39 +26,10 @@ from typing import Any, Callable
 import drjit as dr
 import numpy as np
 
+from mitsnerf.math.box import UNIT_BOX, march_transmittance
 from mitsnerf.math.camera import Camera
-from mitsnerf.math.box import UNIT_BOX, Box
 from mitsnerf.math.rays import camera_rays_numpy, to_array3f
 from mitsnerf.render.volume import render_rays
-
-
-def march_transmittance(density: Callable[[Any], Any], x, w, m: int, box: Box):
-    """``T = exp(-int_0^{s_f} sigma_t(x + s w) ds)`` from points ``x`` inside the box along ``w``.
-
-    Midpoint rule with ``m`` equal intervals (second order, unlike the render quadrature's last
-    half interval): ``s_k = (k + 1/2) s_f / m``, ``T = exp(-(s_f / m) sum_k sigma_t(x + s_k w))``.
-    ``x`` Array3f (M,), ``w`` Array3f (M,) or (1,) unit; ``density`` maps Array3f -> Float.
-    Returns Float (M,).
-
-    >>> import mitsuba as mi
-    >>> from mitsnerf.env import set_variant; _ = set_variant("llvm_ad_rgb")
-    >>> slab = lambda p: 2.0 + 0.0 * p.x                      # sigma_t = 2, path 0.5 to the face
-    >>> march_transmittance(slab, mi.Array3f(0, 0, 0), mi.Array3f(0, 0, 1), 4, UNIT_BOX)  # exp(-1)
-    [0.367879]
-    """
-    Array3f = type(x)
-    Float = type(x.x)
-    UInt32 = dr.uint32_array_t(Float)
-    width = dr.width(x)
-    w = w + dr.zeros(Array3f, width) if dr.width(w) != width else w
-    _, s_f, _ = box.intersect(x, w)
-    idx = dr.arange(UInt32, width * m)
-    ray = idx // m
-    k = Float(idx - ray * m)
-    s_f_k = dr.gather(Float, s_f, ray)
-    p = dr.gather(Array3f, x, ray) + (k + 0.5) / m * s_f_k * dr.gather(Array3f, w, ray)
-    tau = dr.block_sum(density(p), m) * (s_f / m)
-    return dr.exp(-tau)
 
 
 @dataclass(frozen=True)
@@ -125,8 +96,31 @@ def single_scatter_source(scenario, sigma_t, albedo, scene, quality):
                                scenario.sun_direction, scenario.sun_irradiance, isotropic_phase())
 
 
+def in_scattered_source(scenario, sigma_t, albedo, scene, quality):
+    """``c = J = albedo (1/4pi) int L dw``, estimated by volpath from each sample point
+    (:class:`mitsnerf.oracle.compare.PointSource`: the oracle without its grid), the sun's direct term
+    by shadow rays; ``quality.j_spp`` directions per point."""
+    import mitsuba as mi
+
+    from mitsnerf.fields.grid import GridField
+    from mitsnerf.oracle.compare import PointSource
+    from mitsnerf.oracle.source import inner_max_depth
+    from mitsnerf.scene.spec import DirectionalLight
+    from mitsnerf.verify import mitsuba_refs as M
+    from mitsnerf.verify.scenarios import emitters_of
+
+    depth = inner_max_depth(scenario.max_depth)
+    inner = None if depth is None else (
+        scene if depth == scenario.max_depth else mi.load_dict(M.scene_dict(sigma_t, albedo, emitters_of(scenario), depth)))
+    albedo_grid = albedo if np.ndim(albedo) else np.full(sigma_t.shape + (3,), float(albedo), np.float32)
+    lights = [DirectionalLight(direction=scenario.sun_direction, irradiance=scenario.sun_irradiance)]
+    return PointSource(inner, GridField.from_arrays(sigma_t, UNIT_BOX, color=albedo_grid), lights, UNIT_BOX,
+                       spp=quality.j_spp, m_light=64, seed=quality.seed + 17)
+
+
 SOURCE_BUILDERS: dict[str, Callable[..., Any]] = {
     "zero": absorption_source,
     "single_scatter": single_scatter_source,
+    "in_scattered": in_scattered_source,
 }
 """Source name (:data:`mitsnerf.verify.cases.SOURCES`) -> ``builder(scenario, sigma_t, albedo, scene, quality)``."""

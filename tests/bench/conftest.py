@@ -64,6 +64,7 @@ def tiny_config(scene_paths, name: str = "tiny"):
         "seeds": [0],
         "train": {"steps": 12, "batch_rays": 128, "log_every": 4},
         "eval": {"curve_points": 2, "od_samples": 16},
+        "oracle": {"spp": 4, "resolution": 8, "n_samples": 16, "noise_replicas": 1},
         "methods": [{"name": "nerf", "label": "nerf-a", "config": net},
                     {"name": "nerf", "label": "nerf-b", "config": {**wide, "lr": 0.01}}],
     }, "tiny.toml")

@@ -48,6 +48,10 @@ def test_external_rows_in_tables_plots_and_report(tiny_bench, tmp_path):
     floor = json.loads((dataset / "manifest.json").read_text())["noise_floor"]
     assert row["scene"] == "tcloud" and row["psnr_test"] == floor["psnr"] and row["density_rel_l1"] == 0.0
     assert row.get("train_seconds") is None  # no training: the cost columns stay empty
+    record = next(r for r in result.records if r.get("external"))
+    oracle = json.loads((Path(record["oracle"]["path"]) / "scores.json").read_text())["footprint_1"]
+    assert row["oracle_psnr_test_medium"] == oracle["psnr_test_medium"]  # the cells' oracle, at footprint 1
+    assert row["gap_to_oracle"] == pytest.approx(oracle["psnr_test_medium"] - row["psnr_test_medium"], abs=1e-5)
     root = result.out_root
     assert "| tcloud | ref (external) | 1 |" in (root / "table.md").read_text()
     assert "ref (external)" in (root / "table.csv").read_text() and "ref (external)" in (root / "report.html").read_text()

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import math
+from pathlib import Path
 
 import pytest
 
@@ -74,7 +75,14 @@ def test_sweep_writes_every_output(interrupted_then_resumed):
     md = (root / "table.md").read_text()
     assert "Quality per scene" in md and "Cost averaged over scenes" in md and "**" in md
     assert md.isascii()
-    assert len(result.per_scene) == 4 and len(result.average) == 2
+    assert len(result.per_scene) == 6 and len(result.average) == 3  # and an oracle row per scene, averaged
+    ceilings = [r for r in result.per_scene if r["method"] == "oracle"]
+    assert [r["scene"] for r in ceilings] == ["tcloud", "tblobs"] and all(r["ceiling"] for r in ceilings)
+    assert [result.per_scene.index(r) for r in ceilings] == [0, 3]  # first in each scene's group
+    lines = md.split("\n")
+    assert md.count("| oracle (ceiling) |") == 6  # quality and cost, per scene and averaged
+    assert "oracle (ceiling)" in lines[6] and "**" not in lines[6]  # never marked best
+    assert "class='ceiling'" in (root / "report.html").read_text()
     assert (root / "cells.csv").read_text().count("\n") == 5
     html = (root / "report.html").read_text()
     assert html.count("data:image/png;base64,") == 8 and "<table>" in html
@@ -87,6 +95,10 @@ def test_sweep_writes_every_output(interrupted_then_resumed):
             assert isinstance(m[key], float) and math.isfinite(m[key]), key
         assert len(m["psnr_test_per_view"]) == len(m["ssim_test_srgb_per_view"]) == 2
         assert m["noise_floor_psnr"] > 0 and m["noise_floor_psnr_medium"] > 0
+        ceiling = next(r for r in ceilings if r["scene"] == record["scene"])
+        assert m["oracle_psnr_test_medium"] == ceiling["psnr_test_medium"] and math.isfinite(m["gap_to_oracle"])
+        assert m["gap_to_oracle"] == pytest.approx(ceiling["psnr_test_medium"] - m["psnr_test_medium"])
+        assert (Path(record["oracle"]["path"]) / "oracle.json").is_file()
         assert m["steps"] == 12 and m["num_parameters"] > 0 and m["peak_rss_mb"] > 0
         per_ray = 16 if record["method"] == "nerf-a" else 40
         assert m["rays_per_s"] > 0 and m["samples_per_s"] == pytest.approx(per_ray * m["rays_per_s"])
@@ -101,7 +113,11 @@ def test_sweep_writes_every_output(interrupted_then_resumed):
 
 
 def _quality(result):
-    return {(r["scene"], r["method"], k): r[k] for r in result.per_scene for k in QUALITY_KEYS}
+    return {(r["scene"], r["method"], k): r[k] for r in result.per_scene if not r.get("ceiling") for k in QUALITY_KEYS}
+
+
+def _ceilings(result):
+    return [r for r in result.per_scene if r.get("ceiling")]
 
 
 def test_pool_executor_gives_the_same_table(tiny_bench, interrupted_then_resumed):
@@ -110,6 +126,7 @@ def test_pool_executor_gives_the_same_table(tiny_bench, interrupted_then_resumed
     pooled = run_benchmark(config, options("pool", executor="pool", workers=2, report=False))
     assert len(pooled.computed) == 4
     assert _quality(pooled) == pytest.approx(_quality(sequential), rel=1e-6)  # threads: 1 per cell, not 2
+    assert _ceilings(pooled) == _ceilings(sequential) and len(_ceilings(pooled)) == 2  # the cached oracle
     assert all(r["worker"]["executor"] == "pool" for r in pooled.records)
 
 
@@ -120,4 +137,5 @@ def test_ray_executor_on_a_local_instance_gives_the_same_table(tiny_bench, inter
     on_ray = run_benchmark(config, options("ray", executor="ray", workers=2, report=False))
     assert len(on_ray.computed) == 4
     assert _quality(on_ray) == pytest.approx(_quality(sequential), rel=1e-6)
+    assert _ceilings(on_ray) == _ceilings(sequential)
     assert all(r["worker"]["executor"] == "ray" and r["worker"]["fresh_process"] for r in on_ray.records)

@@ -3,7 +3,7 @@ import mitsuba as mi
 import numpy as np
 import pytest
 
-from mitsnerf.math.composite import accumulate, alpha, composite, transmittance, weights
+from mitsnerf.math.composite import composite, weights
 
 
 def _np(x):
@@ -11,7 +11,7 @@ def _np(x):
 
 
 def _reference(sigma, delta, c, bg):
-    """Direct transcription of DEVELOPERS.md's quadrature, one ray at a time."""
+    """Direct transcription of the quadrature in docs/conventions.md, one ray at a time."""
     R, N = sigma.shape
     C = np.zeros((R, 3))
     for r in range(R):
@@ -56,7 +56,8 @@ def test_homogeneous_slab_opacity_is_exact(tau, n):
 def test_piecewise_constant_density_gives_exact_transmittance():
     sigma = np.array([0.0, 2.0, 0.5, 7.0], np.float32)
     delta = np.array([0.3, 0.1, 0.4, 0.05], np.float32)
-    T = _np(transmittance(mi.Float(sigma), mi.Float(delta), 4))
+    w, _ = weights(mi.Float(sigma), mi.Float(delta), 4)
+    T = 1.0 - np.concatenate([[0], np.cumsum(_np(w))[:-1]])  # T_i = 1 - sum_{j<i} w_j
     np.testing.assert_allclose(T, np.exp(-np.concatenate([[0], np.cumsum(sigma * delta)[:-1]])), rtol=1e-6)
 
 
@@ -79,6 +80,10 @@ def test_gradient_of_opacity_wrt_density_is_analytic():
     np.testing.assert_allclose(_np(dr.grad(sigma)), [0.25 * np.exp(-1.5)] * 4, rtol=1e-5)
 
 
-def test_alpha_and_accumulate():
-    np.testing.assert_allclose(_np(alpha(mi.Float(2.0), mi.Float(0.5))), [1 - np.exp(-1.0)], rtol=1e-6)
-    np.testing.assert_allclose(_np(accumulate(mi.Float(1, 2, 3, 4), mi.Float(1, 1, 2, 2), 2)), [3, 14])
+def test_one_interval_alpha_and_the_weighted_depth():
+    # one sample: alpha = 1 - exp(-sigma delta) is the weight; depth = sum_i w_i t_i per ray
+    np.testing.assert_allclose(_np(weights(mi.Float(2.0), mi.Float(0.5), 1)[0]), [1 - np.exp(-1.0)], rtol=1e-6)
+    sigma, delta, t = mi.Float(1, 2, 3, 4), mi.Float(0.5, 0.5, 0.25, 0.25), mi.Float(1, 1, 2, 2)
+    w, _ = weights(sigma, delta, 2)
+    depth = composite(sigma, delta, mi.Color3f(0.0), 2, t=t).depth
+    np.testing.assert_allclose(_np(depth), (_np(w) * _np(t)).reshape(2, 2).sum(1), rtol=1e-6)

@@ -16,17 +16,12 @@ from mitsnerf.methods.mitsuba_inverse import MitsubaInverseConfig, MitsubaInvers
 from mitsnerf.render.background import ConstantBackground
 from mitsnerf.train import PixelData, TrainConfig, TrainState, make_optimizer, train
 
-TINY = {
-    "name": "tiny-inverse",
-    "description": "a 16^3 cloud, 12x12 views",
-    "volume": {"family": "cloud", "resolution": 16, "seed": 1, "sigma_t_scale": 30.0, "params": {"albedo": [0.8, 0.8, 0.8]}},
-    "lights": [
-        {"type": "constant", "radiance": [0.5, 0.55, 0.6]},
-        {"type": "directional", "direction": [-0.4, -0.8, -0.45], "irradiance": [4.0, 3.8, 3.5]},
-    ],
-    "cameras": {"rig": "sphere", "n_train": 4, "n_test": 2, "width": 12, "height": 12, "fov": 40.0, "radius": 2.2, "seed": 0},
-    "render": {"spp_train": 32, "spp_test": 32, "max_depth": 8, "seed": 0, "noise_floor": False},
-}
+from ..conftest import tiny_scene
+
+TINY = tiny_scene({"name": "tiny-inverse", "description": "a 16^3 cloud, 12x12 views", "cameras.n_train": 4,
+                   "cameras.width": 12, "cameras.height": 12, "render.spp_train": 32, "render.spp_test": 32,
+                   "render.max_depth": 8, "render.noise_floor": False})
+
 CONFIG = MitsubaInverseConfig(resolutions=(8, 16), upsample_at=(10,), spp=16, eval_spp=32, sigma_t_max=40.0, lr=1.0)
 FLAT = TrainConfig(steps=20, log_every=5, lr_final_factor=1.0)  # no decay: 20 steps only
 

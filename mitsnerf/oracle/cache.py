@@ -1,0 +1,235 @@
+"""A dataset's oracle, computed once and cached with the dataset: ``DATASET/oracle/<key[:12]>/``.
+
+The key is the sha256 of the oracle's settings (:class:`OracleConfig`), the footprint it is
+scored at, the dataset's own hash (which covers the spec, the Mitsuba/Dr.Jit versions and the
+variant) and :data:`ORACLE_FORMAT`. The directory is built in a temporary sibling and renamed
+into place (:func:`mitsnerf.data.atomic.atomic_dir`) under a lock (one writer at a time), with
+``oracle.json`` as its index::
+
+    oracle.json        settings, key, timings, Monte Carlo error, scores summary, provenance
+    scores.json        {"footprint_1": metrics, "footprint_K": metrics}  (mitsnerf.scoring.score_views)
+    lbar_mc.npy        Lbar_mc (R, R, R, 3) and its standard error lbar_mc_se.npy
+    lbar_delta.npy     the delta lights' term (R_d, R_d, R_d, 3)
+    test_k1.npy        the oracle's test views (V, H, W, 3) at footprint 1, test_kK.npy at K
+    var_kK.npy         their Monte Carlo variance at K (:func:`mitsnerf.oracle.field.image_variance`)
+
+The error of the oracle against ``test`` splits into what it cannot help and what it adds::
+
+    MSE(oracle, test) = s_ref^2 + Var_mc + bias^2,   s_ref^2 = MSE(test, test_ref) / 2
+
+(``s_ref^2``: the test views' own noise; ``Var_mc``: the oracle's from ``Lbar_mc``; ``bias^2``:
+grid interpolation, quadrature and footprint), each a mean over medium pixels in ``oracle.json``.
+"""
+
+from __future__ import annotations
+
+import json
+import time
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, Callable
+
+import numpy as np
+
+from mitsnerf.config import check_fields, param, to_dict
+
+ORACLE_FORMAT = 1
+ORACLE_DIR = "oracle"
+
+
+@dataclass(frozen=True)
+class OracleConfig:
+    """How a dataset's oracle is computed (every field is part of its cache key).
+
+    The defaults, measured on the default cloud (64^3 sigma_t, benchmarks/README.md): on a 32^3
+    grid the interpolation bias of ``Lbar_mc`` is ~15x below the test views' own noise (16^3: 2x
+    above it), and per volpath sample a 32^3 grid with more directions beats a 64^3 one; 128
+    directions put the oracle's Monte Carlo variance at about half the test views' noise.
+    """
+
+    spp: int = param(128, lo=2, doc="volpath directions per grid point for Lbar_mc")
+    resolution: int = param(32, lo=0, doc="Lbar_mc grid R (0: the true sigma_t grid's)")
+    delta_resolution: int = param(0, lo=0, doc="grid of the delta lights' term (0: the true sigma_t grid's)")
+    n_samples: int = param(128, lo=1, doc="the integrator's samples per ray N")
+    noise_replicas: int = param(1, lo=1, doc="sign patterns for the image's Monte Carlo variance")
+    seed: int = param(0, lo=0, doc="seed of the volpath samples")
+    enabled: bool = param(True, doc="compute the oracle (false: no ceiling row, no error budget)")
+
+    def __post_init__(self) -> None:
+        check_fields(self)
+        for name in ("resolution", "delta_resolution"):
+            if getattr(self, name) == 1:
+                raise ValueError(f"{name}: must be 0 (the true grid's) or >= 2, got 1")
+
+
+def oracle_key(dataset_hash: str, config: OracleConfig, footprint: int) -> str:
+    """sha256 of what decides the oracle (module docstring).
+
+    >>> oracle_key("abc", OracleConfig(), 3) == oracle_key("abc", OracleConfig(spp=128), 3)
+    True
+    >>> oracle_key("abc", OracleConfig(), 3) == oracle_key("abc", OracleConfig(), 1)
+    False
+    """
+    import hashlib
+
+    text = json.dumps({"dataset": dataset_hash, "config": to_dict(config), "footprint": int(footprint),
+                       "format": ORACLE_FORMAT}, sort_keys=True, separators=(",", ":"))
+    return hashlib.sha256(text.encode("utf-8")).hexdigest()
+
+
+@dataclass(frozen=True)
+class Oracle:
+    """A computed (or cached) oracle: ``info`` (``oracle.json``) and ``scores`` per footprint."""
+
+    path: Path | None
+    info: dict
+    scores: dict
+
+    def metrics(self, footprint: int) -> dict:
+        """``score_views`` metrics of the oracle's test views rendered at ``footprint`` (1 or the scored K)."""
+        return self.scores[f"footprint_{int(footprint)}"]
+
+
+def _grids(dataset) -> tuple[Any, np.ndarray, np.ndarray] | None:
+    """``(spec, sigma_t, albedo)`` of a generated dataset; None for foreign data (no spec or grids)."""
+    from mitsnerf.scene.spec import parse_scene
+
+    spec_data = (dataset.manifest or {}).get("spec")
+    volume = Path(dataset.root) / "volume"
+    if not spec_data or not (volume / "sigma_t.npy").is_file() or not (volume / "albedo.npy").is_file():
+        return None
+    spec = parse_scene(spec_data, Path(dataset.root) / "manifest.json")
+    return spec, np.load(volume / "sigma_t.npy"), np.load(volume / "albedo.npy")
+
+
+def estimate_source(spec, sigma_t: np.ndarray, albedo: np.ndarray, box, config: OracleConfig):
+    """``(SourceGrids, OracleField)`` of a scene: ``Lbar`` estimated by volpath from inside the medium."""
+    import mitsuba as mi
+
+    from mitsnerf.oracle.field import OracleField
+    from mitsnerf.oracle.source import estimate_grids, inner_max_depth
+    from mitsnerf.scene.to_mitsuba import scene_dict
+
+    depth = inner_max_depth(spec.render.max_depth)
+    scene = None
+    if depth is not None:
+        description = scene_dict(spec, sigma_t, albedo)
+        description["integrator"] = {"type": "volpath", "max_depth": depth}
+        scene = mi.load_dict(description)
+    r = config.resolution or sigma_t.shape[0]
+    r_delta = config.delta_resolution or sigma_t.shape[0]
+    grids = estimate_grids(scene, spec.lights, sigma_t, box, r, r_delta, config.spp, config.seed)
+    return grids, OracleField.from_grids(sigma_t, albedo, grids.mc, grids.delta, box)
+
+
+def _medium_mean(values: np.ndarray, masks: np.ndarray) -> float:
+    return float(np.mean(values[masks])) if masks.any() else float("nan")
+
+
+def error_split(oracle: np.ndarray, var: np.ndarray, ref, test_ref: np.ndarray | None) -> dict[str, Any]:
+    """``MSE(oracle, test) = s_ref^2 + Var_mc + bias^2`` over medium pixels (module docstring), with PSNRs."""
+    if ref.masks is None:
+        return {}
+    masks = ref.masks
+    total = _medium_mean(np.square(oracle - ref.images).mean(-1), masks)
+    out = {"mse_medium": total, "mc_var_medium": _medium_mean(var.mean(-1), masks)}
+    # the pooled medium PSNR the oracle would score without its own Monte Carlo noise
+    out["psnr_medium_without_mc"] = float(-10.0 * np.log10(max(total - out["mc_var_medium"], 1e-30)))
+    if test_ref is not None:
+        out["ref_var_medium"] = 0.5 * _medium_mean(np.square(test_ref - ref.images).mean(-1), masks)
+        out["bias2_medium"] = total - out["ref_var_medium"] - out["mc_var_medium"]
+    out["note"] = ("mean over medium pixels and channels; MSE = ref_var + mc_var + bias2 (bias2 by difference: "
+                   "grid interpolation, quadrature, footprint); PSNR of a term x alone: -10 log10(x)")
+    return out
+
+
+def compute_oracle(dataset, config: OracleConfig, footprint: int,
+                   log: Callable[[str], None] = lambda line: None) -> tuple[dict, dict, dict[str, np.ndarray]] | None:
+    """``(info, scores, arrays)`` of the oracle of ``dataset``'s test views (None for foreign data)."""
+    from mitsnerf import env
+    from mitsnerf.oracle.field import image_variance, render_field
+    from mitsnerf.render.background import make_background
+    from mitsnerf.scoring import reference, score_views, true_density
+
+    inputs = _grids(dataset)
+    if inputs is None:
+        return None
+    spec, sigma_t, albedo = inputs
+    ref = reference(dataset, "test")
+    log(f"oracle: Lbar by volpath from inside the medium ({config.spp} directions per point) ...")
+    grids, field = estimate_source(spec, sigma_t, albedo, dataset.box, config)
+    seconds = dict(grids.seconds)
+    start = time.perf_counter()
+    background = make_background(dataset.background, dataset.root)
+    kwargs = dict(pixel_center=ref.pixel_center)
+    renders = {k: render_field(field, ref.cameras, dataset.box, config.n_samples, background=background,
+                               footprint=k, **kwargs) for k in sorted({1, int(footprint)})}
+    seconds["render"] = time.perf_counter() - start
+    var = image_variance(sigma_t, albedo, grids.mc_se, ref.cameras, dataset.box, config.n_samples,
+                         footprint=footprint, replicas=config.noise_replicas, seed=config.seed, **kwargs)
+    seconds["variance"] = time.perf_counter() - start - seconds["render"]
+    density = true_density(sigma_t, dataset.box)
+    scores = {f"footprint_{k}": score_views(img, ref, density)[0] for k, img in renders.items()}
+    test_ref = dataset.views("test_ref").images if "test_ref" in dataset.splits else None
+    needed = grids.mc_se.any(axis=-1) | (grids.mc != 0).any(axis=-1)
+    rel_se = grids.mc_se[needed] / np.maximum(grids.mc[needed], 1e-12)
+    info = {
+        "format": ORACLE_FORMAT, "config": to_dict(config), "footprint": int(footprint),
+        "dataset_hash": dataset.manifest.get("hash"), "max_depth": spec.render.max_depth,
+        "grid_points": grids.points, "volpath_samples": grids.points * grids.spp, "seconds": seconds,
+        "mc_error": {"lbar_rel_se_median": float(np.median(rel_se)) if rel_se.size else None,
+                     "lbar_rel_se_p90": float(np.quantile(rel_se, 0.9)) if rel_se.size else None},
+        "error_split": error_split(renders[int(footprint)], var, ref, test_ref),
+        "psnr_test_medium": {k: s.get("psnr_test_medium") for k, s in scores.items()},
+        "noise_floor_psnr_medium": (ref.noise_floor or {}).get("psnr_medium"), "provenance": env.provenance(),
+    }
+    arrays = {"lbar_mc": grids.mc, "lbar_mc_se": grids.mc_se, "lbar_delta": grids.delta,
+              f"var_k{footprint}": var.astype(np.float32)}
+    arrays.update({f"test_k{k}": img for k, img in renders.items()})
+    return info, scores, arrays
+
+
+def oracle_path(dataset, config: OracleConfig, footprint: int) -> Path:
+    """Where ``dataset``'s oracle for these settings is cached."""
+    return Path(dataset.root) / ORACLE_DIR / oracle_key(str(dataset.manifest.get("hash")), config, footprint)[:12]
+
+
+def load_oracle(path: Path) -> Oracle | None:
+    """The oracle cached at ``path`` (None when it is not there or not complete)."""
+    try:
+        info = json.loads((path / "oracle.json").read_text(encoding="utf-8"))
+        scores = json.loads((path / "scores.json").read_text(encoding="utf-8"))
+    except (OSError, ValueError):
+        return None
+    return Oracle(path, info, scores) if info.get("format") == ORACLE_FORMAT else None
+
+
+def ensure_oracle(dataset, config: OracleConfig, footprint: int,
+                  log: Callable[[str], None] = lambda line: None) -> Oracle | None:
+    """The cached oracle of ``dataset``, computed and written first if missing (None for foreign data).
+
+    One writer at a time (a lock next to the directory); ``oracle.json`` is written last inside
+    a temporary directory renamed into place, so an interrupted run leaves no complete-looking oracle.
+    """
+    from mitsnerf.data.atomic import atomic_dir, atomic_write_json, clean_stale_temps
+    from mitsnerf.data.cache import dataset_lock
+
+    if _grids(dataset) is None:
+        return None
+    path = oracle_path(dataset, config, footprint)
+    found = load_oracle(path)
+    if found is not None:
+        return found
+    with dataset_lock(path, progress=False):
+        found = load_oracle(path)
+        if found is not None:
+            return found
+        clean_stale_temps(path.parent, min_age_s=0.0)
+        info, scores, arrays = compute_oracle(dataset, config, footprint, log)
+        info["key"] = oracle_key(str(dataset.manifest.get("hash")), config, footprint)
+        with atomic_dir(path, overwrite=True) as tmp:
+            for name, array in arrays.items():
+                np.save(tmp / f"{name}.npy", np.ascontiguousarray(array))
+            atomic_write_json(tmp / "scores.json", scores)
+            atomic_write_json(tmp / "oracle.json", info)
+    return load_oracle(path)
