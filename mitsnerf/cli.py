@@ -191,6 +191,7 @@ def cmd_score(args) -> int:
     from mitsnerf.external import score_renders
 
     dataset = _load(args, args.dataset)
+    print(f"mitsnerf: scene box {dataset.box.to_list()} ({dataset.box_source})", flush=True)
     renders = Path(args.renders)
     result = score_renders(dataset, renders, density=Path(args.density) if args.density else None, name=args.name,
                            fmt=args.format, footprint=args.footprint)
