@@ -86,6 +86,13 @@ def cmd_scenes(args) -> int:
     return status
 
 
+def _scene_overrides(args) -> dict:
+    """``--nerf-synthetic`` (the box at [-1.5, 1.5]^3, cameras at radius 4), then the ``--set`` pairs over it."""
+    from mitsnerf.scene.spec import nerf_synthetic_overrides
+
+    return {**(nerf_synthetic_overrides() if args.nerf_synthetic else {}), **_overrides(args.set)}
+
+
 def cmd_methods(args) -> int:
     from mitsnerf.config import doc_table
     from mitsnerf.errors import SpecError
@@ -114,13 +121,15 @@ def cmd_generate(args) -> int:
     if not args.all and not args.scene:
         raise UsageError("generate", "name a SCENE or pass --all")
     check_output_dir(Path(args.out), "--out")
+    overrides = _scene_overrides(args)
     if args.all:
-        for path in generate_all(Path(args.out), force=args.force, verify_hashes=not args.no_verify):
+        for path in generate_all(Path(args.out), overrides=overrides, force=args.force,
+                                 verify_hashes=not args.no_verify):
             print(path)
         return 0
     spec = load_scene(args.scene)
-    if args.set:
-        spec = spec.with_overrides(_overrides(args.set))
+    if overrides:
+        spec = spec.with_overrides(overrides)
     print(generate_dataset(spec, Path(args.out), force=args.force, verify_hashes=not args.no_verify))
     return 0
 
@@ -236,6 +245,29 @@ def cmd_train(args) -> int:
     return 0
 
 
+def cmd_score(args) -> int:
+    from mitsnerf.bench.tables import QUALITY, markdown_table, scene_rows
+    from mitsnerf.data.atomic import atomic_write_json
+    from mitsnerf.external import score_renders
+    from mitsnerf.outputs import check_output_file
+
+    renders = Path(args.renders)
+    out = Path(args.out) if args.out else renders / "scores.json"
+    check_output_file(out, "--out")
+    dataset = _load(args, args.dataset)
+    print(f"mitsnerf: scene box {dataset.box.to_list()} ({dataset.box_source})", flush=True)
+    result = score_renders(dataset, renders, density=Path(args.density) if args.density else None, name=args.name,
+                           fmt=args.format, footprint=args.footprint)
+    record = result.record(dataset, renders)
+    scene = (dataset.manifest or {}).get("name") or Path(dataset.root).resolve().name
+    row = scene_rows([{"scene": scene, "method": f"{result.name} (external)", "seed": 0, "metrics": result.metrics}])
+    atomic_write_json(out, record)
+    print(markdown_table(row, QUALITY))
+    print(f"\n{len(result.files)} renders matched by {result.matched_by}; {result.oracle}; "
+          f"density: {result.density or 'none given'} -> {out}")
+    return 0
+
+
 def _check_numbers(checks) -> None:
     """A :class:`~mitsnerf.errors.UsageError` for the first ``(flag, values, ok, what)`` whose values
     (None: not given) are not all finite and ``ok``."""
@@ -304,7 +336,9 @@ box_max); colour averaged over --directions view directions spread over the sphe
 or seen along --direction. sigma_t transfers exactly; a NeRF's colour is radiance, not albedo,
 so albedo.vol is only an approximation (for mitsuba-inverse it is the learned albedo itself).
 
-Use it in Mitsuba (gridvolume maps [0, 1]^3 onto the box; here mitsnerf's unit box [-0.5, 0.5]^3):
+Use it in Mitsuba (gridvolume maps [0, 1]^3 onto the box; here the unit box [-0.5, 0.5]^3 of a
+default-scale dataset; for another box: translate(box_min).scale(box_max - box_min) for the grids,
+translate(centre).scale(size / 2) for the cube):
 
   grid = lambda f: {"type": "gridvolume", "filename": "OUT/" + f,
                     "to_world": mi.ScalarTransform4f().translate(-0.5)}
@@ -438,6 +472,9 @@ def _generate_parser(sub) -> None:
     p.add_argument("--no-verify", action="store_true",
                    help="on a cache hit, skip checking the files against the manifest's sha256 hashes")
     p.add_argument("--set", action="append", metavar="KEY=VALUE", help="override a spec field, e.g. cameras.width=32")
+    p.add_argument("--nerf-synthetic", action="store_true",
+                   help="write the scene at the NeRF-synthetic scale: box [-1.5, 1.5]^3 (world.scale=3, sigma_t / 3), "
+                        "cameras at radius 4, where those readers' near/far 2..6 work; --set wins over it")
     p.set_defaults(func=cmd_generate)
 
 
@@ -475,6 +512,32 @@ def _train_parser(sub) -> None:
     p.add_argument("--pixel-center", type=float, help="0.5 (Mitsuba, mitsnerf) or 0 (original NeRF loader); default from the data")
     p.add_argument("--background", type=float, nargs=3, metavar=("R", "G", "B"), help="background for foreign PNG data (default white)")
     p.set_defaults(func=cmd_train)
+
+
+def _score_parser(sub) -> None:
+    p = sub.add_parser("score", help="score any tool's renders of a dataset's test views, as a benchmark cell",
+                       description="Score RENDERS (a folder of PNG or EXR images) against DATASET's test views: "
+                                   "PSNR/SSIM linear and sRGB, medium PSNR, the noise floor, the oracle (when the "
+                                   "dataset has one cached, DATASET/oracle/), and with --density the density errors. "
+                                   "Images are matched to the test frames by file name (r_000.png ...) or, when no "
+                                   "name is a frame's, by the frame number in each name; PNG alpha is composited "
+                                   "over the dataset's background, EXR is linear radiance used as is.")
+    p.add_argument("dataset", help="dataset directory (mitsnerf generate output, NeRF-synthetic or instant-ngp)")
+    p.add_argument("renders", help="folder of the renders of the test views")
+    p.add_argument("--density", metavar="GRID", help="sigma_t on a grid over the dataset's box: .npy [z, y, x] or Mitsuba .vol")
+    p.add_argument("--name", help="the row's name (default: the renders folder's name)")
+    p.add_argument("--format", choices=("png", "exr"), help="read only these images (needed when both are there)")
+    p.add_argument("--out", help="JSON record to write (default: RENDERS/scores.json)")
+    p.add_argument("--footprint", type=int, default=1, metavar="K",
+                   help="the tool's rays per pixel side (default 1: one through each pixel centre): which of the "
+                        "cached oracle's renders the renders are held against")
+    p.add_argument("--box", type=float, nargs=6, metavar=("X0", "Y0", "Z0", "X1", "Y1", "Z1"),
+                   help="the scene box (default: from the data, as mitsnerf train)")
+    p.add_argument("--pixel-center", type=float, help="0.5 (Mitsuba, mitsnerf) or 0 (original NeRF loader); default from the data")
+    p.add_argument("--background", type=float, nargs=3, metavar=("R", "G", "B"), help="background for foreign PNG data (default white)")
+    p.add_argument("--no-verify", action="store_true",
+                   help="skip checking the dataset's files against the sha256 hashes in its manifest")
+    p.set_defaults(func=cmd_score)
 
 
 def _render_parser(sub) -> None:
@@ -557,7 +620,7 @@ def _check_parser(sub) -> None:
 
 
 COMMANDS = (_env_parser, _scenes_parser, _methods_parser, _generate_parser, _train_parser, _render_parser, _export_parser,
-            _bench_parser, _check_parser)
+            _score_parser, _bench_parser, _check_parser)
 """Each adds its command's parser to the subparsers; in the order ``mitsnerf --help`` lists them."""
 
 

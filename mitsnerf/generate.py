@@ -8,6 +8,15 @@ temporary sibling and renamed into place with ``manifest.json`` written last, so
 run (Ctrl-C, SIGKILL) never leaves a directory that looks complete. Views are rendered by
 :mod:`mitsnerf.scene.render`; the noise floor is scored by :mod:`mitsnerf.scoring` on the same
 medium pixels as every method.
+
+Beside the full images, every split is rendered a second time as **the medium alone**
+(:mod:`mitsnerf.scene.render`: the environment seen through the medium hidden, alpha ``~ 1 - T``)
+into ``medium/``, a NeRF-synthetic dataset of its own (``transforms_{train,val,test,test_ref}.json``,
+``val`` being the test views; RGBA PNGs with straight alpha over a transparent background, and
+premultiplied linear EXRs), which NeRF-synthetic readers load unchanged. The manifest records the
+statistical check that those renders, composited over the environment, reproduce the full images
+(:func:`mitsnerf.scoring.composite_agreement`), and how much of the medium a reader with
+NeRF-synthetic's fixed near/far sees (:func:`mitsnerf.scoring.near_far_coverage`).
 """
 
 from __future__ import annotations
@@ -33,8 +42,13 @@ from mitsnerf.scene.to_mitsuba import background_description, scene_box, scene_d
 #: 2: the noise floor's medium mask is the centre-ray opacity > 1e-3 rule of ``mitsnerf.run``.
 #: 3: the plume family rises along the world's up axis z (it lay along y); families are part of the data.
 #: 4: the scene box is recorded (manifest ``box``, transforms ``aabb``); medium masks by ``mitsnerf.scoring``.
-FORMAT_VERSION = 4
+#: 5: the medium alone (``medium/``, a NeRF-synthetic view); the spec's ``world.scale``.
+FORMAT_VERSION = 5
 SPLITS = ("train", "test", "test_ref")
+#: The medium-alone NeRF-synthetic view, relative to the dataset directory.
+MEDIUM_DIR = "medium"
+#: The near and far planes NeRF-synthetic readers hard-code.
+NERF_SYNTHETIC_NEAR_FAR = (2.0, 6.0)
 
 
 def default_splits(spec: SceneSpec) -> tuple[str, ...]:
@@ -75,24 +89,31 @@ def dataset_dir(spec: SceneSpec, out_root: str | os.PathLike, splits: Sequence[s
     return Path(out_root) / f"{spec.name}-{digest[:12]}"
 
 
-def _write_split(tmp: Path, spec: SceneSpec, split: str, images: list[np.ndarray], cameras: list[Camera],
-                 box: Box) -> None:
-    """The split's EXR and PNG images and its ``transforms_<split>.json`` (with the box as ``aabb``)."""
-    from mitsnerf.data.images import write_exr, write_png
+def _write_split(root: Path, spec: SceneSpec, split: str, images: list[np.ndarray], cameras: list[Camera],
+                 box: Box, medium: bool = False) -> None:
+    """The split's EXR and PNG images and its ``transforms_<split>.json`` (with the box as ``aabb``) under ``root``.
+
+    ``medium``: the medium-alone view: the EXRs premultiplied RGBA (``"exr_alpha": "premultiplied"``),
+    the PNGs straight RGBA as NeRF-synthetic readers expect, the seeds of ``<split>_medium``, and
+    the test split written also as ``transforms_val.json``.
+    """
+    from mitsnerf.data.images import unpremultiply, write_exr, write_png
     from mitsnerf.data.transforms import write_transforms
     from mitsnerf.scene.render import render_seed
 
-    (tmp / split).mkdir()
+    (root / split).mkdir(parents=True)
     for i, img in enumerate(images):
-        write_exr(tmp / split / f"r_{i:03d}.exr", img)
-        write_png(tmp / split / f"r_{i:03d}.png", img[..., :3])
-    seeds = [render_seed(spec.render.seed, split, i) for i in range(len(cameras))]
-    write_transforms(tmp / f"transforms_{split}.json", cameras, [f"./{split}/r_{i:03d}" for i in range(len(cameras))],
-                     aabb_scale=1, extra={"aabb": box.to_list(), "split": split, "spp": split_spp(spec, split),
-                                          "render_seeds": seeds})
+        write_exr(root / split / f"r_{i:03d}.exr", img)
+        write_png(root / split / f"r_{i:03d}.png", unpremultiply(img) if medium else img[..., :3])
+    seeds = [render_seed(spec.render.seed, f"{split}_medium" if medium else split, i) for i in range(len(cameras))]
+    extra = {"aabb": box.to_list(), "split": split, "spp": split_spp(spec, split), "render_seeds": seeds,
+             **({"exr_alpha": "premultiplied"} if medium else {})}
+    for name in (split, "val") if medium and split == "test" else (split,):
+        write_transforms(root / f"transforms_{name}.json", cameras,
+                         [f"./{split}/r_{i:03d}" for i in range(len(cameras))], aabb_scale=1, extra=extra)
 
 
-def _manifest(spec: SceneSpec, digest: str, splits, box: Box, timings: dict, noise: dict | None, tmp: Path) -> dict:
+def _manifest(spec: SceneSpec, digest: str, splits, box: Box, timings: dict, checks: dict, tmp: Path) -> dict:
     from mitsnerf.env import provenance
 
     files = {p.relative_to(tmp).as_posix(): sha256_file(p) for p in sorted(tmp.rglob("*")) if p.is_file()}
@@ -107,15 +128,47 @@ def _manifest(spec: SceneSpec, digest: str, splits, box: Box, timings: dict, noi
             "alpha": "1 everywhere with an environment light; else the fraction of samples "
                      "that scattered or were absorbed in the medium (an estimate of 1 - transmittance)",
         },
-        "splits": list(splits), "timings": timings, "noise_floor": noise, "files": files,
+        "splits": list(splits), "timings": timings, "noise_floor": checks["noise_floor"],
+        "medium": {
+            "dir": MEDIUM_DIR,
+            "layout": "NeRF-synthetic: transforms_{train,val,test,test_ref}.json (val: the test views), "
+                      "r_NNN.png RGBA with straight alpha (sRGB, colour clipped to [0, 1]), r_NNN.exr "
+                      "premultiplied linear RGBA",
+            "render": "volpath with hide_emitters: the medium's own radiance; alpha is the fraction of a pixel's "
+                      "samples whose camera ray collided in the medium, an estimate of 1 - T",
+            "composite_check": checks["composite_check"],
+        },
+        "nerf_synthetic": checks["nerf_synthetic"], "files": files,
     }
+
+
+def _checks(tmp: Path, spec: SceneSpec, box: Box, sigma_t: np.ndarray, cams: dict, images: dict,
+            medium: dict) -> dict:
+    """The noise floor, the medium-alone composite check and the near/far coverage of the test views."""
+    from mitsnerf import scoring
+    from mitsnerf.render.background import make_background, pixel_background
+
+    out: dict[str, Any] = {"noise_floor": None, "composite_check": None, "nerf_synthetic": None}
+    if "test" not in images:
+        return out
+    near, far = NERF_SYNTHETIC_NEAR_FAR
+    out["nerf_synthetic"] = {"near": near, "far": far, "test_optical_depth_within": scoring.near_far_coverage(
+        sigma_t, box, cams["test"], near, far)}
+    if "test_ref" in images:
+        full, full_ref = np.stack(images["test"]), np.stack(images["test_ref"])
+        masks = scoring.medium_masks(sigma_t, box, cams["test"])
+        out["noise_floor"] = scoring.noise_floor(full, full_ref, masks)
+        env = pixel_background(make_background(background_description(spec), tmp), cams["test"])
+        out["composite_check"] = {
+            **scoring.composite_agreement(full, full_ref, np.stack(medium["test"]), np.stack(medium["test_ref"]), env),
+            "rule": "mitsnerf.scoring.composite_agreement: test and test_ref against medium/test and "
+                    "medium/test_ref composited over the environment (mean over 4 x 4 points of each pixel)"}
+    return out
 
 
 def _build(tmp: Path, spec: SceneSpec, splits: tuple[str, ...], digest: str, progress: bool) -> dict:
     """Render everything into ``tmp``; returns the manifest (not yet written)."""
     import mitsuba as mi
-
-    from mitsnerf import scoring
 
     started = time.perf_counter()
     box = scene_box(spec)
@@ -124,17 +177,17 @@ def _build(tmp: Path, spec: SceneSpec, splits: tuple[str, ...], digest: str, pro
     write_volume(tmp, spec, sigma_t, albedo, box)
     scene = mi.load_dict(scene_dict(spec, sigma_t, albedo))
     cams = {s: camera_rig(spec.cameras, "train" if s == "train" else "test") for s in splits}
-    images, timings = {}, {}
+    images, medium, timings = {}, {}, {}
     for split in splits:
         images[split], timings[split] = render_split(scene, spec, split, cams[split], progress)
         ground_truth.check_views(spec, split, images[split])
         _write_split(tmp, spec, split, images[split], cams[split], box)
-    noise = None
-    if "test" in images and "test_ref" in images:
-        masks = scoring.medium_masks(sigma_t, box, cams["test"])
-        noise = scoring.noise_floor(np.stack(images["test"]), np.stack(images["test_ref"]), masks)
+        medium[split], timings[f"{MEDIUM_DIR}/{split}"] = render_split(scene, spec, split, cams[split], progress,
+                                                                       medium_alone=True)
+        _write_split(tmp / MEDIUM_DIR, spec, split, medium[split], cams[split], box, medium=True)
+    checks = _checks(tmp, spec, box, sigma_t, cams, images, medium)
     timings["total_seconds"] = time.perf_counter() - started
-    return _manifest(spec, digest, splits, box, timings, noise, tmp)
+    return _manifest(spec, digest, splits, box, timings, checks, tmp)
 
 
 def _cache_state(final: Path, digest: str, hashes: bool) -> str:

@@ -78,6 +78,18 @@ def check_output_dir(path: str | os.PathLike, option: str, *, replaced: bool = F
                               else f"cannot write in {d}: {reason}")
 
 
+def check_output_file(path: str | os.PathLike, option: str) -> None:
+    """Refuse ``path`` as an output file (``option`` names the flag) unless it can be written: not a
+    directory, and its directory writable (or creatable)."""
+    path = Path(path)
+    if path.is_dir():
+        raise OutputError(path, option, "is a directory; name a file")
+    where = _existing_ancestor(path.parent, option)
+    reason = probe_writable(where)
+    if reason is not None:
+        raise OutputError(path, option, f"cannot write in {where}: {reason}")
+
+
 def _holder(f) -> str:
     f.seek(0)
     text = f.read().decode("utf-8", "replace").strip()

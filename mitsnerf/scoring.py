@@ -25,6 +25,10 @@ renders of the test views (``test``, ``test_ref``); a noise-free model scores ab
 
 **Error budget** (:func:`error_budget`): a method's medium PSNR next to the oracle's and the
 floor, and the gaps between them.
+
+**The medium alone** (:func:`composite_agreement`): the dataset's RGBA renders of the medium
+without the environment, composited over it, against the full images; a statistical test on two
+independent pairs of renders.
 """
 
 from __future__ import annotations
@@ -168,6 +172,69 @@ def noise_floor(test: np.ndarray, ref: np.ndarray, masks: np.ndarray) -> dict[st
                         "through the true sigma_t (trilinear); views without such pixels are skipped"),
         "method": "mean over test views of PSNR(test, test_ref), linear RGB clipped to [0, 1], max_val 1",
     }
+
+
+def composite(medium: np.ndarray, background: np.ndarray) -> np.ndarray:
+    """``M + (1 - alpha) B``: premultiplied RGBA ``medium`` (..., 4) over the radiance ``background`` (..., 3).
+
+    >>> composite(np.array([0.2, 0.1, 0.0, 0.25]), np.array([1.0, 1.0, 1.0])).tolist()
+    [0.95, 0.85, 0.75]
+    """
+    return medium[..., :3] + (1.0 - medium[..., 3:4]) * background
+
+
+def composite_agreement(full: np.ndarray, full_ref: np.ndarray, medium: np.ndarray, medium_ref: np.ndarray,
+                        background: np.ndarray) -> dict[str, Any]:
+    """Do the medium-alone renders, composited over the environment, reproduce the full images?
+
+    ``full``, ``full_ref``: two independent renders of the same views (``(V, H, W, >=3)``, the
+    ``test`` and ``test_ref`` splits); ``medium``, ``medium_ref``: two independent medium-alone
+    renders (premultiplied RGBA); ``background``: ``(V, H, W, 3)``, the environment each pixel
+    sees (:func:`mitsnerf.render.background.pixel_background`). Per pixel, on the sum of the
+    channels (the channels of a pixel share its paths, so they are not independent; pixels are),
+    with ``C_1``, ``C_2`` the two composites (:func:`composite`)::
+
+        D = (full + full_ref) / 2 - (C_1 + C_2) / 2
+        W = ((full - full_ref)^2 + (C_1 - C_2)^2) / 4                     (E[W] = Var D under H0)
+        z_mean = sum D / sqrt(sum W)        ratio = sum D^2 / sum W,  ratio_sd = sqrt(3 sum W^2) / sum W
+
+    Under ``H0: E[C] = E[full]`` per pixel, ``z_mean`` is about standard normal (a shared bias
+    moves it) and ``ratio`` about 1 (a per-pixel disagreement raises it; ``ratio_sd`` is its
+    standard deviation for Gaussian noise). ``passed``: ``|z_mean| < 4`` and ``ratio < 1 + 4 ratio_sd``.
+    """
+    def channels(x):
+        return np.asarray(x[..., :3], np.float64).sum(axis=-1)
+
+    a, b = channels(full), channels(full_ref)
+    c1, c2 = channels(composite(medium, background)), channels(composite(medium_ref, background))
+    d = (a + b) / 2 - (c1 + c2) / 2
+    w = ((a - b) ** 2 + (c1 - c2) ** 2) / 4
+    total = float(w.sum())
+    if total <= 0:
+        return {"z_mean": None, "ratio": None, "ratio_sd": None, "passed": bool(np.all(d == 0)), "pixels": int(d.size)}
+    z, ratio, sd = float(d.sum() / math.sqrt(total)), float((d**2).sum() / total), math.sqrt(3 * float((w**2).sum())) / total
+    return {"z_mean": z, "ratio": ratio, "ratio_sd": sd, "passed": abs(z) < 4 and ratio < 1 + 4 * sd,
+            "pixels": int(d.size)}
+
+
+def near_far_coverage(sigma_t: np.ndarray, box: Box, cameras, near: float, far: float,
+                      pixel_center: float = 0.5) -> float | None:
+    """The fraction of the true optical depth along the pixel rays of ``cameras`` that lies within
+    ``[near, far]`` of the camera (a reader with a fixed near/far sees only that part), by the
+    midpoint rule with :func:`mask_samples` samples per chord of the box; None when no ray meets
+    the medium.
+    """
+    fn, n = true_density(sigma_t, box), mask_samples(sigma_t, box)
+    u = (np.arange(n) + 0.5) / n
+    inside = total = 0.0
+    for cam in cameras:  # one view at a time: (H W, n, 3) points
+        o, d = (a.astype(np.float64) for a in camera_rays_numpy([cam], pixel_center))
+        t_n, t_f, hit = box.intersect_numpy(o, d)
+        t = t_n[hit, None] + u[None] * (t_f - t_n)[hit, None]
+        points = o[hit, None] + t[..., None] * d[hit, None]
+        tau = query_density(fn, points.reshape(-1, 3)).reshape(t.shape) * ((t_f - t_n)[hit, None] / n)
+        inside, total = inside + float(tau[(t >= near) & (t <= far)].sum()), total + float(tau.sum())
+    return inside / total if total > 0 else None
 
 
 # --------------------------------------------------------------------------- density fields

@@ -25,7 +25,7 @@ LAYERS = (
     ("mitsnerf.methods",),
     ("mitsnerf.train", "mitsnerf.checkpoint", "mitsnerf.evaluate", "mitsnerf.generate"),
     ("mitsnerf.run", "mitsnerf.run_dir"),
-    ("mitsnerf.export", "mitsnerf.novel"),
+    ("mitsnerf.export", "mitsnerf.novel", "mitsnerf.external"),
     ("mitsnerf.verify", "mitsnerf.bench"),
     ("mitsnerf.cli",),
 )

@@ -16,12 +16,20 @@ label = "nerf"                   # column label (default: name); unique
 config = { n_samples = 64 }      # the method's config (nested tables for nested configs)
 train = { batch_rays = 2048 }    # this method's training settings (over the shared ones)
 quick = { config = { n_samples = 32 } }   # this method's part of the --quick profile
+[[external]]                     # renders made by another tool, scored beside the methods (optional)
+name = "nerfacto"                # the row reads "nerfacto (external)"
+renders = { cloud = "renders/nerfacto/cloud" }    # per scene name: a folder of its test views' renders
+density = { cloud = "renders/nerfacto/cloud.npy" }  # optional, per scene: sigma_t (.npy or .vol) in its box
+quick = { renders = { cloud = "..." } }          # renders of the --quick datasets (else not in --quick)
 [quick]                          # the --quick profile: tiny scenes, few steps
 scene = { "cameras.width" = 16 } # SceneSpec.with_overrides keys
 train = { steps = 40, seconds = 0 }
 eval = { curve_points = 3 }
 oracle = { spp = 8 }
 ```
+
+External renders are matched and scored as ``mitsnerf score`` does (:mod:`mitsnerf.external`);
+relative paths are relative to the config file's folder.
 
 With ``methods = "all"``, every method in :data:`mitsnerf.methods.METHODS` runs with its
 default settings, and ``[method_settings.NAME]`` tables (``config``, ``train``, ``quick``)
@@ -82,6 +90,40 @@ class MethodRun:
             raise ValueError(f"label: must not contain '/' or start with '.', got {self.label!r}")
 
 
+@dataclass(frozen=True, kw_only=True)
+class ExternalFiles:
+    """Per scene name: a folder of renders of its test views, and optionally a density grid over its box."""
+
+    renders: Mapping[str, str] = param(default_factory=dict, doc="scene name -> folder of renders of its test views")
+    density: Mapping[str, str] = param(default_factory=dict, doc="scene name -> sigma_t grid (.npy or .vol) in its box")
+
+
+@dataclass(frozen=True, kw_only=True)
+class ExternalRun(ExternalFiles):
+    """Renders made by another tool, scored like a cell (``mitsnerf score``) and shown marked external."""
+
+    name: str = param(doc='the row reads "NAME (external)"; unique')
+    format: str = param("", choices=("", "png", "exr"), doc="read only these images (empty: both)")
+    footprint: int = param(1, lo=1, hi=64, doc="the tool's rays per pixel side (1: one through each pixel centre): "
+                                               "the oracle's renders it is held against")
+    quick: ExternalFiles = param(default_factory=ExternalFiles,
+                                 doc="the same for the --quick profile's datasets (none: left out of --quick)")
+
+    def __post_init__(self) -> None:
+        if not self.name or "/" in self.name or self.name.startswith("."):
+            raise ValueError(f"name: must be a non-empty name without '/', got {self.name!r}")
+        if not self.renders:
+            raise ValueError("renders: at least one scene's renders are needed")
+
+    @property
+    def label(self) -> str:
+        return f"{self.name} (external)"
+
+    def files(self, quick: bool) -> ExternalFiles:
+        """The renders and densities of the profile (``quick``) being run."""
+        return self.quick if quick else ExternalFiles(renders=self.renders, density=self.density)
+
+
 @dataclass(frozen=True)
 class QuickProfile:
     """Overrides applied by ``--quick``: to every scene spec, every method config, budget and eval."""
@@ -105,6 +147,7 @@ class BenchConfig:
     quick: QuickProfile = param(default_factory=QuickProfile, doc="the --quick profile")
     oracle: OracleConfig = param(default_factory=OracleConfig,
                                  doc="the emission-absorption oracle of each dataset (the ceiling row)")
+    external: tuple[ExternalRun, ...] = param((), doc="[[external]] tables: other tools' renders, scored beside the methods")
     description: str = param("", doc="one line")
     source: str | None = source_field()
     methods_all: bool = field(default=False, compare=False, metadata={INTERNAL: True})
@@ -126,6 +169,9 @@ class BenchConfig:
         labels = [m.label for m in self.methods]
         if len(set(labels)) != len(labels):
             raise ValueError(f"methods: labels must be unique, got {labels}")
+        names = [e.name for e in self.external]
+        if len(set(names)) != len(names):
+            raise ValueError(f"external: names must be unique, got {names}")
 
     def method_path(self, method: MethodRun) -> str:
         """Where ``method``'s settings are in the file: ``methods.I`` or ``method_settings.NAME``."""

@@ -3,6 +3,7 @@
 - ``psnr_time_<scene>.png``: held-out PSNR against training time (evaluation excluded), whole
   image and medium pixels, one colour per method, one line per seed, the noise floor dashed;
 - ``per_view_<scene>.png``: test PSNR per view (mean over seeds) with the per-view noise floor;
+- ``error_budget_<scene>.png``: each method's medium PSNR against the oracle and the noise floor, with its gap;
 - ``images_<scene>.png``: the report view: ground truth and its medium-pixel mask, each
   method's render (first seed) and its error map ``mean_c |render - truth|`` (linear,
   clipped) on a shared scale;
@@ -206,6 +207,37 @@ def density_slices(scene: str, records: Sequence[dict], methods: Sequence[str], 
     return _save(fig, path)
 
 
+def error_budget(scene: str, records: Sequence[dict], methods: Sequence[str], path: Path) -> Path | None:
+    """Each method's medium PSNR (mean over seeds) as a bar, the oracle (the emission-absorption ceiling) and
+    the noise floor as lines, each bar labelled with its gap to the oracle; None without medium scores."""
+    values = {m: [r["metrics"].get("psnr_test_medium") for r in records if r["method"] == m] for m in methods}
+    values = {m: float(np.mean([v for v in vs if v is not None])) for m, vs in values.items()
+              if any(v is not None for v in vs)}
+    if not values:
+        return None
+    oracle = _floor(records, "oracle_psnr_test_medium")
+    floor = _floor(records, "noise_floor_psnr_medium")
+    fig = _figure(6.4, 1.4 + 0.45 * len(values))
+    ax = fig.add_subplot(1, 1, 1)
+    colours = _colours(methods)
+    names = list(values)
+    ax.barh(range(len(names)), [values[m] for m in names], color=[colours[m] for m in names])
+    low = min(list(values.values()) + [v for v in (oracle, floor) if v is not None]) - 3.0
+    for i, m in enumerate(names):
+        gap = f"  {oracle - values[m]:.2f} dB to the oracle" if oracle is not None else ""
+        ax.text(values[m], i, f" {values[m]:.2f}{gap}", va="center", fontsize=7)
+    if oracle is not None:
+        ax.axvline(oracle, color="tab:red", ls=":", lw=1.5, label=f"oracle (EA ceiling) {oracle:.2f}")
+    if floor is not None:
+        ax.axvline(floor, color="k", ls="--", lw=1, label=f"GT noise floor {floor:.2f}")
+    ax.set_yticks(range(len(names)), names)
+    ax.set_xlim(left=max(low, 0.0), right=max([*values.values(), oracle or 0, floor or 0]) + 6.0)
+    _label(ax, "PSNR on medium pixels (dB)", "", f"{scene}: error budget")
+    if oracle is not None or floor is not None:
+        ax.legend(fontsize=8, loc="lower right")
+    return _save(fig, path)
+
+
 def scene_figures(scene: str, records: Sequence[dict], methods: Sequence[str], artefacts: Mapping[str, Mapping],
                   out_dir: Path) -> list[tuple[str, Path]]:
     """Every figure of one scene: ``[(caption, path), ...]``."""
@@ -213,6 +245,8 @@ def scene_figures(scene: str, records: Sequence[dict], methods: Sequence[str], a
     figures = [
         ("Held-out PSNR against training time", psnr_time(scene, records, methods, out_dir / f"psnr_time_{scene}.png")),
         ("Test PSNR per view", per_view(scene, records, methods, out_dir / f"per_view_{scene}.png")),
+        ("Error budget: medium PSNR against the oracle and the noise floor",
+         error_budget(scene, records, methods, out_dir / f"error_budget_{scene}.png")),
         ("Ground truth, renders and error maps", image_grid(scene, records, methods, artefacts, out_dir / f"images_{scene}.png")),
         ("Density: true and learned", density_slices(scene, records, methods, artefacts, out_dir / f"density_{scene}.png")),
     ]

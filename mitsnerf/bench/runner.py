@@ -14,6 +14,9 @@
    ``table.md`` (printed too), ``table.csv`` (per scene and method), ``average.csv``,
    ``cells.csv`` (one row per cell), ``results.json`` (everything, with provenance),
    ``plots/*.png`` and ``report.html`` (self-contained).
+
+The config's ``[[external]]`` entries (other tools' renders) are scored after step 3, before any
+cell trains (:mod:`mitsnerf.bench.external`), and appear in every output as ``NAME (external)``.
 """
 
 from __future__ import annotations
@@ -82,6 +85,8 @@ class BenchResult:
     average: list[dict] = field(default_factory=list)
     markdown: str = ""
     files: dict[str, Path] = field(default_factory=dict)
+    external: list[tuple[dict, dict]] = field(default_factory=list)
+    """``(record, artefacts)`` of every external entry, scored this run."""
 
 
 def out_root_of(config: BenchConfig, options: BenchOptions) -> Path:
@@ -221,12 +226,13 @@ def collect(cells: list[Cell]) -> tuple[list[dict], list[dict]]:
 
 
 def write_outputs(config: BenchConfig, options: BenchOptions, cells: list[Cell], result: BenchResult) -> BenchResult:
-    """Tables, CSV, JSON, plots and the HTML report from the cells' results on disk."""
+    """Tables, CSV, JSON, plots and the HTML report from the cells' results on disk and the external entries."""
     out_root = out_root_of(config, options)
     out_root.mkdir(parents=True, exist_ok=True)
     records, failed = collect(cells)
+    records += [record for record, _ in result.external]
     scenes = list(dict.fromkeys(c.scene for c in cells))
-    methods = [m.label for m in config.methods]
+    methods = [m.label for m in config.methods] + list(dict.fromkeys(r["method"] for r, _ in result.external))
     ceilings = oracle_rows(records, scenes)
     per_scene = with_oracle_rows(scene_rows(records, failed, scenes, methods), ceilings)
     average = average_rows(per_scene, methods)
@@ -255,24 +261,54 @@ def write_outputs(config: BenchConfig, options: BenchOptions, cells: list[Cell],
         "failed": failed, "cells": records, "config": config_data,
     })
     if options.report:
-        from mitsnerf.bench.plots import scene_figures
-        from mitsnerf.bench.report import write_report
-
-        figures = {}
-        for scene in scenes:
-            mine = [r for r in records if r["scene"] == scene]
-            if not mine:
-                continue
-            arts = {c.key: _load_artefacts(c) for c in cells if c.scene == scene and is_done(c)}
-            figures[scene] = scene_figures(scene, mine, methods, arts, out_root / "plots")
-            for _, path in figures[scene]:
-                files[f"plots/{path.name}"] = path
-        files["report.html"] = write_report(out_root / "report.html", title=title, per_scene=per_scene,
-                                            average=average, figures=figures, provenance=provenance,
-                                            config=config_data, failed=failed, notes=notes, best=best)
+        files.update(_write_report(out_root, cells, result, records, scenes, methods, title=title, per_scene=per_scene,
+                                   average=average, provenance=provenance, config=config_data, failed=failed,
+                                   notes=notes, best=best))
     result.records, result.failed = records, failed
     result.per_scene, result.average, result.markdown, result.files = per_scene, average, markdown, files
     return result
+
+
+def _write_report(out_root: Path, cells: list[Cell], result: BenchResult, records: list[dict], scenes: list[str],
+                  methods: list[str], **report: Any) -> dict[str, Path]:
+    """The plots per scene (cells' artefacts from disk, the external entries' from memory) and the HTML report."""
+    from mitsnerf.bench.plots import scene_figures
+    from mitsnerf.bench.report import write_report
+
+    files, figures = {}, {}
+    for scene in scenes:
+        mine = [r for r in records if r["scene"] == scene]
+        if not mine:
+            continue
+        arts = {c.key: _load_artefacts(c) for c in cells if c.scene == scene and is_done(c)}
+        arts.update({r["key"]: a for r, a in result.external if r["scene"] == scene})
+        figures[scene] = scene_figures(scene, mine, methods, arts, out_root / "plots")
+        for _, path in figures[scene]:
+            files[f"plots/{path.name}"] = path
+    files["report.html"] = write_report(out_root / "report.html", figures=figures, **report)
+    return files
+
+
+def _score_externals(config: BenchConfig, options: BenchOptions, cells: list[Cell], log: Callable[[str], None]) -> list:
+    """Score the config's external entries on the benchmark's datasets (generated here if needed)."""
+    from mitsnerf.bench.external import plan_externals, score_external
+
+    entries = plan_externals(config, options.quick, cells)
+    if not entries:
+        return []
+    _generate([c for c in cells if c.scene in {e.scene for e in entries}], options, log)
+    from mitsnerf.bench.worker import cell_oracle
+
+    view = config.eval_config(options.quick).report_view
+    first = {c.scene: c for c in reversed(cells)}
+    oracles = {scene: cell_oracle(first[scene], log=log) for scene in dict.fromkeys(e.scene for e in entries)}
+    scored = []
+    for entry in entries:
+        record, artefacts = score_external(entry, view, oracles[entry.scene])
+        scored.append((record, artefacts))
+        log(f"[external] {entry.key}: PSNR {record['metrics']['psnr_test']:.2f} dB (renders matched by "
+            f"{record['matched_by']}, {entry.renders})")
+    return scored
 
 
 def run_benchmark(config: BenchConfig, options: BenchOptions, log: Callable[[str], None] | None = None) -> BenchResult:
@@ -289,6 +325,7 @@ def run_benchmark(config: BenchConfig, options: BenchOptions, log: Callable[[str
     cells = plan_cells(config, options)
     out_root = out_root_of(config, options)
     result = BenchResult(out_root=out_root, cells=cells, records=[], failed=[])
+    result.external = _score_externals(config, options, cells, log)
     pending = [c for c in cells if options.force or not is_done(c)]
     result.skipped = [c.key for c in cells if c not in pending]
     if result.skipped:

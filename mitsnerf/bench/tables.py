@@ -73,6 +73,7 @@ LEGEND = (
     "evaluation (steps k/N of the budget) reaching X dB on medium pixels (measured, not decisive). "
     "peak RSS: the high-water mark of the process that ran the cell (cumulative over "
     "the cells of a sequential run, so not marked best there). "
+    "NAME (external): renders made by another tool, scored as mitsnerf score does (no training or cost figures). "
     "Bold: best in the column (per scene). Means over seeds."
 )
 

@@ -15,6 +15,16 @@ Everything handed out is linear RGB float32, whichever form the files take:
   (The NeRF code composites the sRGB values instead; the two agree where
   ``a`` is 0 or 1 and differ only on partly covered pixels.)
 
+- **Premultiplied EXR** (a transforms file with ``"exr_alpha": "premultiplied"``: the
+  medium-alone view of a mitsnerf dataset): RGB is radiance over a transparent background,
+  composited over the same background colour ``b`` as PNG alpha: ``rgb + b * (1 - a)``.
+
+**instant-ngp's single file**: a directory with one ``transforms.json`` (all frames, file paths
+with their extension) and no ``transforms_<split>.json`` has two splits drawn from it by the
+LLFF hold-out rule: frames ``0, 8, 16, ...`` (every :data:`HOLDOUT`-th, from the first) are
+``test``, the others ``train``; rays pass through pixel centres (``0.5``, instant-ngp's rule)
+unless the file says otherwise.
+
 Frame ``file_path`` entries are resolved against the transforms file's
 directory: ``file_path + ".exr"`` if that exists, else ``file_path + ".png"``,
 else the path as given.
@@ -41,6 +51,19 @@ from mitsnerf.math.color import srgb_to_linear
 
 COLOR_SPACES = ("srgb", "linear")
 _IMAGE_SUFFIXES = (".exr", ".png")
+#: instant-ngp's one transforms file, and the hold-out rule its splits are drawn by.
+SINGLE_FILE = "transforms.json"
+HOLDOUT = 8
+
+
+def holdout_frames(split: str, n: int) -> list[int]:
+    """Frame indices of ``split`` among the ``n`` frames of a single ``transforms.json``: every
+    :data:`HOLDOUT`-th frame from the first is ``test``, the rest ``train``.
+
+    >>> holdout_frames("test", 17), holdout_frames("train", 10)
+    ([0, 8, 16], [1, 2, 3, 4, 5, 6, 7, 9])
+    """
+    return [i for i in range(n) if (i % HOLDOUT == 0) == (split == "test")]
 
 
 @dataclass(frozen=True)
@@ -131,8 +154,13 @@ class Dataset:
         """Names of the available splits (``transforms_<split>.json`` files), sorted."""
         return _split_names(self.root)
 
+    @property
+    def single_file(self) -> bool:
+        """instant-ngp's layout: one ``transforms.json``, split by :func:`holdout_frames`."""
+        return _single_file(self.root)
+
     def transforms_path(self, split: str) -> Path:
-        return self.root / f"transforms_{split}.json"
+        return self.root / (SINGLE_FILE if self.single_file else f"transforms_{split}.json")
 
     def views(self, split: str) -> Views:
         """Load (once; later calls return the cached result) the images and cameras of ``split``."""
@@ -142,7 +170,7 @@ class Dataset:
 
     def _load(self, split: str) -> Views:
         tpath = self.transforms_path(split)
-        if not tpath.is_file():
+        if not tpath.is_file() or split not in self.splits:
             raise DatasetError(tpath, None, f"no split {split!r} here; available: {', '.join(self.splits) or 'none'}")
         base = tpath.parent
         loaded: dict[str, tuple[Path, np.ndarray]] = {}
@@ -160,6 +188,8 @@ class Dataset:
             return int(img.shape[1]), int(img.shape[0])
 
         file_paths, cameras, meta = read_transforms(tpath, self.pixel_center, image_size_of=size_of)
+        if self.single_file:
+            file_paths, cameras = _held_out(tpath, split, file_paths, cameras)
         images = alpha = None
         all_alpha = True
         first: tuple[Path, int, int] | None = None
@@ -185,7 +215,7 @@ class Dataset:
                 r, c, _ = np.argwhere(bad)[0]
                 raise DatasetError(path, None, f"{int(bad.sum())} non-finite pixel values (NaN/inf), "
                                                f"first at row {r}, column {c}")
-            images[i], a = self._to_linear(path, img)
+            images[i], a = self._to_linear(path, img, meta.get("exr_alpha") == "premultiplied")
             if a is None:
                 all_alpha = False
             else:
@@ -196,11 +226,13 @@ class Dataset:
         return Views(images, alpha if all_alpha else None, tuple(cameras), _view_names(file_paths),
                      float(meta["pixel_center"]))
 
-    def _to_linear(self, path: Path, img: np.ndarray) -> tuple[np.ndarray, np.ndarray | None]:
+    def _to_linear(self, path: Path, img: np.ndarray, premultiplied: bool = False) -> tuple[np.ndarray, np.ndarray | None]:
         """Linear RGB ``(H, W, 3)`` and alpha ``(H, W)`` or None, per the module's rules."""
         rgb = img[..., :3]
         a = img[..., 3] if img.shape[2] == 4 else None
         if path.suffix.lower() == ".exr":
+            if premultiplied and a is not None:
+                rgb = rgb + np.asarray(self.png_background, dtype=np.float32) * (1.0 - a[..., None])
             return rgb, a
         if self.color_space == "srgb":
             rgb = srgb_to_linear(rgb)
@@ -210,10 +242,25 @@ class Dataset:
         return rgb, a
 
 
+def _held_out(tpath: Path, split: str, file_paths: list[str], cameras: list) -> tuple[list[str], list]:
+    """The frames of ``split`` in a single ``transforms.json`` (:func:`holdout_frames`)."""
+    keep = holdout_frames(split, len(cameras))
+    if not keep:
+        raise DatasetError(tpath, "frames", f"{len(cameras)} frame(s): too few to hold out a {split} split "
+                                            f"(every {HOLDOUT}th frame is a test frame, the rest train)")
+    return [file_paths[i] for i in keep], [cameras[i] for i in keep]
+
+
 def _split_names(root: Path) -> tuple[str, ...]:
     prefix, suffix = "transforms_", ".json"
-    return tuple(sorted(p.name[len(prefix):-len(suffix)] for p in root.glob(f"{prefix}*{suffix}")
-                        if p.is_file() and len(p.name) > len(prefix) + len(suffix)))
+    names = tuple(sorted(p.name[len(prefix):-len(suffix)] for p in root.glob(f"{prefix}*{suffix}")
+                         if p.is_file() and len(p.name) > len(prefix) + len(suffix)))
+    return ("test", "train") if not names and (root / SINGLE_FILE).is_file() else names
+
+
+def _single_file(root: Path) -> bool:
+    return (root / SINGLE_FILE).is_file() and _split_names(root) == ("test", "train") and not (
+        root / "transforms_train.json").is_file()
 
 
 def _background_rgb(background: Any) -> tuple[float, float, float]:
@@ -274,10 +321,13 @@ def load_dataset(
 
     splits = _split_names(root)
     if not splits:
-        raise DatasetError(root, None, "no transforms_*.json files: not a NeRF-synthetic style dataset")
-    tpath = root / f"transforms_{'train' if 'train' in splits else splits[0]}.json"
+        raise DatasetError(root, None, "no transforms_*.json or transforms.json: not a NeRF-synthetic or "
+                                       "instant-ngp style dataset")
+    tpath = root / (SINGLE_FILE if _single_file(root) else f"transforms_{'train' if 'train' in splits else splits[0]}.json")
     top = read_json(tpath)
     if not isinstance(top, dict):
         raise DatasetError(tpath, None, f"must hold a JSON object, got {type(top).__name__}")
     resolved = resolve_box(box, top, tpath, manifest, manifest_path)
+    if pixel_center is None and tpath.name == SINGLE_FILE and "pixel_center" not in top:
+        pixel_center = 0.5  # instant-ngp casts rays through pixel centres
     return Dataset(root, manifest, bg_desc, resolved.box, resolved.source, pixel_center, space, png_bg)

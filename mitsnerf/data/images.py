@@ -162,6 +162,22 @@ def write_png(path: str | os.PathLike, linear_image) -> None:
     atomic_write_bytes(path, buf.getvalue())
 
 
+def unpremultiply(rgba) -> np.ndarray:
+    """Straight colour of a premultiplied RGBA image ``(..., 4)``: ``rgb / alpha`` where ``alpha > 0``, else 0.
+
+    A PNG's alpha is straight: its readers composite ``rgb * a + b * (1 - a)``, which gives the
+    premultiplied ``rgb + (1 - a) b`` back. Alpha is kept.
+
+    >>> unpremultiply(np.array([[[0.2, 0.1, 0.0, 0.5], [0.3, 0.3, 0.3, 0.0]]])).tolist()
+    [[[0.4, 0.2, 0.0, 0.5], [0.0, 0.0, 0.0, 0.0]]]
+    """
+    arr = np.asarray(rgba, dtype=np.float64)
+    a = arr[..., 3:4]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        rgb = np.where(a > 0, arr[..., :3] / np.where(a > 0, a, 1.0), 0.0)
+    return np.concatenate([rgb, a], axis=-1)
+
+
 def read_png(path: str | os.PathLike) -> np.ndarray:
     """Read a PNG (or another format pillow knows) as float32 ``(H, W, 3|4)`` in ``[0, 1]``, as stored.
 

@@ -61,13 +61,43 @@ def make_background(desc: Mapping[str, Any] | None, root: Path | None = None):
             path = Path(root) / path
         if not path.exists():
             raise DatasetError(path, "background.file", "environment map not found")
+        from mitsnerf.data.images import read_exr
+
+        # The map is read here and handed over as a bitmap: Mitsuba's own EXR reader deadlocks once
+        # Dr.Jit runs with one thread (dr.set_thread_count(1), as `bench --cpus-per-cell 1` does).
         emitter = mi.load_dict(
             {
                 "type": "envmap",
-                "filename": str(path),
+                "bitmap": mi.Bitmap(read_exr(path)[..., :3]),
                 "scale": float(desc.get("scale", 1.0)),
                 "to_world": mi.ScalarTransform4f(desc.get("to_world", [[1, 0, 0, 0], [0, 1, 0, 0], [0, 0, 1, 0], [0, 0, 0, 1]])),
             }
         )
         return EnvmapBackground(emitter)
     raise DatasetError(root, "background.type", f"unknown background type {kind!r} (constant, envmap)")
+
+
+def pixel_background(background, cameras, pixel_center: float = 0.5, footprint: int = 4):
+    """What each pixel of ``cameras`` sees of ``background`` (a :func:`make_background` callable): float64
+    ``(V, H, W, 3)``, the mean over ``footprint x footprint`` stratified points of the pixel (a box filter,
+    as the film's).
+
+    >>> from mitsnerf.env import set_variant; _ = set_variant("llvm_ad_rgb")
+    >>> from mitsnerf.math.camera import Camera, look_at
+    >>> cam = Camera.from_fov(look_at((0, 0, 3), (0, 0, 0), (0, 1, 0)), 2, 2, 40.0)
+    >>> pixel_background(ConstantBackground((0.5, 0.25, 1.0)), [cam])[0, 1, 1].tolist()
+    [0.5, 0.25, 1.0]
+    """
+    import mitsuba as mi
+    import numpy as np
+
+    from mitsnerf.math.rays import camera_rays_numpy, footprint_offsets, to_array3f
+
+    shape = (len(cameras), cameras[0].height, cameras[0].width, 3)
+    total = np.zeros((int(np.prod(shape[:3])), 3))
+    offsets = footprint_offsets(footprint)
+    for offset in offsets:
+        _, d = camera_rays_numpy(cameras, pixel_center, tuple(offset))
+        total += np.asarray(background(to_array3f(mi.Array3f, d)), dtype=np.float64).reshape(3, -1).T
+    return (total / len(offsets)).reshape(shape)
+

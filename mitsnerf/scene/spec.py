@@ -48,7 +48,7 @@ SCENES_ENV = "MITSNERF_SCENES"
 #: The scene library, package data.
 LIBRARY = Path(__file__).resolve().parent / "library"
 RIGS = ("sphere", "hemisphere", "ring")
-#: Cameras must stay outside the scene box's bounding sphere (radius sqrt(3)/2).
+#: Cameras must stay outside the scene box's bounding sphere (radius sqrt(3)/2 times ``world.scale``).
 MIN_CAMERA_RADIUS = math.sqrt(3.0) / 2.0
 _NAME_RE = re.compile(r"^[A-Za-z0-9][A-Za-z0-9_.-]*$")
 
@@ -69,7 +69,7 @@ def _not_all_zero(name: str, v: tuple[float, float, float] | None) -> None:
 
 # --------------------------------------------------------------------------- volume
 
-#: The largest ``volume.sigma_t_scale`` (extinction per unit length; the box has side 1).
+#: The largest ``volume.sigma_t_scale`` (extinction per box side: ``sigma_t`` is it divided by ``world.scale``).
 SIGMA_T_SCALE_MAX = 1e4
 
 
@@ -77,7 +77,8 @@ SIGMA_T_SCALE_MAX = 1e4
 class VolumeSpec:
     """The medium: a volume family evaluated on an ``R^3`` grid and its optical thickness.
 
-    ``sigma_t = sigma_t_scale * density`` (world units; the box has side 1), density in [0, 1].
+    ``sigma_t = sigma_t_scale * density / world.scale`` in world units, density in [0, 1]: the
+    optical depth across the box is ``sigma_t_scale`` times the mean density whatever the scale.
     ``params`` holds the family's parameters with every default filled in (converted by
     :func:`mitsnerf.config.from_dict` against the family's params dataclass), read-only.
     """
@@ -86,9 +87,10 @@ class VolumeSpec:
     resolution: int = param(lo=8, hi=512, doc="grid R (R^3 voxels)")
     seed: int = param(0, lo=0, hi=2**32 - 1, doc="the family's seed")
     sigma_t_scale: float = param(lo=0.0, hi=SIGMA_T_SCALE_MAX, lo_open=True,
-                                 doc="sigma_t = sigma_t_scale * density (density in [0, 1])",
-                                 hi_why=f"a mean free path (1 / sigma_t) below {1 / SIGMA_T_SCALE_MAX:g} is under 1/19 of "
-                                     "the finest grid's voxel (1/512): the medium would render as an opaque surface")
+                                 doc="sigma_t = sigma_t_scale * density / world.scale (density in [0, 1])",
+                                 hi_why=f"a mean free path below {1 / SIGMA_T_SCALE_MAX:g} of the box side is under "
+                                        "1/19 of the finest grid's voxel (1/512 of it): the medium would render as an "
+                                        "opaque surface")
     params: Mapping[str, Any] = param(default_factory=lambda: MappingProxyType({}),
                                       doc="the family's parameters; defaults are filled in (and hashed)")
 
@@ -209,15 +211,9 @@ class CameraRigSpec:
     height: int = param(lo=1, hi=8192, doc="image height, pixels")
     fov: float = param(lo=0.0, hi=180.0, lo_open=True, hi_open=True, doc="horizontal field of view, degrees")
     radius: float = param(lo=0.0, hi=1e4, lo_open=True,
-                          doc="camera distance from the origin, outside the box's bounding sphere (> sqrt(3)/2)")
+                          doc="camera distance from the origin in world units, outside the box's bounding "
+                              "sphere (> world.scale * sqrt(3)/2)")
     seed: int = param(0, lo=0, hi=2**32 - 1, doc="rig randomisation (rotation of the sphere, azimuths)")
-
-    def __post_init__(self) -> None:
-        if self.radius <= MIN_CAMERA_RADIUS:
-            raise ValueError(
-                f"radius: must be > {MIN_CAMERA_RADIUS:.4f} (outside the scene box's bounding sphere), "
-                f"got {self.radius:g}"
-            )
 
 
 @dataclass(frozen=True)
@@ -237,6 +233,43 @@ class RenderSpec:
             raise ValueError("max_depth: must be -1 (unlimited) or >= 1, got 0")
 
 
+# --------------------------------------------------------------------------- world
+
+
+#: ``world.scale`` that puts the box at NeRF-synthetic's ``[-1.5, 1.5]^3``.
+NERF_SYNTHETIC_SCALE = 3.0
+#: Camera distance of the NeRF-synthetic scenes (about 4.03): with their fixed ``near = 2``,
+#: ``far = 6`` a camera there sees everything within 2 of the origin, the box's inscribed ball.
+NERF_SYNTHETIC_RADIUS = 4.0
+
+
+@dataclass(frozen=True)
+class WorldSpec:
+    """Where the medium sits in world units.
+
+    The volume families are authored in the box ``[-0.5, 0.5]^3``; the scene box is
+    ``scale * [-0.5, 0.5]^3`` and ``sigma_t = volume.sigma_t_scale * density / scale``, so the
+    optical depth along any chord of the box, and the images from cameras ``scale`` times
+    farther away, do not change. Cameras (``cameras.radius``) and point lights are in world
+    units. ``scale = 3`` (:data:`NERF_SYNTHETIC_SCALE`) is NeRF-synthetic's box ``[-1.5, 1.5]^3``.
+    """
+
+    scale: float = param(1.0, lo=0.0, hi=1e4, lo_open=True,
+                         doc="the box is scale * [-0.5, 0.5]^3 and sigma_t is divided by scale "
+                             "(3: NeRF-synthetic's [-1.5, 1.5]^3)")
+
+
+def nerf_synthetic_overrides() -> dict[str, Any]:
+    """``SceneSpec.with_overrides`` keys that write a scene at the NeRF-synthetic scale: the box at
+    ``[-1.5, 1.5]^3`` and the cameras at radius 4, where those readers' fixed near/far (2, 6) see
+    the whole inscribed ball of the box (``mitsnerf generate --nerf-synthetic``).
+
+    >>> nerf_synthetic_overrides()
+    {'world.scale': 3.0, 'cameras.radius': 4.0}
+    """
+    return {"world.scale": NERF_SYNTHETIC_SCALE, "cameras.radius": NERF_SYNTHETIC_RADIUS}
+
+
 # --------------------------------------------------------------------------- scene
 
 
@@ -250,6 +283,7 @@ class SceneSpec:
     lights: tuple[Light, ...] = param(doc="one or more [[lights]] tables; at most one environment (constant or sky)")
     cameras: CameraRigSpec = param(doc="the camera rig")
     render: RenderSpec = param(doc="volpath settings")
+    world: WorldSpec = param(default_factory=WorldSpec, doc="the box in world units (a scale)")
     source: str | None = source_field()
 
     def __post_init__(self) -> None:
@@ -258,6 +292,10 @@ class SceneSpec:
                 f"name: must be letters, digits, '_', '-' or '.', starting with a letter or digit; got {self.name!r}")
         if not self.lights:
             raise ValueError("lights: must be one or more [[lights]] tables, got []")
+        least = self.world.scale * MIN_CAMERA_RADIUS
+        if self.cameras.radius <= least:
+            raise ValueError(f"cameras.radius: must be > {least:.4f} (outside the scene box's bounding sphere, "
+                             f"sqrt(3)/2 times world.scale {self.world.scale:g}), got {self.cameras.radius:g}")
         envs = [i for i, light in enumerate(self.lights) if light.is_environment]
         if len(envs) > 1:
             raise ValueError(f"lights.{envs[1]}.type: at most one environment light (constant or sky) per scene; "
@@ -269,8 +307,14 @@ class SceneSpec:
         return next((l for l in self.lights if l.is_environment), None)
 
     def to_dict(self) -> dict[str, Any]:
-        """Plain data (TOML/JSON types) that :func:`parse_scene` turns back into an equal spec."""
-        return to_dict(self)
+        """Plain data (TOML/JSON types) that :func:`parse_scene` turns back into an equal spec.
+
+        The default ``world`` is left out, so specs written before it existed keep their hashes.
+        """
+        data = to_dict(self)
+        if self.world == WorldSpec():
+            del data["world"]
+        return data
 
     def with_overrides(self, overrides: Mapping[str, Any]) -> "SceneSpec":
         """A copy with dotted fields replaced (``{"cameras.width": 16, "lights.0.radiance": [1, 1, 1]}``),

@@ -1,7 +1,7 @@
 """A :class:`~mitsnerf.scene.spec.SceneSpec` as a Mitsuba scene, its sensors, and its background.
 
 The scene (``docs/conventions.md``, "World and volume"): a ``cube`` placed on the scene box
-(:func:`scene_box`, ``[-0.5, 0.5]^3`` for every spec today) with a ``null`` BSDF and a
+(:func:`scene_box`: ``world.scale * [-0.5, 0.5]^3``) with a ``null`` BSDF and a
 ``heterogeneous`` interior medium whose ``sigma_t`` and ``albedo`` are ``gridvolume`` s mapping
 ``[0, 1]^3`` onto the box (``accel = False``: no reduced precision hardware interpolation on
 CUDA), medium ``scale = 1`` (the grid holds true sigma_t),
@@ -25,8 +25,14 @@ ENVMAP_FILE = "volume/envmap.exr"
 
 
 def scene_box(spec: SceneSpec) -> Box:
-    """The box a spec's medium fills (world units): the volume families are authored in ``[-0.5, 0.5]^3``."""
-    return UNIT_BOX
+    """The box a spec's medium fills (world units): the volume families are authored in
+    ``[-0.5, 0.5]^3``, placed in the world scaled by ``world.scale``.
+
+    >>> from mitsnerf.scene.spec import load_scene, nerf_synthetic_overrides
+    >>> scene_box(load_scene("cloud").with_overrides(nerf_synthetic_overrides())).to_list()
+    [[-1.5, -1.5, -1.5], [1.5, 1.5, 1.5]]
+    """
+    return UNIT_BOX.scaled(spec.world.scale)
 
 
 def _box_transform(box: Box):
@@ -39,13 +45,15 @@ def _box_transform(box: Box):
 def volume_grids(spec: SceneSpec) -> tuple[np.ndarray, np.ndarray]:
     """``(sigma_t float32 (R, R, R), albedo float32 (R, R, R, 3))`` of the spec, ``[z, y, x]``.
 
-    ``sigma_t = volume.sigma_t_scale * density``; deterministic in the spec.
+    ``sigma_t = volume.sigma_t_scale * density / world.scale`` (world units: a box ``scale`` times
+    larger with ``sigma_t`` divided by ``scale`` has the same optical depths); deterministic in the spec.
     """
     from mitsnerf.volumes import generate_volume
 
     v = spec.volume
     grids = generate_volume(v.family, v.resolution, v.seed, dict(v.params))
-    sigma_t = (np.float32(v.sigma_t_scale) * np.asarray(grids.density, dtype=np.float32)).astype(np.float32)
+    per_unit = np.float32(v.sigma_t_scale / spec.world.scale)
+    sigma_t = (per_unit * np.asarray(grids.density, dtype=np.float32)).astype(np.float32)
     return np.ascontiguousarray(sigma_t), np.ascontiguousarray(grids.albedo, dtype=np.float32)
 
 

@@ -55,6 +55,8 @@ class Quality:
     """Family-wise error rate of each scenario: all its pixel and channel-mean tests are one
     weighted-Holm family (:func:`mitsnerf.verify.stats.decide`)."""
     seed: int = 0
+    j_spp: int = 32
+    """Volpath directions per sample point of the in-scattered (multiple-scattering) source."""
 
     def __post_init__(self) -> None:
         if self.width < 2 or self.spp < 16 or self.n_samples < 2 or self.resolution < 4:
@@ -69,7 +71,7 @@ class Quality:
 
 QUALITIES = {
     "quick": Quality("quick", width=12, spp=1024, n_samples=64),
-    "thorough": Quality("thorough", width=24, spp=4096, n_samples=128),
+    "thorough": Quality("thorough", width=24, spp=4096, n_samples=128, j_spp=64),
 }
 
 
@@ -77,10 +79,12 @@ QUALITIES = {
 
 MEDIA = ("front_heavy", "exit_heavy", "homogeneous")
 
-SOURCES = ("zero", "single_scatter")
-"""The integrator's colour ``c(x, d)`` of a volpath scenario: ``"zero"`` (absorption only) or
-``"single_scatter"`` (``albedo p E T_light`` of a directional light). Each has a builder in
-:data:`mitsnerf.verify.sources.SOURCE_BUILDERS`; a new source is a name here and a builder there."""
+SOURCES = ("zero", "single_scatter", "in_scattered")
+"""The integrator's colour ``c(x, d)`` of a volpath scenario: ``"zero"`` (absorption only),
+``"single_scatter"`` (``albedo p E T_light`` of a directional light) or ``"in_scattered"`` (the
+multiple-scattering source ``J = albedo (1/4pi) int L dw`` estimated by volpath at the integrator's
+own samples: the emission-absorption oracle, :class:`mitsnerf.oracle.compare.PointSource`). Each
+has a builder in :data:`mitsnerf.verify.sources.SOURCE_BUILDERS`."""
 
 
 @dataclass(frozen=True)
@@ -119,7 +123,7 @@ class VolpathScenario:
             raise ValueError(f"{self.name}: environment must be constant, envmap or black, got {self.environment!r}")
         if self.source not in SOURCES:
             raise ValueError(f"{self.name}: source must be one of {', '.join(SOURCES)}, got {self.source!r}")
-        if self.source == "single_scatter" and self.sun_direction is None:
+        if self.source in ("single_scatter", "in_scattered") and self.sun_direction is None:
             raise ValueError(f"{self.name}: single scattering needs a sun_direction")
         if not self.quadratures or set(self.quadratures) - {"seed", "midpoint"}:
             raise ValueError(f"{self.name}: quadratures must be a non-empty subset of seed, midpoint")
@@ -265,6 +269,11 @@ SCENARIOS: tuple[VolpathScenario, ...] = (
                     source="single_scatter", quadratures=("midpoint",), sun_direction=SUN,
                     sun_irradiance=(3.0, 2.5, 2.0), max_depth=2, spp_factor=4.0, max_rel_error=0.02,
                     detects=("T_off_by_one",)),
+    VolpathScenario("multiple_scatter", "front-heavy, albedo < 1, sky + sun, unlimited depth: the oracle's J by volpath",
+                    "front_heavy", sigma_t_max=8.0, albedo="procedural", environment="constant",
+                    source="in_scattered", env_radiance=(0.5, 0.55, 0.6), sun_direction=SUN,
+                    sun_irradiance=(3.0, 2.5, 2.0), max_depth=-1, spp_factor=4.0, max_rel_error=0.02,
+                    detects=("T_off_by_one", "delta_wrong_end", "no_background")),
 )
 
 MITSUBA_FURNACE = MitsubaFurnace()

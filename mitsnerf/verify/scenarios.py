@@ -43,7 +43,8 @@ class PreparedScenario:
     ray_length: np.ndarray  # (H, W): L = t_f - t_n of each pixel's ray (independent float64 slab test)
 
 
-def _emitters(s: C.VolpathScenario) -> dict[str, dict]:
+def emitters_of(s: C.VolpathScenario) -> dict[str, dict]:
+    """The Mitsuba emitters of a scenario: its environment and its directional light."""
     from mitsnerf.verify import mitsuba_refs as M
 
     emitters: dict[str, dict] = {}
@@ -66,7 +67,7 @@ def prepare_scenario(s: C.VolpathScenario, quality: C.Quality) -> PreparedScenar
     from mitsnerf.verify.sources import SOURCE_BUILDERS
 
     sigma_t, albedo = C.scenario_grids(s, quality.resolution)
-    scene = mi.load_dict(M.scene_dict(sigma_t, albedo, _emitters(s), s.max_depth))
+    scene = mi.load_dict(M.scene_dict(sigma_t, albedo, emitters_of(s), s.max_depth))
     camera = quality.camera()
     o, d = camera.pixel_rays()
     spp = max(16, int(round(quality.spp * s.spp_factor)))
@@ -97,6 +98,24 @@ def _render(p: PreparedScenario, quadrature: str, n_samples: int | None = None, 
     return render_image(p.field, q.camera(), n_samples or q.n_samples, p.background, quadrature, jitter)
 
 
+def _render_with_variance(p: PreparedScenario, quadrature: str) -> tuple[np.ndarray, np.ndarray | None]:
+    """The integrator's image and, for a Monte Carlo source (the oracle's J), its own variance per pixel."""
+    import mitsuba as mi
+
+    from mitsnerf.math.box import UNIT_BOX
+    from mitsnerf.math.rays import camera_rays
+    from mitsnerf.oracle.compare import PointSource, render_with_variance
+
+    if not isinstance(p.field, PointSource):
+        return _render(p, quadrature), None
+    if quadrature != "seed":
+        raise ValueError(f"{p.scenario.name}: the in-scattered source renders with the seed's rule only")
+    cam = p.quality.camera()
+    rays = camera_rays(mi.Array3f, [cam])
+    mean, var = render_with_variance(p.field, rays.o, rays.d, p.quality.n_samples, UNIT_BOX, p.background)
+    return mean.reshape(cam.height, cam.width, 3), var.reshape(cam.height, cam.width, 3)
+
+
 def _seed_bias_note(p: PreparedScenario, ours_seed: np.ndarray | None) -> str:
     """The seed's rule against raw volpath: measured (and, in a homogeneous box, predicted) relative bias."""
     ref = p.reference
@@ -118,14 +137,17 @@ def evaluate_scenario(p: PreparedScenario) -> Outcome:
     start = time.perf_counter()
     tests, images, ours_seed = [], {"reference": ref.mean}, None
     for quadrature in s.quadratures:
-        ours = _render(p, quadrature)
+        ours, ours_var = _render_with_variance(p, quadrature)
         mean, var, label = ref.mean, ref.var, f"{quadrature} vs volpath"
         if quadrature == "seed":
             ours_seed = ours
             if s.seed_reference() == "closed_form_bias":
                 k = seed_bias_factor(p)
                 mean, var, label = ref.mean * k, ref.var * k**2, "seed vs volpath x exp(sigma_t L / 2N)"
-        tests.append(z_test(ours, mean, var, ref.n, max_rel_error=s.max_rel_error, label=label))
+        # a Monte Carlo source's image variance V enters as measured_var = 2 V over measured_n = 2
+        tests.append(z_test(ours, mean, var, ref.n, max_rel_error=s.max_rel_error, label=label,
+                            measured_var=None if ours_var is None else 2.0 * ours_var,
+                            measured_n=None if ours_var is None else 2))
         images[f"ours_{quadrature}"] = ours
         images[f"error_{quadrature}"] = ours - mean
         images[f"z_{quadrature}"] = np.abs(tests[-1].z)

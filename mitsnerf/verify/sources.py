@@ -96,8 +96,31 @@ def single_scatter_source(scenario, sigma_t, albedo, scene, quality):
                                scenario.sun_direction, scenario.sun_irradiance, isotropic_phase())
 
 
+def in_scattered_source(scenario, sigma_t, albedo, scene, quality):
+    """``c = J = albedo (1/4pi) int L dw``, estimated by volpath from each sample point
+    (:class:`mitsnerf.oracle.compare.PointSource`: the oracle without its grid), the sun's direct term
+    by shadow rays; ``quality.j_spp`` directions per point."""
+    import mitsuba as mi
+
+    from mitsnerf.fields.grid import GridField
+    from mitsnerf.oracle.compare import PointSource
+    from mitsnerf.oracle.source import inner_max_depth
+    from mitsnerf.scene.spec import DirectionalLight
+    from mitsnerf.verify import mitsuba_refs as M
+    from mitsnerf.verify.scenarios import emitters_of
+
+    depth = inner_max_depth(scenario.max_depth)
+    inner = None if depth is None else (
+        scene if depth == scenario.max_depth else mi.load_dict(M.scene_dict(sigma_t, albedo, emitters_of(scenario), depth)))
+    albedo_grid = albedo if np.ndim(albedo) else np.full(sigma_t.shape + (3,), float(albedo), np.float32)
+    lights = [DirectionalLight(direction=scenario.sun_direction, irradiance=scenario.sun_irradiance)]
+    return PointSource(inner, GridField.from_arrays(sigma_t, UNIT_BOX, color=albedo_grid), lights, UNIT_BOX,
+                       spp=quality.j_spp, m_light=64, seed=quality.seed + 17)
+
+
 SOURCE_BUILDERS: dict[str, Callable[..., Any]] = {
     "zero": absorption_source,
     "single_scatter": single_scatter_source,
+    "in_scattered": in_scattered_source,
 }
 """Source name (:data:`mitsnerf.verify.cases.SOURCES`) -> ``builder(scenario, sigma_t, albedo, scene, quality)``."""

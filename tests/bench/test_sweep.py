@@ -66,7 +66,7 @@ def test_sweep_writes_every_output(interrupted_then_resumed):
     for name in ("table.md", "table.csv", "average.csv", "cells.csv", "results.json", "report.html"):
         assert (root / name).is_file(), name
     for scene in ("tcloud", "tblobs"):
-        for kind in ("psnr_time", "per_view", "images", "density"):
+        for kind in ("psnr_time", "per_view", "error_budget", "images", "density"):
             png = root / "plots" / f"{kind}_{scene}.png"
             assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n", png
     for cell in cells:
@@ -85,7 +85,7 @@ def test_sweep_writes_every_output(interrupted_then_resumed):
     assert "class='ceiling'" in (root / "report.html").read_text()
     assert (root / "cells.csv").read_text().count("\n") == 5
     html = (root / "report.html").read_text()
-    assert html.count("data:image/png;base64,") == 8 and "<table>" in html
+    assert html.count("data:image/png;base64,") == 10 and "<table>" in html
 
     data = json.loads((root / "results.json").read_text())
     assert data["provenance"]["variant"] and len(data["cells"]) == 4

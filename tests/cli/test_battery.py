@@ -214,6 +214,8 @@ CASES = [
          (unchanged("file"),)),
     Case("check --out is a file", 1, ["check", "--out", "{file}", "--case", "closed_form"], 2, ("{file}", "--out"),
          a_file, (unchanged("file"),)),
+    Case("score --out is a directory", 1, ["score", "{world.dataset}", "{tmp}", "--out", "{tmp}"], 2,
+         ("{tmp}", "--out", "is a directory"), None, (absent("*.json"),)),
     Case("bench --results is a file", 1, ["bench", "default", "--results", "{file}", "--data", "{tmp}/d"], 2,
          ("{file}", "--results"), a_file, (unchanged("file"), absent("d"))),
     # 3. corrupt data refused, naming the file and field

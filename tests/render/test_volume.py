@@ -62,3 +62,22 @@ def test_camera_rays_through_a_blob_are_darker_at_its_projection(blob_grid):
     row, col = np.unravel_index(np.argmax(opacity), opacity.shape)
     proj = cam.project(np.array([[0.1, 0.0, 0.0]]))[0]
     assert abs(col + 0.5 - proj[0]) <= 1.0 and abs(row + 0.5 - proj[1]) <= 1.0
+
+
+def test_envmap_background_loads_with_one_drjit_thread(tmp_path):
+    """Mitsuba's own EXR reader deadlocks after dr.set_thread_count(1) (bench --cpus-per-cell 1); the
+    background reads the map itself. In a subprocess, so a regression fails on the timeout instead of hanging."""
+    import subprocess
+    import sys
+
+    import numpy as np
+
+    from mitsnerf.data.images import write_exr
+
+    write_exr(tmp_path / "sky.exr", np.random.default_rng(0).uniform(0, 1, (8, 16, 3)).astype(np.float32))
+    code = ("import mitsnerf, drjit as dr, mitsuba as mi; from mitsnerf import env; env.set_variant(); "
+            "dr.set_thread_count(1); from mitsnerf.render.background import make_background; "
+            f"bg = make_background({{'type': 'envmap', 'file': {str(tmp_path / 'sky.exr')!r}}}); "
+            "print(bg(mi.Array3f(0, 0, 1)))")
+    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
+    assert done.returncode == 0 and done.stdout.strip().startswith("[["), done.stderr[-500:]

@@ -1,0 +1,79 @@
+"""A benchmark's ``[[external]]`` entries: other tools' renders, scored as ``mitsnerf score`` does
+(:func:`mitsnerf.external.score_renders`) against the benchmark's own datasets, and shown in the
+tables, plots and report beside the cells as ``NAME (external)``.
+
+They are scored on every run (it takes seconds), after the datasets exist and before any cell
+trains, so a bad renders folder stops the run at once with one error line.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, Sequence
+
+import numpy as np
+
+from mitsnerf.bench.config import BenchConfig, ExternalRun
+from mitsnerf.errors import SpecError
+
+
+@dataclass(frozen=True)
+class ExternalEntry:
+    """One external entry on one scene, its paths resolved."""
+
+    run: ExternalRun
+    scene: str
+    dataset_dir: Path
+    renders: Path
+    density: Path | None
+
+    @property
+    def key(self) -> str:
+        return f"{self.scene}/{self.run.label}"
+
+
+def plan_externals(config: BenchConfig, quick: bool, cells: Sequence) -> list[ExternalEntry]:
+    """Every (external, scene) of the profile being run; paths relative to the config file's folder.
+
+    A scene name that is not one of the benchmark's is a SpecError at ``external.I.renders.NAME``.
+    """
+    datasets = {c.scene: Path(c.dataset_dir) for c in cells}
+    base = Path(config.source).parent if config.source else Path(".")
+    entries = []
+    for i, run in enumerate(config.external):
+        files, where = run.files(quick), f"external.{i}" + (".quick" if quick else "")
+        for part, table in (("renders", files.renders), ("density", files.density)):
+            for scene in table:
+                if scene not in datasets:
+                    raise SpecError(config.source, f"{where}.{part}.{scene}",
+                                    f"not a scene of this benchmark (scenes: {', '.join(datasets)})")
+        for scene, folder in files.renders.items():
+            density = files.density.get(scene)
+            entries.append(ExternalEntry(run, scene, datasets[scene], base / folder,
+                                         None if density is None else base / density))
+    return entries
+
+
+def score_external(entry: ExternalEntry, report_view: int = 0, oracle=None) -> tuple[dict[str, Any], dict[str, np.ndarray]]:
+    """``(record, artefacts)`` of one entry, shaped as a cell's (:mod:`mitsnerf.bench.cells`); ``oracle``:
+    the dataset's (:class:`mitsnerf.oracle.cache.Oracle`, the cells'), else whatever is cached."""
+    from mitsnerf import env
+    from mitsnerf.bench.worker import oracle_summary
+    from mitsnerf.data.dataset import load_dataset
+    from mitsnerf.external import score_renders
+
+    dataset = load_dataset(entry.dataset_dir)
+    k = entry.run.footprint
+    s = score_renders(dataset, entry.renders, density=entry.density, name=entry.run.name, fmt=entry.run.format or None,
+                      footprint=k, oracle=oracle)
+    record = {"key": entry.key, "scene": entry.scene, "method": entry.run.label, "method_name": "external",
+              "seed": 0, "external": True, "renders": str(entry.renders), "matched_by": s.matched_by,
+              "density": s.density, "oracle_source": s.oracle, "oracle": oracle_summary(s.oracle_used, k),
+              "dataset": str(dataset.root), "metrics": {**s.metrics, "footprint": k}, "provenance": env.provenance()}
+    ref = s.reference
+    v = min(report_view, len(ref.cameras) - 1)
+    artefacts = {"ref": np.asarray(ref.images[v], np.float32), "render": s.renders[v], "view": np.int32(v), **s.slices}
+    if ref.masks is not None:
+        artefacts["mask"] = ref.masks[v]
+    return record, artefacts

@@ -1,0 +1,244 @@
+"""Renders from any tool, scored against a dataset's test views as a benchmark cell is (``mitsnerf score``).
+
+**Images.** ``RENDERS`` is a folder of ``.png`` and ``.exr`` files (other files are ignored; with
+``fmt`` only that kind is read). EXR is linear radiance, used as it is (an alpha channel is not
+applied: mitsnerf's own EXRs already hold the background). PNG is sRGB, decoded to linear; a PNG
+with alpha is straight alpha over a transparent background and is composited over what each
+pixel of the dataset sees behind the medium (its ``background``: a constant, or the environment
+map averaged over the pixel), ``rgb * a + B * (1 - a)`` in linear space. Every image must have
+the test frame's size and finite values.
+
+**Matching** (:func:`match_renders`), against the test frames' names (``r_000``, ...):
+
+1. *by file name*: when any file's stem is a test frame's name, every test frame must have
+   exactly one such file and no other image may be there;
+2. *by order*: when no stem is a frame's name, there must be as many images as test frames;
+   each stem must hold a frame number (its last run of digits, e.g. ``00007`` in
+   ``frame_00007``), all different, and the images in increasing number are the test frames in
+   the order of ``transforms_test.json``.
+
+Anything else is refused: two files with one stem (``r_000.png`` and ``r_000.exr``: choose with
+``fmt``), a frame without its render, an image named after no frame, a wrong count, a name
+without a number or two with the same number.
+
+**Density** (:func:`read_density`): ``sigma_t`` on a grid over the dataset's box, indexed
+``[z, y, x]``, as ``.npy`` (``(R, R, R)``) or Mitsuba ``.vol`` (one channel; its bounding box must
+be the dataset's), looked up trilinearly as Mitsuba's ``gridvolume``.
+
+**Oracle** (:func:`read_oracle`): the dataset's cached emission-absorption oracle
+(``DATASET/oracle/<key>/``, :mod:`mitsnerf.oracle.cache`, computed by ``mitsnerf bench``), its
+scores at the renders' footprint (1: one ray through each pixel centre, what most tools render;
+``K``: the mean of ``K x K`` rays over the pixel). Of several cached oracles, the one with the
+default settings is taken. None cached: "no oracle".
+"""
+
+from __future__ import annotations
+
+import re
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, Sequence
+
+import numpy as np
+
+from mitsnerf import scoring
+from mitsnerf.data.dataset import Dataset
+from mitsnerf.data.images import read_image
+from mitsnerf.errors import DatasetError
+from mitsnerf.math.box import Box
+from mitsnerf.math.color import srgb_to_linear
+
+FORMATS = ("png", "exr")
+_NUMBER = re.compile(r"(\d+)(?!.*\d)")
+
+
+def image_files(folder: Path, fmt: str | None = None) -> dict[str, Path]:
+    """``{stem: path}`` of the ``.png``/``.exr`` files directly in ``folder`` (only ``fmt`` if given).
+
+    Two files with the same stem are refused: which one is meant is not for mitsnerf to guess.
+    """
+    folder = Path(folder)
+    if not folder.is_dir():
+        raise DatasetError(folder, None, "renders folder not found" if not folder.exists() else "not a folder")
+    kinds = (fmt,) if fmt else FORMATS
+    found: dict[str, Path] = {}
+    for path in sorted(folder.iterdir()):
+        if not path.is_file() or path.suffix.lower().lstrip(".") not in kinds:
+            continue
+        if path.stem in found:
+            raise DatasetError(folder, None, f"both {found[path.stem].name} and {path.name}: "
+                                             "say which to score (--format png or --format exr)")
+        found[path.stem] = path
+    if not found:
+        raise DatasetError(folder, None, f"no {' or '.join('.' + k for k in kinds)} images")
+    return found
+
+
+def match_renders(folder: Path, names: Sequence[str], fmt: str | None = None) -> tuple[list[Path], str]:
+    """The render of each test frame ``names[i]`` and the rule that matched them, ``"name"`` or ``"order"``.
+
+    >>> import tempfile; d = Path(tempfile.mkdtemp())
+    >>> for n in ("frame_10.png", "frame_9.png"): _ = (d / n).write_bytes(b"")
+    >>> [p.name for p in match_renders(d, ["r_000", "r_001"])[0]]
+    ['frame_9.png', 'frame_10.png']
+    """
+    folder = Path(folder)
+    files = image_files(folder, fmt)
+    if set(files) & set(names):
+        missing = [n for n in names if n not in files]
+        if missing:
+            raise DatasetError(folder, None, f"no render for test frame {missing[0]} ({len(names) - len(missing)} of "
+                                             f"{len(names)} frames have one; renders are matched by file name)")
+        extra = sorted(set(files) - set(names))
+        if extra:
+            raise DatasetError(files[extra[0]], None, "named after no test frame (renders are matched by file name; "
+                                                      f"the test frames are {names[0]} .. {names[-1]})")
+        return [files[n] for n in names], "name"
+    if len(files) != len(names):
+        raise DatasetError(folder, None, f"{len(files)} images for {len(names)} test frames (matched by order: "
+                                         f"no file is named after a test frame such as {names[0]})")
+    numbered = {}
+    for stem, path in files.items():
+        found = _NUMBER.search(stem)
+        if found is None:
+            raise DatasetError(path, None, "no frame number in the name, so the images cannot be put in order "
+                                           f"(or name them after the test frames, {names[0]} ..)")
+        number = int(found.group(1))
+        if number in numbered:
+            raise DatasetError(path, None, f"frame number {number} again ({numbered[number].name})")
+        numbered[number] = path
+    return [numbered[k] for k in sorted(numbered)], "order"
+
+
+def _to_linear(path: Path, img: np.ndarray, background: np.ndarray) -> np.ndarray:
+    """Linear RGB of one render (module docstring): EXR as is, PNG decoded and composited by its alpha."""
+    if path.suffix.lower() == ".exr":
+        return img[..., :3]
+    rgb = srgb_to_linear(img[..., :3])
+    if img.shape[2] == 4:
+        a = img[..., 3:4]
+        rgb = rgb * a + background * (1.0 - a)
+    return rgb
+
+
+def read_renders(dataset: Dataset, folder: Path, fmt: str | None = None, split: str = "test") -> tuple[np.ndarray, list[Path], str]:
+    """The renders of ``split``'s views as linear RGB ``(V, H, W, 3)``, their files and the matching rule."""
+    from mitsnerf.render.background import make_background, pixel_background
+
+    views = dataset.views(split)
+    paths, rule = match_renders(Path(folder), views.names, fmt)
+    images = np.empty(views.images.shape, dtype=np.float32)
+    background = None
+    for i, (path, name) in enumerate(zip(paths, views.names)):
+        img = read_image(path)
+        h, w = img.shape[:2]
+        if (w, h) != (views.width, views.height):
+            raise DatasetError(path, None, f"image is {w}x{h}, test frame {name} is {views.width}x{views.height}")
+        bad = ~np.isfinite(img)
+        if bad.any():
+            r, c, _ = np.argwhere(bad)[0]
+            raise DatasetError(path, None, f"{int(bad.sum())} non-finite pixel values (NaN/inf), first at row {r}, column {c}")
+        if background is None and path.suffix.lower() == ".png" and img.shape[2] == 4:
+            bg = make_background(dataset.background, dataset.root)
+            background = pixel_background(bg, views.cameras, views.pixel_center).astype(np.float32)
+        images[i] = _to_linear(path, img, None if background is None else background[i])
+    return images, paths, rule
+
+
+def read_density(path: Path, box: Box) -> np.ndarray:
+    """A density grid ``(Z, Y, X)`` float32 over ``box`` from ``.npy`` or ``.vol`` (module docstring)."""
+    from mitsnerf.data.vol import read_vol
+
+    path = Path(path)
+    suffix = path.suffix.lower()
+    if suffix == ".vol":
+        data, lo, hi = read_vol(path)
+        if data.shape[3] != 1:
+            raise DatasetError(path, "channels", f"a density has 1 channel, got {data.shape[3]}")
+        if not np.allclose([lo, hi], box.to_list(), rtol=1e-5, atol=1e-5):
+            raise DatasetError(path, "bbox", f"{[list(lo), list(hi)]} is not the dataset's box {box.to_list()}")
+        grid = data[..., 0]
+    elif suffix == ".npy":
+        try:
+            grid = np.load(path, allow_pickle=False)
+        except FileNotFoundError:
+            raise DatasetError(path, None, "no such file") from None
+        except (OSError, ValueError) as exc:
+            raise DatasetError(path, None, f"not a readable numpy array ({exc})") from None
+        grid = grid[..., 0] if grid.ndim == 4 and grid.shape[3] == 1 else grid
+    else:
+        raise DatasetError(path, None, f"unsupported density format {suffix or '(no suffix)'!r}: .npy or .vol")
+    if grid.ndim != 3 or min(grid.shape) < 1:
+        raise DatasetError(path, None, f"a density grid is (Z, Y, X), got shape {grid.shape}")
+    if not np.all(np.isfinite(grid)) or grid.min() < 0:
+        raise DatasetError(path, None, "density values must be finite and >= 0")
+    return np.ascontiguousarray(grid, dtype=np.float32)
+
+
+def read_oracle(dataset: Dataset, footprint: int = 1):
+    """``(oracle, source)``: the cached :class:`mitsnerf.oracle.cache.Oracle` of ``dataset`` with scores at
+    ``footprint`` (the default settings' first), and where it is; ``(None, "no oracle ...")`` without one."""
+    from mitsnerf.config import to_dict
+    from mitsnerf.oracle.cache import ORACLE_DIR, OracleConfig, load_oracle
+
+    found = [o for o in (load_oracle(p.parent) for p in sorted((Path(dataset.root) / ORACLE_DIR).glob("*/oracle.json")))
+             if o is not None and f"footprint_{int(footprint)}" in o.scores]
+    if not found:
+        return None, f"no oracle (none cached in {Path(dataset.root) / ORACLE_DIR} at footprint {footprint})"
+    default = to_dict(OracleConfig())
+    oracle = next((o for o in found if o.info.get("config") == default), found[0])
+    return oracle, f"oracle {oracle.path} at footprint {footprint}"
+
+
+@dataclass(frozen=True)
+class ExternalScore:
+    """The scores of one folder of renders, and what they were matched and scored with."""
+
+    name: str
+    metrics: dict
+    files: dict[str, str]
+    """Test frame name -> render file."""
+    matched_by: str
+    density: str | None
+    oracle: str
+    renders: np.ndarray
+    """(V, H, W, 3) linear, as scored."""
+    slices: dict
+    reference: scoring.Reference
+    """What they were scored against (the test views, their medium masks)."""
+    oracle_used: Any = None
+    """The :class:`mitsnerf.oracle.cache.Oracle` whose scores are in ``metrics`` (None: no oracle)."""
+
+    def record(self, dataset: Dataset, folder: Path) -> dict[str, Any]:
+        """The JSON record ``mitsnerf score`` writes."""
+        from mitsnerf import env
+
+        return {"name": self.name, "external": True, "dataset": str(dataset.root), "renders": str(folder),
+                "matched_by": self.matched_by, "files": self.files, "density": self.density, "oracle": self.oracle,
+                "metrics": self.metrics, "provenance": env.provenance()}
+
+
+def score_renders(dataset: Dataset, folder: Path, *, density: Path | None = None, name: str | None = None,
+                  fmt: str | None = None, footprint: int = 1, oracle=None) -> ExternalScore:
+    """Score the renders in ``folder`` against ``dataset``'s test views: the metrics of a benchmark
+    cell (:func:`mitsnerf.scoring.score_views`), with the oracle's at ``footprint`` (``oracle``, else
+    :func:`read_oracle`'s) where there is one."""
+    if fmt is not None and fmt not in FORMATS:
+        raise ValueError(f"--format: must be one of {', '.join(FORMATS)}, got {fmt!r}")
+    if footprint < 1:
+        raise ValueError(f"--footprint: must be >= 1, got {footprint}")
+    folder = Path(folder)
+    grid = read_density(density, dataset.box) if density is not None else None  # bad input before the work
+    images, paths, rule = read_renders(dataset, folder, fmt)
+    if oracle is None or f"footprint_{footprint}" not in oracle.scores:
+        oracle, oracle_source = read_oracle(dataset, footprint)
+    else:
+        oracle_source = f"oracle {oracle.path} at footprint {footprint}"
+    ref = scoring.reference(dataset, "test")
+    fn = None if grid is None else scoring.true_density(grid, dataset.box)
+    metrics, slices = scoring.score_views(images, ref, fn, oracle=None if oracle is None else oracle.metrics(footprint))
+    if fn is None and ref.sigma_t is not None:
+        metrics["density_note"] = "no density grid given (--density)"
+    views = dataset.views("test")
+    return ExternalScore(name or folder.resolve().name, metrics, {n: str(p) for n, p in zip(views.names, paths)}, rule,
+                         None if density is None else str(density), oracle_source, images, slices, ref, oracle)

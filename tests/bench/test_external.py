@@ -1,0 +1,85 @@
+"""A benchmark's [[external]] entries: other tools' renders scored beside the cells, marked external."""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import shutil
+from pathlib import Path
+
+import pytest
+
+import mitsnerf.bench.worker as worker
+from mitsnerf.bench.config import parse_bench_config
+from mitsnerf.bench.runner import plan_cells, run_benchmark
+from mitsnerf.config import to_dict
+from mitsnerf.errors import DatasetError, SpecError
+
+
+def _with_external(config, external, tmp_path):
+    """The tiny benchmark cut to one scene (tcloud) and one method, with ``external`` entries."""
+    raw = {**{k: v for k, v in to_dict(config).items() if k != "methods"}, "scenes": list(config.scenes[:1]),
+           "methods": [to_dict(config.methods[0])], "external": external}
+    return parse_bench_config(raw, tmp_path / "ext.toml")
+
+
+def _renders(cells, scene, tmp_path, name="ref"):
+    """The scene's test_ref EXRs as a renders folder (they score exactly the noise floor)."""
+    dataset = next(c.dataset_dir for c in cells if c.scene == scene)
+    folder = tmp_path / name
+    folder.mkdir()
+    for f in sorted((Path(dataset) / "test_ref").glob("r_*.exr")):
+        shutil.copy(f, folder / f.name)
+    return folder, Path(dataset)
+
+
+def test_external_rows_in_tables_plots_and_report(tiny_bench, tmp_path):
+    config, options = tiny_bench
+    opts = options("ext")  # not test_sweep's results: it counts the cells it runs
+    plain = _with_external(config, [], tmp_path)
+    cells = plan_cells(plain, opts)
+    run_benchmark(plain, dataclasses.replace(opts, report=False))  # the cell first
+    folder, dataset = _renders(cells, "tcloud", tmp_path)
+    ext = _with_external(config, [{"name": "ref", "renders": {"tcloud": "ref"},
+                                   "density": {"tcloud": str(dataset / "volume" / "sigma_t.npy")}}], tmp_path)
+    result = run_benchmark(ext, opts)
+    assert not result.computed  # the externals did not change any cell
+    row = next(r for r in result.per_scene if r["method"] == "ref (external)")
+    floor = json.loads((dataset / "manifest.json").read_text())["noise_floor"]
+    assert row["scene"] == "tcloud" and row["psnr_test"] == floor["psnr"] and row["density_rel_l1"] == 0.0
+    assert row.get("train_seconds") is None  # no training: the cost columns stay empty
+    record = next(r for r in result.records if r.get("external"))
+    oracle = json.loads((Path(record["oracle"]["path"]) / "scores.json").read_text())["footprint_1"]
+    assert row["oracle_psnr_test_medium"] == oracle["psnr_test_medium"]  # the cells' oracle, at footprint 1
+    assert row["gap_to_oracle"] == pytest.approx(oracle["psnr_test_medium"] - row["psnr_test_medium"], abs=1e-5)
+    root = result.out_root
+    assert "| tcloud | ref (external) | 1 |" in (root / "table.md").read_text()
+    assert "ref (external)" in (root / "table.csv").read_text() and "ref (external)" in (root / "report.html").read_text()
+    data = json.loads((root / "results.json").read_text())
+    assert [r["key"] for r in data["cells"] if r.get("external")] == ["tcloud/ref (external)"]
+    assert (root / "plots" / "images_tcloud.png").is_file() and (root / "plots" / "density_tcloud.png").is_file()
+
+
+def test_bad_external_stops_before_training(tiny_bench, tmp_path, monkeypatch):
+    config, options = tiny_bench
+    cells = plan_cells(config, options("fresh"))
+    folder, _ = _renders(cells, "tcloud", tmp_path)
+    (folder / "r_001.exr").unlink()
+    monkeypatch.setattr(worker, "run_cell", lambda *a, **k: pytest.fail("a cell ran"))
+    ext = _with_external(config, [{"name": "ref", "renders": {"tcloud": "ref"}}], tmp_path)
+    with pytest.raises(DatasetError, match="no render for test frame r_001"):
+        run_benchmark(ext, options("fresh"))
+    wrong = _with_external(config, [{"name": "ref", "renders": {"nosuch": "ref"}}], tmp_path)
+    with pytest.raises(SpecError, match=r"ext.toml: external.0.renders.nosuch: not a scene of this benchmark"):
+        run_benchmark(wrong, options("fresh"))
+
+
+def test_external_entries_need_a_quick_table_for_quick(tiny_bench, tmp_path):
+    from mitsnerf.bench.external import plan_externals
+
+    config, options = tiny_bench
+    ext = _with_external(config, [{"name": "ref", "renders": {"tcloud": "ref"}}], tmp_path)
+    cells = plan_cells(ext, options("fresh"))
+    assert [e.key for e in plan_externals(ext, False, cells)] == ["tcloud/ref (external)"]
+    assert plan_externals(ext, True, cells) == []
+    assert plan_externals(ext, False, cells)[0].renders == tmp_path / "ref"
