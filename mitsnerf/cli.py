@@ -159,7 +159,8 @@ def _train_config(values: dict):
 
 
 def _load(args, path):
-    """The dataset at ``path`` with the command's load options, verified (``--no-verify``: no hashes)."""
+    """The dataset at ``path`` with the command's load options, verified (``--no-verify``: no hashes);
+    says which box it has and what the verification read."""
     import time
 
     from mitsnerf.data.dataset import load_dataset
@@ -176,6 +177,7 @@ def _load(args, path):
         except ValueError as exc:  # the box's own check, of the user's numbers
             raise UsageError("--box", str(exc).removeprefix("box: ")) from None
     dataset = load_dataset(Path(path), box=box, pixel_center=args.pixel_center, background=args.background)
+    print(f"mitsnerf: scene box {dataset.box.to_list()} ({dataset.box_source})", flush=True)
     v = verify_dataset(dataset, hashes=not args.no_verify)
     hashed = f"{v.hashed_files} files hashed ({v.hashed_bytes / 1e6:.1f} MB), " if v.hashed_files else ""
     print(f"mitsnerf: dataset verified: {hashed}{v.views} views checked in {v.seconds:.2f} s", flush=True)
@@ -233,7 +235,6 @@ def cmd_train(args) -> int:
                              verify_hashes=not args.no_verify)
         else:
             dataset = _load(args, args.dataset)
-            print(f"mitsnerf: scene box {dataset.box.to_list()} ({dataset.box_source})", flush=True)
             run = fit(dataset, method, overrides, train_config, out, eval_config=eval_config,
                       deterministic=args.deterministic)
     m = run.metrics()
@@ -255,7 +256,6 @@ def cmd_score(args) -> int:
     out = Path(args.out) if args.out else renders / "scores.json"
     check_output_file(out, "--out")
     dataset = _load(args, args.dataset)
-    print(f"mitsnerf: scene box {dataset.box.to_list()} ({dataset.box_source})", flush=True)
     result = score_renders(dataset, renders, density=Path(args.density) if args.density else None, name=args.name,
                            fmt=args.format, footprint=args.footprint)
     record = result.record(dataset, renders)

@@ -135,7 +135,7 @@ def check_views(dataset: Dataset) -> int:
     """Load every split (the loader's checks), count its views, and in a mitsnerf dataset refuse
     negative radiance; returns the number of views."""
     manifest, total = dataset.manifest, 0
-    for split in dataset.splits:
+    for split in sorted(dataset.splits, key=lambda name: name != "train"):  # the training views first
         views = dataset.views(split)
         tpath = dataset.transforms_path(split)
         expected = _expected_views(manifest, split) if manifest else None
