@@ -148,12 +148,14 @@ def test_a_stopped_sweep_continues_the_cell_in_flight_from_its_checkpoint(world,
 
 def test_a_stopped_generate_leaves_nothing_that_looks_complete(world, tmp_path):
     spec = tmp_path / "slow.toml"
-    spec.write_text(world.spec.read_text().replace('"tiny"', '"slow"').replace("spp_test = 8", "spp_test = 16384"))
+    spec.write_text(world.spec.read_text().replace('"tiny"', '"slow"').replace("spp_test = 8", "spp_test = 2048"))
     proc = spawn(["generate", str(spec), "--out", str(tmp_path / "data")])
     end = time.monotonic() + 60
-    while not list((tmp_path / "data").glob(".slow-*.tmp-*/train")):  # rendering has begun
+    while not list((tmp_path / "data").glob(".slow-*.tmp-*")):  # the dataset is being built
         assert proc.poll() is None and time.monotonic() < end, proc.communicate()
         time.sleep(0.02)
+    time.sleep(0.5)  # into the rendering (the test views take seconds)
+    assert proc.poll() is None, "generate finished before the signal: make the spec slower"
     code, err = stop(proc, signal.SIGTERM)
     assert code == 143, err
     assert "Traceback" not in err and "mitsnerf: interrupted; stopped by SIGTERM" in err
