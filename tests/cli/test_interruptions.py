@@ -116,6 +116,7 @@ scenes = ["SPEC"]
 seeds = [0]
 train = { steps = 40, batch_rays = 512, log_every = 5, checkpoint_every = 1 }
 eval = { curve_points = 4, od_samples = 16 }
+oracle = { enabled = false }  # not what this test is about: it would cost a minute before the first cell
 [[methods]]
 name = "nerf"
 config = { network = { width = 8, depth = 1, head_width = 8, features = 4 }, n_samples = 8, n_importance = 0 }
