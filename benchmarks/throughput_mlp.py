@@ -8,6 +8,7 @@ MSE against 4 smooth targets, backward and an Adam update (lr 1e-3) on the same 
 
 - ``channel-major``: ``drjit.nn.Sequential`` on (C, N) tensors (``SinEncode`` + ``Linear``), as the
   ``nerf`` field evaluates its network; the encoding's frequencies match the peer's (x / 2 in);
+- ``channel-major frozen``: the same step recorded by ``dr.freeze`` and replayed;
 - ``point-major``: ``mitsnerf.fields.mlp.dense_apply`` on (N, C) tensors (``X W + b``), as the
   ``ngp`` field does; the encoding from ``dr.sin``/``dr.cos`` on each coordinate.
 
@@ -93,7 +94,8 @@ def time_steps(step, steps: int) -> float:
     return float(np.median(times))
 
 
-def channel_major(n: int, steps: int) -> float:
+def channel_major_problem(n: int):
+    """``(net, opt, x, t)``: ``drjit.nn.Sequential`` on (C, N) tensors, as the ``nerf`` field evaluates it."""
     import drjit as dr
     import drjit.nn as nn
     import drjit.opt  # noqa: F401
@@ -107,16 +109,55 @@ def channel_major(n: int, steps: int) -> float:
     opt = dr.opt.Adam(lr=LR)
     for key, value in net.items():
         opt[key] = value
+    return net, opt, x, t
+
+
+def channel_major_step(net, opt, x, t):
+    """One training step: the optimiser's parameters into the network, MSE, backward, Adam; the loss."""
+    import drjit as dr
+
+    for key in opt.keys():
+        net[key] = opt[key]
+    loss = dr.mean(dr.square(net(x) - t), axis=None)
+    dr.backward(loss)
+    opt.step()
+    return loss
+
+
+def channel_major(n: int, steps: int, frozen: bool = False, profile: dict | None = None) -> float:
+    """Median seconds per step; ``frozen``: the step recorded once by ``dr.freeze`` and replayed (no
+    Python tracing or kernel compilation after the first calls); ``profile``: filled by :func:`kernel_profile`."""
+    import drjit as dr
+
+    net, opt, x, t = channel_major_problem(n)
+    body = dr.freeze(channel_major_step) if frozen else channel_major_step
 
     def step() -> float:
-        for key in opt.keys():
-            net[key] = opt[key]
-        loss = dr.mean(dr.square(net(x) - t), axis=None)
-        dr.backward(loss)
-        opt.step()
-        return loss.item()
+        return body(net, opt, x, t).item()
 
-    return time_steps(step, steps)
+    med = time_steps(step, steps)
+    if profile is not None:
+        profile.update(kernel_profile(step, steps))
+    return med
+
+
+def kernel_profile(step, steps: int) -> dict:
+    """Where a step's wall time goes: Dr.Jit's kernel history over ``steps`` more steps gives the kernels
+    launched per step and their execution time; the rest of the wall time is Python, tracing, code
+    generation (cached after the first step) and launch overhead."""
+    import drjit as dr
+
+    dr.kernel_history()  # clear
+    dr.set_flag(dr.JitFlag.KernelHistory, True)
+    t0 = time.perf_counter()
+    for _ in range(steps):
+        step()
+    wall = (time.perf_counter() - t0) / steps
+    history = dr.kernel_history()
+    dr.set_flag(dr.JitFlag.KernelHistory, False)
+    kernel_s = sum(k.get("execution_time", 0.0) for k in history) / 1e3 / steps
+    return {"wall_s": wall, "kernels_per_step": len(history) / steps, "kernel_s": kernel_s,
+            "kernel_fraction": kernel_s / wall, "other_s": wall - kernel_s}
 
 
 def point_major(n: int, steps: int) -> float:
@@ -163,6 +204,8 @@ def main() -> int:
     ap.add_argument("--jax-python", default="/tmp/jaxenv/bin/python",
                     help="a Python with jax installed (skipped if missing)")
     ap.add_argument("--no-peak", action="store_true", help="skip the numpy matmul roof (a few seconds)")
+    ap.add_argument("--profile", action="store_true",
+                    help="also the channel-major paths' kernels per step and time inside kernels (Dr.Jit's kernel history)")
     args = ap.parse_args()
     variant = env.set_variant()
     import drjit as dr
@@ -171,12 +214,17 @@ def main() -> int:
     ours: dict[tuple[str, int], float] = {}
     for logn in args.batch_log2:
         n = 2**logn
-        for name, fn in (("channel-major", channel_major), ("point-major", point_major)):
-            med = fn(n, args.steps)
+        paths = (("channel-major", lambda n, s, p: channel_major(n, s, profile=p)),
+                 ("channel-major frozen", lambda n, s, p: channel_major(n, s, frozen=True, profile=p)),
+                 ("point-major", lambda n, s, p: point_major(n, s)))
+        for name, fn in paths:
+            profile: dict = {}
+            med = fn(n, args.steps, profile if args.profile else None)
             ours[(name, n)] = n / med
             print(json.dumps({"bench": "mlp", "impl": f"mitsnerf {name}", "batch": n, "dims": list(DIMS),
                               "median_step_s": med, "pts_per_s": n / med, "gflops": fpp * n / med / 1e9,
-                              "threads": dr.thread_count(), "variant": variant}), flush=True)
+                              "threads": dr.thread_count(), "variant": variant,
+                              **({"profile": profile} if profile else {})}), flush=True)
     peer: dict[int, float] = {}
     if Path(args.jax_python).exists():
         for line in run_peer(args.jax_python, args.batch_log2, args.steps):
