@@ -3,9 +3,12 @@
 
 The field is the scene's true ``sigma_t`` and albedo grids (``GridField``: trilinear lookups as
 Mitsuba's ``gridvolume``), rendered with ``mitsnerf.render.volume.render_rays`` along every pixel
-ray of the scene's test cameras, N stratified samples per ray. Two passes: forward only
-(evaluation) and forward + backward with respect to the ``sigma_t`` grid (what fitting a voxel
-grid costs; the texture is rebuilt from the grid tensor each time, as in training). Samples =
+ray of the scene's test cameras, N stratified samples per ray. Three passes: forward only
+(evaluation) through ``render_rays`` (the sampler's, the field's and the compositing's arrays of
+R * N entries) and through ``march_rays`` (the same quadrature as one loop per ray,
+``mitsnerf.render.march``), and forward + backward through ``render_rays`` with respect to the
+``sigma_t`` grid (what fitting a voxel grid costs; the texture is rebuilt from the grid tensor each
+time, as in training). Samples =
 rays * N; the median of the repeats after one warm-up (compilation). Scenes with a sky render
 with a black background here (the envmap lookup is not what is measured).
 
@@ -44,6 +47,7 @@ def main() -> int:
     from mitsnerf.fields.grid import GridField
     from mitsnerf.render.background import make_background
     from mitsnerf.math.rays import camera_rays
+    from mitsnerf.render.march import march_rays
     from mitsnerf.render.volume import render_rays
     from mitsnerf.scene.rigs import camera_rig
     from mitsnerf.scene.spec import load_scene
@@ -66,6 +70,11 @@ def main() -> int:
             dr.eval(comp.rgb, comp.opacity)
         dr.sync_thread()
 
+    def march(n: int) -> None:
+        comp = march_rays(field_np, rays.o, rays.d, n, background=background, box=UNIT_BOX)
+        dr.eval(comp.rgb, comp.opacity)
+        dr.sync_thread()
+
     sigma = mi.TensorXf(np.ascontiguousarray(sigma_np[..., None]))
     dr.enable_grad(sigma)
 
@@ -80,7 +89,7 @@ def main() -> int:
         dr.clear_grad(sigma)
 
     for n in args.samples:
-        for name, fn in (("forward", forward), ("forward+backward", backward)):
+        for name, fn in (("forward", forward), ("forward (march)", march), ("forward+backward", backward)):
             fn(n)  # warm-up: compilation
             times = []
             for _ in range(args.repeats):

@@ -55,6 +55,7 @@ from typing import Any, Mapping
 
 import numpy as np
 
+from mitsnerf.data.arrays import read_npz
 from mitsnerf.data.atomic import atomic_write_bytes
 from mitsnerf.errors import DatasetError
 
@@ -178,18 +179,21 @@ def save_checkpoint(path: str | os.PathLike, ckpt: Checkpoint) -> None:
 def load_checkpoint(path: str | os.PathLike) -> Checkpoint:
     """Read a checkpoint; :class:`~mitsnerf.errors.DatasetError` naming the file if it is not one."""
     path = Path(path)
-    if not path.is_file():
+    if not path.exists():
         raise DatasetError(path, None, "no checkpoint here (train with --out to write one)")
-    try:
-        with np.load(path, allow_pickle=False) as z:
-            files = {k: z[k] for k in z.files}
-    except (OSError, ValueError) as exc:
-        raise DatasetError(path, None, f"not a readable checkpoint: {exc}") from None
+    files = read_npz(path, "checkpoint")
     if "meta.json" not in files:
         raise DatasetError(path, "meta.json", "missing: not a mitsnerf checkpoint")
-    meta = json.loads(files.pop("meta.json").tobytes().decode("utf-8"))
-    if meta.get("format") != FORMAT_VERSION:
-        raise DatasetError(path, "format", f"expected {FORMAT_VERSION}, got {meta.get('format')!r}")
+    try:
+        meta = json.loads(files.pop("meta.json").tobytes().decode("utf-8"))
+    except ValueError as exc:  # UnicodeDecodeError and JSONDecodeError are ValueErrors
+        raise DatasetError(path, "meta.json", f"not JSON ({exc}): not a mitsnerf checkpoint") from None
+    if not isinstance(meta, dict) or meta.get("format") != FORMAT_VERSION:
+        got = meta.get("format") if isinstance(meta, dict) else meta
+        raise DatasetError(path, "format", f"expected {FORMAT_VERSION}, got {got!r}")
+    missing = [k for k in ("step", "elapsed", "optimizer") if k not in meta]
+    if missing:
+        raise DatasetError(path, "meta.json", f"missing {', '.join(missing)}: not a complete mitsnerf checkpoint")
     params, extra, moments = {}, {}, {}
     for name, value in files.items():
         kind, _, rest = name.partition("/")

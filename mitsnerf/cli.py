@@ -1,12 +1,16 @@
 """``mitsnerf``: the command line. Argument parsing only; each command calls into the package.
 
-Errors the user can act on (bad spec, missing data, no LLVM, NaN loss) print one line
-``mitsnerf: error: FILE: FIELD: what`` and exit with status 2.
+Errors the user can act on (bad spec, missing or corrupt data, an unusable output location, no LLVM,
+NaN loss) print one line ``mitsnerf: error: FILE: FIELD: what`` and exit with status 2 (``--debug``
+shows their traceback); anything else is a bug and keeps its traceback. SIGINT, SIGTERM and SIGHUP
+stop a command: training saves a checkpoint and says how to continue; the exit status is 128 + the
+signal's number (130, 143, 129).
 """
 
 from __future__ import annotations
 
 import argparse
+import errno
 import functools
 import json
 import os
@@ -17,12 +21,13 @@ from pathlib import Path
 def _overrides(pairs: list[str] | None) -> dict:
     """``--set KEY=VALUE`` pairs as ``{dotted key: value}`` (values read by :func:`mitsnerf.config.parse_value`)."""
     from mitsnerf.config import parse_value
+    from mitsnerf.errors import UsageError
 
     out = {}
     for pair in pairs or []:
         key, sep, value = pair.partition("=")
         if not sep or not key:
-            raise ValueError(f"--set {pair!r}: expected KEY=VALUE")
+            raise UsageError("--set", f"expected KEY=VALUE, got {pair!r}")
         out[key.strip()] = parse_value(value)
     return out
 
@@ -108,20 +113,24 @@ def cmd_methods(args) -> int:
 
 @_with_user_dirs
 def cmd_generate(args) -> int:
+    from mitsnerf.errors import UsageError
     from mitsnerf.generate import generate_all, generate_dataset
+    from mitsnerf.outputs import check_output_dir
     from mitsnerf.scene.spec import load_scene
 
+    if not args.all and not args.scene:
+        raise UsageError("generate", "name a SCENE or pass --all")
+    check_output_dir(Path(args.out), "--out")
     overrides = _scene_overrides(args)
     if args.all:
-        for path in generate_all(Path(args.out), overrides=overrides, force=args.force):
+        for path in generate_all(Path(args.out), overrides=overrides, force=args.force,
+                                 verify_hashes=not args.no_verify):
             print(path)
         return 0
-    if not args.scene:
-        raise ValueError("generate: name a SCENE or pass --all")
     spec = load_scene(args.scene)
     if overrides:
         spec = spec.with_overrides(overrides)
-    print(generate_dataset(spec, Path(args.out), force=args.force))
+    print(generate_dataset(spec, Path(args.out), force=args.force, verify_hashes=not args.no_verify))
     return 0
 
 
@@ -137,51 +146,103 @@ def _train_values(args) -> dict:
     return {k: v for k, v in values.items() if v is not None}
 
 
+def _train_config(values: dict):
+    """The TrainConfig of the command-line values; a bad one is blamed on its flag (``--batch-rays``)."""
+    from mitsnerf.config import from_dict
+    from mitsnerf.errors import SpecError, UsageError
+    from mitsnerf.train import TrainConfig
+
+    try:
+        return from_dict(TrainConfig, values)
+    except SpecError as exc:
+        raise UsageError(f"--{exc.field.replace('_', '-')}" if exc.field else "train", exc.message) from None
+
+
 def _load(args, path):
+    """The dataset at ``path`` with the command's load options, verified (``--no-verify``: no hashes);
+    says which box it has and what the verification read."""
+    import time
+
     from mitsnerf.data.dataset import load_dataset
+    from mitsnerf.data.verify import verify_dataset
+    from mitsnerf.errors import UsageError
     from mitsnerf.math.box import Box
 
+    _check_numbers([("--pixel-center", args.pixel_center, lambda v: True, "finite"),
+                    ("--background", args.background, lambda v: v >= 0, "finite and >= 0")])
     box = None
     if args.box:
         try:
             box = Box(tuple(args.box[:3]), tuple(args.box[3:]))
-        except ValueError as exc:
-            raise ValueError(f"--box: {str(exc).removeprefix('box: ')}") from None
-    return load_dataset(Path(path), box=box, pixel_center=args.pixel_center, background=args.background)
+        except ValueError as exc:  # the box's own check, of the user's numbers
+            raise UsageError("--box", str(exc).removeprefix("box: ")) from None
+    dataset = load_dataset(Path(path), box=box, pixel_center=args.pixel_center, background=args.background)
+    print(f"mitsnerf: scene box {dataset.box.to_list()} ({dataset.box_source})", flush=True)
+    v = verify_dataset(dataset, hashes=not args.no_verify)
+    hashed = f"{v.hashed_files} files hashed ({v.hashed_bytes / 1e6:.1f} MB), " if v.hashed_files else ""
+    print(f"mitsnerf: dataset verified: {hashed}{v.views} views checked in {v.seconds:.2f} s", flush=True)
+    return dataset
+
+
+def _fresh_settings(args) -> tuple[str, dict, object]:
+    """``(method, method overrides, EvalConfig)`` of a new run, checked before anything runs."""
+    from mitsnerf.config import apply_overrides, from_dict
+    from mitsnerf.errors import UsageError
+    from mitsnerf.evaluate import EvalConfig
+    from mitsnerf.methods import METHODS
+
+    if not args.dataset:
+        raise UsageError("train", "name a DATASET directory (or pass --resume to continue the run in --out)")
+    method = args.method or DEFAULT_METHOD
+    if method not in METHODS:
+        raise UsageError("--method", f"unknown method {method!r} (known: {', '.join(sorted(METHODS))})")
+    overrides = apply_overrides({}, _overrides(args.set), "--set")
+    if args.lr is not None:
+        overrides["lr"] = args.lr
+    from_dict(METHODS[method].config_type, overrides, source="--set")
+    eval_config = from_dict(EvalConfig, {} if args.footprint is None else {"footprint": args.footprint})
+    return method, overrides, eval_config
+
+
+def _check_resume_flags(args) -> None:
+    from mitsnerf.errors import UsageError
+
+    fixed = [flag for flag, value in (("--method", args.method), ("--set", args.set), ("--batch-rays", args.batch_rays),
+                                       ("--lr", args.lr), ("--seed", args.seed), ("--box", args.box),
+                                       ("--footprint", args.footprint), ("--no-pixel-jitter", args.no_pixel_jitter),
+                                       ("--deterministic", args.deterministic)) if value]
+    if args.force:
+        raise UsageError("--force", "starts the run over; --resume continues it: pass one of them")
+    if fixed:
+        raise UsageError("train --resume", f"{', '.join(fixed)} come from the checkpoint; "
+                                           "only --steps, --seconds and --checkpoint-every may change")
 
 
 def cmd_train(args) -> int:
-    from mitsnerf.config import apply_overrides, from_dict
-    from mitsnerf.evaluate import EvalConfig
     from mitsnerf.run import fit, resume_run
-    from mitsnerf.train import TrainConfig
+    from mitsnerf.run_dir import claim_run_dir
 
     train_values = _train_values(args)
+    train_config = _train_config(train_values)  # every setting checked before anything runs
     if args.resume:
-        fixed = [flag for flag, value in (("--method", args.method), ("--set", args.set), ("--batch-rays", args.batch_rays),
-                                           ("--lr", args.lr), ("--seed", args.seed), ("--box", args.box),
-                                           ("--footprint", args.footprint), ("--no-pixel-jitter", args.no_pixel_jitter))
-                 if value]
-        if fixed:
-            raise ValueError(f"train --resume: {', '.join(fixed)} come from the checkpoint; "
-                             "only --steps, --seconds and --checkpoint-every may change")
-        run = resume_run(Path(args.out), train_values, dataset=_load(args, args.dataset) if args.dataset else None)
+        _check_resume_flags(args)
     else:
-        if not args.dataset:
-            raise ValueError("train: name a DATASET directory (or pass --resume to continue the run in --out)")
-        dataset = _load(args, args.dataset)
-        print(f"mitsnerf: scene box {dataset.box.to_list()} ({dataset.box_source})", flush=True)
-        overrides = apply_overrides({}, _overrides(args.set), "--set")
-        if args.lr is not None:
-            overrides["lr"] = args.lr
-        eval_config = from_dict(EvalConfig, {} if args.footprint is None else {"footprint": args.footprint})
-        run = fit(dataset, args.method or DEFAULT_METHOD, overrides, from_dict(TrainConfig, train_values),
-                  Path(args.out), eval_config=eval_config)
+        method, overrides, eval_config = _fresh_settings(args)
+    out = Path(args.out)
+    with claim_run_dir(out, resume=args.resume, force=args.force):
+        if args.resume:
+            run = resume_run(out, train_values, dataset=_load(args, args.dataset) if args.dataset else None,
+                             verify_hashes=not args.no_verify)
+        else:
+            dataset = _load(args, args.dataset)
+            run = fit(dataset, method, overrides, train_config, out, eval_config=eval_config,
+                      deterministic=args.deterministic)
     m = run.metrics()
     medium = "" if m.get("psnr_test_medium") is None else f" ({m['psnr_test_medium']:.2f} dB on medium pixels)"
+    rate = "no steps run" if m["rays_per_s"] is None else f"{m['rays_per_s']:.0f} rays/s"
     print(f"{run.method}: test PSNR {m['psnr_test']:.2f} dB{medium}, footprint {m['footprint']}x{m['footprint']}, "
           f"train PSNR {m['psnr_train']:.2f} dB, {m['steps']} steps in {m['train_seconds']:.1f} s, "
-          f"{m['rays_per_s']:.0f} rays/s -> {args.out}")
+          f"{rate} -> {args.out}")
     return 0
 
 
@@ -189,16 +250,17 @@ def cmd_score(args) -> int:
     from mitsnerf.bench.tables import QUALITY, markdown_table, scene_rows
     from mitsnerf.data.atomic import atomic_write_json
     from mitsnerf.external import score_renders
+    from mitsnerf.outputs import check_output_file
 
-    dataset = _load(args, args.dataset)
-    print(f"mitsnerf: scene box {dataset.box.to_list()} ({dataset.box_source})", flush=True)
     renders = Path(args.renders)
+    out = Path(args.out) if args.out else renders / "scores.json"
+    check_output_file(out, "--out")
+    dataset = _load(args, args.dataset)
     result = score_renders(dataset, renders, density=Path(args.density) if args.density else None, name=args.name,
                            fmt=args.format, footprint=args.footprint)
     record = result.record(dataset, renders)
     scene = (dataset.manifest or {}).get("name") or Path(dataset.root).resolve().name
     row = scene_rows([{"scene": scene, "method": f"{result.name} (external)", "seed": 0, "metrics": result.metrics}])
-    out = Path(args.out) if args.out else renders / "scores.json"
     atomic_write_json(out, record)
     print(markdown_table(row, QUALITY))
     print(f"\n{len(result.files)} renders matched by {result.matched_by}; {result.oracle}; "
@@ -206,19 +268,45 @@ def cmd_score(args) -> int:
     return 0
 
 
-def cmd_render(args) -> int:
-    from mitsnerf.novel import ViewRequest, render_run
+def _check_numbers(checks) -> None:
+    """A :class:`~mitsnerf.errors.UsageError` for the first ``(flag, values, ok, what)`` whose values
+    (None: not given) are not all finite and ``ok``."""
+    import math
 
-    size = None
-    if args.size:
-        if len(args.size) > 2:
-            raise ValueError(f"--size: give W or W H, got {len(args.size)} numbers")
-        size = (args.size[0], args.size[-1])
+    from mitsnerf.errors import UsageError
+
+    for flag, values, ok, what in checks:
+        if values is None:
+            continue
+        values = values if isinstance(values, (list, tuple)) else [values]
+        if not all(math.isfinite(v) and ok(v) for v in values):
+            shown = " ".join(f"{v:g}" for v in values)
+            raise UsageError(flag, f"must be {what}, got {shown}")
+
+
+def cmd_render(args) -> int:
+    from mitsnerf.errors import UsageError
+    from mitsnerf.novel import ViewRequest, render_run
+    from mitsnerf.outputs import check_output_dir
+
+    if args.size and len(args.size) > 2:
+        raise UsageError("--size", f"give W or W H, got {len(args.size)} numbers")
+    _check_numbers([("--size", args.size, lambda v: v >= 1, "whole numbers >= 1"),
+                    ("--fov", args.fov, lambda v: 0 < v < 180, "in (0, 180) degrees"),
+                    ("--orbit", args.orbit, lambda v: v >= 0, ">= 0"),
+                    ("--index", args.index, lambda v: v >= 0, ">= 0"),
+                    ("--radius", args.radius, lambda v: v > 0, "> 0"),
+                    ("--elevation", args.elevation, lambda v: -90 <= v <= 90, "in [-90, 90] degrees"),
+                    ("--fps", args.fps, lambda v: v > 0, "> 0"),
+                    ("--look-from", args.look_from, lambda v: True, "finite"),
+                    ("--look-at", list(args.look_at), lambda v: True, "finite")])
+    size = (args.size[0], args.size[-1]) if args.size else None
     request = ViewRequest(split=args.split, index=args.index,
                           look_from=tuple(args.look_from) if args.look_from else None,
                           look_at=tuple(args.look_at), fov=args.fov, size=size, orbit=args.orbit,
                           elevation=args.elevation, radius=args.radius, fps=args.fps)
     out = Path(args.out) if args.out else Path(args.run) / "renders"
+    check_output_dir(out, "--out")
     files = render_run(Path(args.run), out, request)
     print(f"{len(files)} files -> {out}")
     return 0
@@ -226,7 +314,16 @@ def cmd_render(args) -> int:
 
 def cmd_export(args) -> int:
     from mitsnerf.export import export_run
+    from mitsnerf.outputs import check_output_dir
 
+    _check_numbers([("--resolution", args.resolution, lambda v: v >= 1, ">= 1"),
+                    ("--directions", args.directions, lambda v: v >= 1, ">= 1"),
+                    ("--direction", args.direction, lambda v: True, "finite")])
+    if args.direction is not None and not any(args.direction):
+        from mitsnerf.errors import UsageError
+
+        raise UsageError("--direction", "must not be 0 0 0")
+    check_output_dir(Path(args.out) if args.out else Path(args.run) / "export", "--out")
     paths = export_run(Path(args.run), Path(args.out) if args.out else None, args.resolution,
                        args.direction, args.directions)
     print(f"{args.resolution}^3 medium -> {paths['sigma_t.vol'].parent} ({', '.join(paths)})")
@@ -258,8 +355,11 @@ translate(centre).scale(size / 2) for the cube):
 def cmd_bench(args) -> int:
     from mitsnerf.bench.config import load_bench_config
     from mitsnerf.bench.runner import BenchOptions, default_data_root, run_benchmark
+    from mitsnerf.errors import UsageError
+    from mitsnerf.outputs import check_output_dir
 
-    config = load_bench_config(args.config)
+    if args.deterministic and args.cpus_per_cell not in (0, 1):
+        raise UsageError("--deterministic", f"runs each cell on one thread; --cpus-per-cell {args.cpus_per_cell} contradicts it")
     options = BenchOptions(
         quick=args.quick,
         data_root=Path(args.data) if args.data else default_data_root(),
@@ -268,9 +368,13 @@ def cmd_bench(args) -> int:
         executor=args.executor,
         workers=args.workers,
         address=args.address,
-        cpus_per_cell=args.cpus_per_cell,
+        cpus_per_cell=1 if args.deterministic else args.cpus_per_cell,
         force=args.force,
+        verify_hashes=not args.no_verify,
     )
+    check_output_dir(options.results_root, "--results")
+    check_output_dir(options.data_root, "--data" if args.data else "dataset cache ($MITSNERF_DATA or ./data)")
+    config = load_bench_config(args.config)
     result = run_benchmark(config, options)
     print(result.markdown)
     print(f"\n{len(result.computed)} cells run, {len(result.skipped)} already done -> {result.out_root} "
@@ -283,9 +387,12 @@ def cmd_bench(args) -> int:
 
 
 def cmd_check(args) -> int:
+    from mitsnerf.outputs import check_output_dir
     from mitsnerf.verify.cases import QUALITIES
     from mitsnerf.verify.runner import format_mutations, format_table, run_checks, run_mutations
 
+    if args.out:
+        check_output_dir(Path(args.out), "--out")
     alpha = QUALITIES[args.quality].alpha
     if args.mutations:
         progress = None if args.no_progress else (
@@ -316,11 +423,21 @@ SCENES_HELP = ("a directory of your own scene specs (NAME.toml), searched before
                "(repeatable; also $MITSNERF_SCENES)")
 
 
+class _Parser(argparse.ArgumentParser):
+    """argparse, with a mistake on the command line reported as every user error is: one line
+    ``mitsnerf: error: ...`` (and where to find the usage), exit status 2."""
+
+    def error(self, message: str):
+        self.exit(2, f"mitsnerf: error: {self.prog}: {message} (see {self.prog} --help)\n")
+
+
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(
+    parser = _Parser(
         prog="mitsnerf",
         description="Mitsuba 3 ground truth for participating media, Dr.Jit NeRFs fitted to it, and the benchmarks between them.",
     )
+    parser.add_argument("--debug", action="store_true",
+                        help="show the traceback of a user error too (bad input, data, output location)")
     parser.add_argument("--variant", help="Mitsuba variant (default: $MITSNERF_VARIANT, else cuda_ad_rgb if a GPU is usable, else llvm_ad_rgb)")
     sub = parser.add_subparsers(dest="command", required=True)
     for add_command in COMMANDS:
@@ -352,6 +469,8 @@ def _generate_parser(sub) -> None:
     p.add_argument("--out", default="data", help="dataset root; the dataset goes to OUT/NAME-HASH (default: data)")
     p.add_argument("--all", action="store_true", help="render every scene of the library and of --scenes")
     p.add_argument("--force", action="store_true", help="render again even if cached")
+    p.add_argument("--no-verify", action="store_true",
+                   help="on a cache hit, skip checking the files against the manifest's sha256 hashes")
     p.add_argument("--set", action="append", metavar="KEY=VALUE", help="override a spec field, e.g. cameras.width=32")
     p.add_argument("--nerf-synthetic", action="store_true",
                    help="write the scene at the NeRF-synthetic scale: box [-1.5, 1.5]^3 (world.scale=3, sigma_t / 3), "
@@ -367,6 +486,14 @@ def _train_parser(sub) -> None:
     p.add_argument("--method", help=f"default: {DEFAULT_METHOD}")
     p.add_argument("--resume", action="store_true",
                    help="continue the run in --out from its checkpoint.npz, bit-for-bit (settings come from it)")
+    p.add_argument("--force", action="store_true",
+                   help="replace the run already in --out (finished or interrupted); without it such a run is refused")
+    p.add_argument("--no-verify", action="store_true",
+                   help="skip checking the dataset's files against the sha256 hashes in its manifest "
+                        "(grids and images are still checked)")
+    p.add_argument("--deterministic", action="store_true",
+                   help="train on one thread: every method bit-identical run to run (multi-threaded, the grid "
+                        "methods' scatter-add gradients round in thread order; slower)")
     p.add_argument("--checkpoint-every", type=int, metavar="N",
                    help="write a checkpoint every N steps (default 0: only at the end and on Ctrl-C)")
     p.add_argument("--steps", type=int, help="the budget: optimiser steps (default 3000); schedules follow the step")
@@ -408,6 +535,8 @@ def _score_parser(sub) -> None:
                    help="the scene box (default: from the data, as mitsnerf train)")
     p.add_argument("--pixel-center", type=float, help="0.5 (Mitsuba, mitsnerf) or 0 (original NeRF loader); default from the data")
     p.add_argument("--background", type=float, nargs=3, metavar=("R", "G", "B"), help="background for foreign PNG data (default white)")
+    p.add_argument("--no-verify", action="store_true",
+                   help="skip checking the dataset's files against the sha256 hashes in its manifest")
     p.set_defaults(func=cmd_score)
 
 
@@ -468,6 +597,10 @@ def _bench_parser(sub) -> None:
                    help="Dr.Jit threads (Ray: CPUs) per cell (default: all cores; cores/workers in a pool; 1 on Ray)")
     p.add_argument("--force", action="store_true",
                    help="recompute every cell (default: skip cells with a result for the same config and code)")
+    p.add_argument("--no-verify", action="store_true",
+                   help="skip checking cached datasets against their manifests' sha256 hashes")
+    p.add_argument("--deterministic", action="store_true",
+                   help="one Dr.Jit thread per cell (--cpus-per-cell 1): every method bit-identical run to run")
     p.set_defaults(func=cmd_bench)
 
 
@@ -491,6 +624,38 @@ COMMANDS = (_env_parser, _scenes_parser, _methods_parser, _generate_parser, _tra
 """Each adds its command's parser to the subparsers; in the order ``mitsnerf --help`` lists them."""
 
 
+#: OSErrors of the machine rather than of the code (full disk, read-only or forbidden place), reported in
+#: one line naming the file; every other exception that is not a MitsnerfError is a bug and keeps its traceback.
+ENVIRONMENT_ERRNOS = frozenset({errno.ENOSPC, errno.EDQUOT, errno.EROFS, errno.EACCES, errno.EPERM})
+
+
+def user_error_line(exc: BaseException) -> str | None:
+    """The one line a user error prints (``FILE: FIELD: problem``), None for a bug.
+
+    User errors are matched by class: :class:`mitsnerf.errors.MitsnerfError` (bad input, data, output
+    location; command-line options as :class:`~mitsnerf.errors.UsageError`), the environment's
+    :class:`~mitsnerf._llvm.LLVMError` and :class:`~mitsnerf.env.EnvironmentError_`, and an OSError of
+    :data:`ENVIRONMENT_ERRNOS` with its file. A plain ValueError from the package's own code is a bug.
+    """
+    from mitsnerf._llvm import LLVMError
+    from mitsnerf.env import EnvironmentError_
+    from mitsnerf.errors import MitsnerfError
+
+    if isinstance(exc, (MitsnerfError, LLVMError, EnvironmentError_)):
+        return str(exc)
+    if isinstance(exc, OSError) and exc.errno in ENVIRONMENT_ERRNOS and exc.filename is not None:
+        return f"{exc.filename}: {exc.strerror}"
+    return None
+
+
+def _interrupted(exc: KeyboardInterrupt) -> int:
+    """Say what a signal stopped (and what it saved); the shell's exit status 128 + its number."""
+    from mitsnerf.errors import Interrupted
+
+    print("mitsnerf: interrupted" + (f"; {exc}" if str(exc) else ""), file=sys.stderr)
+    return exc.exit_status if isinstance(exc, Interrupted) else 130
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
@@ -499,18 +664,23 @@ def main(argv: list[str] | None = None) -> int:
         from mitsnerf import env
 
         env.set_variant(args.variant)
-        return int(args.func(args) or 0)
-    except KeyboardInterrupt as exc:
-        print("mitsnerf: interrupted" + (f"; {exc}" if str(exc) else ""), file=sys.stderr)
-        return 130
-    except Exception as exc:  # one line for errors a user can act on; tracebacks for bugs
-        from mitsnerf._llvm import LLVMError
-        from mitsnerf.errors import MitsnerfError
+        from mitsnerf.train.checkpointing import stop_signals
 
-        if isinstance(exc, (MitsnerfError, LLVMError, ValueError, FileNotFoundError)) or type(exc).__name__ == "EnvironmentError_":
-            print(f"mitsnerf: error: {exc}", file=sys.stderr)
-            return 2
-        raise
+        with stop_signals():  # SIGTERM and SIGHUP stop a command as Ctrl-C does
+            return int(args.func(args) or 0)
+    except KeyboardInterrupt as exc:
+        return _interrupted(exc)
+    except Exception as exc:  # one line for errors a user can act on; tracebacks for bugs
+        from mitsnerf.errors import signal_cause
+
+        stop = signal_cause(exc)
+        if stop is not None:  # a signal inside code that re-raised it as another error (an import)
+            return _interrupted(stop)
+        line = user_error_line(exc)
+        if line is None or args.debug:
+            raise
+        print(f"mitsnerf: error: {line}", file=sys.stderr)
+        return 2
 
 
 if __name__ == "__main__":  # pragma: no cover

@@ -84,6 +84,8 @@ class Bounds:
     hi_open: bool = False
     choices: tuple | None = None
     doc: str = ""
+    hi_why: str = ""
+    """Why the upper bound is what it is, added to the message of a value above it."""
 
     def text(self) -> str:
         return range_text(self.lo, self.hi, self.lo_open, self.hi_open)
@@ -106,11 +108,13 @@ def param(
     hi_open: bool = False,
     choices: tuple | None = None,
     doc: str = "",
+    hi_why: str = "",
     **kwargs: Any,
 ) -> Any:
     """A dataclass field with its range (``[lo, hi]``, ends open on request; it applies to every
-    number of a tuple), its ``choices`` and its documentation; no default: the field is required."""
-    bounds = Bounds(lo, hi, lo_open, hi_open, tuple(choices) if choices is not None else None, doc)
+    number of a tuple), its ``choices``, its documentation and why its upper bound is what it is
+    (``hi_why``, said when a value exceeds it); no default: the field is required."""
+    bounds = Bounds(lo, hi, lo_open, hi_open, tuple(choices) if choices is not None else None, doc, hi_why)
     return dataclasses.field(default=default, default_factory=default_factory,
                              metadata={_BOUNDS: bounds}, **kwargs)
 
@@ -406,7 +410,9 @@ def _convert_scalar(tp, value: Any, path: str, bounds: Bounds | None, source) ->
     if ok and bounds is not None and tp in (int, float, str):
         ok = bounds.admits(value)
     if not ok:
-        raise SpecError(source, path, f"{_verb(bounds)} {describe(tp, bounds)}, got {value!r}")
+        above = bounds is not None and bounds.hi is not None and is_number(value) and value > bounds.hi
+        why = f": {bounds.hi_why}" if above and bounds.hi_why else ""
+        raise SpecError(source, path, f"{_verb(bounds)} {describe(tp, bounds)}, got {value!r}{why}")
     return float(value) if tp is float else int(value) if tp is int else value
 
 

@@ -40,17 +40,55 @@ class TrainingError(MitsnerfError):
     """Training cannot go on (NaN or diverging loss; the last good checkpoint is kept)."""
 
 
+class UsageError(MitsnerfError, ValueError):
+    """A command-line option or argument is wrong: ``--box: X1 must exceed X0``.
+
+    >>> str(UsageError("--method", "unknown method 'nope' (known: nerf, ngp)"))
+    "--method: unknown method 'nope' (known: nerf, ngp)"
+    """
+
+    def __init__(self, option: str, message: str) -> None:
+        super().__init__(option, None, message)
+
+
+class OutputError(MitsnerfError):
+    """An output location cannot be used: not writable, a file where a directory goes, a finished
+    run that would be replaced, or a run directory another process is writing. Raised before any
+    work starts."""
+
+
 class Interrupted(KeyboardInterrupt):
     """Work stopped by a signal: SIGINT (Ctrl-C), or SIGTERM/SIGHUP (``timeout``, systemd, Slurm, Ray).
 
     A :class:`KeyboardInterrupt`, so code that cleans up after Ctrl-C does the same here;
-    ``exit_status`` is the shell's ``128 + signal number`` (130, 143, 129).
+    ``exit_status`` is the shell's ``128 + signal number`` (130, 143, 129). It survives pickling
+    (a process pool hands it back to the sweep)::
+
+        >>> import pickle
+        >>> back = pickle.loads(pickle.dumps(Interrupted(15, "stopped by SIGTERM")))
+        >>> back.exit_status, str(back)
+        (143, 'stopped by SIGTERM')
     """
 
     def __init__(self, signum: int, message: str = "") -> None:
         super().__init__(message)
         self.signum = int(signum)
 
+    def __reduce__(self):  # through a process pool: the signal travels with the message
+        return (type(self), (self.signum, str(self)))
+
     @property
     def exit_status(self) -> int:
         return 128 + self.signum
+
+
+def signal_cause(exc: BaseException) -> KeyboardInterrupt | None:
+    """The KeyboardInterrupt (Ctrl-C, or a signal's :class:`Interrupted`) that is ``exc`` or in its chain
+    of causes: a signal handled inside an import or a library callback can come back as another error."""
+    seen = set()
+    while exc is not None and id(exc) not in seen:
+        if isinstance(exc, KeyboardInterrupt):
+            return exc
+        seen.add(id(exc))
+        exc = exc.__cause__ or exc.__context__
+    return None

@@ -62,6 +62,7 @@ import numpy as np
 from mitsnerf import env
 from mitsnerf.data.atomic import atomic_write_bytes, atomic_write_json
 from mitsnerf.data.vol import write_vol
+from mitsnerf.errors import DatasetError
 from mitsnerf.math.box import Box
 
 DEFAULT_DIRECTIONS = 16
@@ -147,7 +148,8 @@ def export_field(
     dirs = np.asarray(direction, dtype=np.float64) if direction is not None else fibonacci_directions(n_directions)
     sigma, color = sample_field(field, resolution, dirs, box)
     if not (np.isfinite(sigma).all() and np.isfinite(color).all()):
-        raise ValueError("the field returned non-finite values; nothing exported")
+        raise DatasetError((info or {}).get("run"), None, "the learned field returned non-finite values "
+                                                          "(a diverged run?); nothing exported")
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     paths = {name: out_dir / name for name in ("sigma_t.vol", "albedo.vol", "sigma_t.npy", "color.npy", "export.json")}
@@ -178,6 +180,6 @@ def export_run(run_dir: Path, out_dir: Path | None = None, resolution: int = 64,
     try:
         field = model.field()
     except NotImplementedError:
-        raise ValueError(f"{run_dir}: method {config.get('method')!r} has no queryable field to export") from None
+        raise DatasetError(run_dir, None, f"method {config.get('method')!r} has no queryable field to export") from None
     return export_field(field, out_dir, resolution, direction, n_directions, box=dataset.box,
                         info={"run": str(run_dir), "method": config.get("method"), "provenance": env.provenance()})

@@ -22,6 +22,7 @@ NeRF-synthetic's fixed near/far sees (:func:`mitsnerf.scoring.near_far_coverage`
 from __future__ import annotations
 
 import os
+import sys
 import time
 from pathlib import Path
 from typing import Any, Mapping, Sequence
@@ -31,6 +32,7 @@ import numpy as np
 from mitsnerf.data.cache import clean_temps, dataset_lock, is_complete, sha256_file
 from mitsnerf.math.box import Box
 from mitsnerf.math.camera import Camera
+from mitsnerf.scene import ground_truth
 from mitsnerf.scene.render import render_split, split_spp, write_volume
 from mitsnerf.scene.rigs import camera_rig
 from mitsnerf.scene.spec import SceneSpec, list_scenes, load_scene
@@ -171,12 +173,14 @@ def _build(tmp: Path, spec: SceneSpec, splits: tuple[str, ...], digest: str, pro
     started = time.perf_counter()
     box = scene_box(spec)
     sigma_t, albedo = volume_grids(spec)
+    ground_truth.check_grids(spec, sigma_t, albedo)
     write_volume(tmp, spec, sigma_t, albedo, box)
     scene = mi.load_dict(scene_dict(spec, sigma_t, albedo))
     cams = {s: camera_rig(spec.cameras, "train" if s == "train" else "test") for s in splits}
     images, medium, timings = {}, {}, {}
     for split in splits:
         images[split], timings[split] = render_split(scene, spec, split, cams[split], progress)
+        ground_truth.check_views(spec, split, images[split])
         _write_split(tmp, spec, split, images[split], cams[split], box)
         medium[split], timings[f"{MEDIUM_DIR}/{split}"] = render_split(scene, spec, split, cams[split], progress,
                                                                        medium_alone=True)
@@ -186,11 +190,30 @@ def _build(tmp: Path, spec: SceneSpec, splits: tuple[str, ...], digest: str, pro
     return _manifest(spec, digest, splits, box, timings, checks, tmp)
 
 
+def _cache_state(final: Path, digest: str, hashes: bool) -> str:
+    """``"ok"`` (a complete dataset of ``digest`` that passes :func:`mitsnerf.data.verify.verify_dataset`),
+    ``"missing"``, or ``"broken"`` (complete-looking but failing; said on stderr)."""
+    from mitsnerf.data.dataset import load_dataset
+    from mitsnerf.data.verify import verify_dataset
+    from mitsnerf.errors import DatasetError
+
+    if not is_complete(final, digest, FORMAT_VERSION):
+        return "missing"
+    try:
+        verify_dataset(load_dataset(final), hashes=hashes)
+    except DatasetError as exc:
+        print(f"mitsnerf: the cached dataset fails verification: {exc}; rendering it again", file=sys.stderr, flush=True)
+        return "broken"
+    return "ok"
+
+
 def generate_dataset(spec: SceneSpec, out_root: str | os.PathLike, *, force: bool = False, progress: bool = True,
-                     splits: Sequence[str] | None = None) -> Path:
+                     splits: Sequence[str] | None = None, verify_hashes: bool = True) -> Path:
     """Render ``spec`` into ``out_root / f"{spec.name}-{hash[:12]}"`` and return that directory.
 
-    A complete dataset with the same hash is returned at once (``force=True`` regenerates it).
+    A complete dataset with the same hash is returned at once (``force=True`` regenerates it) if it
+    passes :func:`mitsnerf.data.verify.verify_dataset` (``verify_hashes=False`` skips the file
+    hashes); one that fails is said so and rendered again.
     ``splits``: a subset of ``("train", "test", "test_ref")`` (default: all, ``test_ref`` only with
     ``render.noise_floor``); the noise floor is measured when both ``test`` and ``test_ref`` are made.
     Uses the current Mitsuba variant, else :func:`mitsnerf.env.set_variant`'s default.
@@ -201,11 +224,12 @@ def generate_dataset(spec: SceneSpec, out_root: str | os.PathLike, *, force: boo
     splits = _resolve_splits(spec, splits)
     digest = spec.content_hash(hash_extra(splits))
     final = Path(out_root) / f"{spec.name}-{digest[:12]}"
-    if not force and is_complete(final, digest, FORMAT_VERSION):
+    state = "missing" if force else _cache_state(final, digest, verify_hashes)
+    if state == "ok":
         return final
     with dataset_lock(final, progress):
-        if not force and is_complete(final, digest, FORMAT_VERSION):  # another process finished it meanwhile
-            return final
+        if state == "missing" and not force and _cache_state(final, digest, verify_hashes) == "ok":
+            return final  # another process finished it meanwhile
         clean_temps(final)
         with atomic_dir(final, overwrite=True) as tmp:
             atomic_write_json(tmp / "manifest.json", _build(tmp, spec, splits, digest, progress))
@@ -213,7 +237,8 @@ def generate_dataset(spec: SceneSpec, out_root: str | os.PathLike, *, force: boo
 
 
 def generate_all(out_root: str | os.PathLike, *, names: Sequence[str] | None = None,
-                 overrides: Mapping[str, Any] | None = None, force: bool = False, progress: bool = True) -> list[Path]:
+                 overrides: Mapping[str, Any] | None = None, force: bool = False, progress: bool = True,
+                 verify_hashes: bool = True) -> list[Path]:
     """Generate every scene of the library (or ``names``), each with ``overrides`` applied.
 
     Returns the dataset directories in the order of ``names`` (default: :func:`list_scenes`).
@@ -230,5 +255,5 @@ def generate_all(out_root: str | os.PathLike, *, names: Sequence[str] | None = N
     with tqdm(specs, desc="scenes", unit="scene", disable=not progress) as bar:
         for spec in bar:
             bar.set_postfix_str(spec.name)
-            out.append(generate_dataset(spec, out_root, force=force, progress=progress))
+            out.append(generate_dataset(spec, out_root, force=force, progress=progress, verify_hashes=verify_hashes))
     return out

@@ -194,7 +194,9 @@ def _reference(dataset, split: str | None, index: int):
     split = split or ("test" if "test" in splits else splits[0])
     views = dataset.views(split)
     if not 0 <= index < len(views):
-        raise ValueError(f"--index: split {split!r} has views 0..{len(views) - 1}, got {index}")
+        from mitsnerf.errors import UsageError
+
+        raise UsageError("--index", f"split {split!r} has views 0..{len(views) - 1}, got {index}")
     return views.cameras[index], views.pixel_center, f"{split}_{index:03d}"
 
 

@@ -13,6 +13,7 @@ reads back.
 from __future__ import annotations
 
 import json
+import os
 import shutil
 from dataclasses import dataclass
 from pathlib import Path
@@ -23,17 +24,22 @@ import numpy as np
 from mitsnerf import env, scoring
 from mitsnerf.checkpoint import CHECKPOINT_FILE, Checkpointer, load_checkpoint, restore_optimizer
 from mitsnerf.config import from_dict, to_dict
+from mitsnerf.data.arrays import read_npz
 from mitsnerf.data.atomic import atomic_dir, atomic_write_json
 from mitsnerf.data.dataset import Dataset, load_dataset
+from mitsnerf.data.verify import verify_dataset
 from mitsnerf.data.images import write_exr, write_png
-from mitsnerf.errors import DatasetError
+from mitsnerf.errors import DatasetError, OutputError
 from mitsnerf.evaluate import EvalConfig, render_views, stack_rgb
 from mitsnerf.math.box import Box
 from mitsnerf.methods import get_method
 from mitsnerf.methods.base import Model, SceneInfo, num_parameters
 from mitsnerf.render.background import make_background
 from mitsnerf.render.camera import Rendered
+from mitsnerf.run_dir import RUN_FILES, remove_run_files
 from mitsnerf.train import PixelData, TrainConfig, TrainResult, TrainState, make_optimizer, train
+from mitsnerf.train.checkpointing import interrupted_message
+from mitsnerf.train.threads import one_thread
 
 
 @dataclass
@@ -135,7 +141,7 @@ def _start(out_dir: Path | None, run_config: dict, model: Model, lr: float, resu
     path = Path(out_dir) / CHECKPOINT_FILE
     checkpointer = Checkpointer(path, run_config)
     if not resume:
-        path.unlink(missing_ok=True)
+        remove_run_files(Path(out_dir))  # a fresh run: the old one's files go now, when training starts
         return checkpointer, None
     ckpt = load_checkpoint(path)
     _check_resumable(ckpt.config, run_config, path)
@@ -158,29 +164,42 @@ def fit(
     on_log: Callable[[dict, Model], None] | None = None,
     reference: scoring.Reference | None = None,
     oracle: dict | None = None,
+    deterministic: bool = False,
 ) -> RunResult:
     """Train ``method`` on ``dataset``, then render and score every test view.
 
     ``reference``: the test views' :class:`mitsnerf.scoring.Reference` if the caller has it
     (else built here); ``oracle``: the oracle's test metrics at the same footprint, for the
     error budget. With ``out_dir``, checkpoints go to ``out_dir/checkpoint.npz`` (a fresh run
-    first removes an old one there); ``resume=True`` continues from it instead, which must be of
+    first removes an old run's files there, :func:`mitsnerf.run_dir.remove_run_files`); ``resume=True`` continues from it instead, which must be of
     the same method, method settings and training settings (except :data:`RESUMABLE_CHANGES`).
     ``on_log(entry, model)`` runs after each history entry, off the training clock (e.g. a
-    held-out curve, :class:`mitsnerf.bench.worker.CurveRecorder`).
+    held-out curve, :class:`mitsnerf.bench.worker.CurveRecorder`); a resumed run calls it again on
+    the checkpoint's last entry when that is the checkpoint's step (a signal may have stopped it
+    there), so it must do nothing the second time for an entry it finished. ``deterministic``: train on one
+    thread (:mod:`mitsnerf.train.threads`), recorded in the run config so a resume does too.
+    The caller holds the run directory (:func:`mitsnerf.run_dir.claim_run_dir`).
     """
     train_views = dataset.views("train")
     ref = reference or scoring.reference(dataset, "test")
     model, config = build_model(method, method_overrides, scene_info(dataset, train_views.images), train_config.seed)
     run_config = {"method": method, "method_config": to_dict(config), "train": to_dict(train_config),
-                  "eval": to_dict(eval_config), **dataset_config(dataset)}
+                  "eval": to_dict(eval_config), "deterministic": bool(deterministic), **dataset_config(dataset)}
     checkpointer, state = _start(out_dir, run_config, model, config.lr, resume)
     data = PixelData.from_views(train_views.images, train_views.cameras, train_views.pixel_center)
-    result, _ = train(model, data, train_config, config.lr, state=state, progress=progress, checkpointer=checkpointer,
-                      on_log=None if on_log is None else (lambda entry: on_log(entry, model)))
-    run = evaluate_run(model, method, run_config, result, dataset, ref, eval_config, oracle)
-    if out_dir is not None:
-        write_run(run, dataset, out_dir, dataset.views("test").names)
+    if state is not None and on_log is not None and state.history and state.history[-1].get("step") == state.step:
+        on_log(state.history[-1], model)  # a signal may have stopped the hook on the checkpoint's own entry
+    with one_thread(deterministic):
+        result, _ = train(model, data, train_config, config.lr, state=state, progress=progress,
+                          checkpointer=checkpointer, on_log=None if on_log is None else (lambda entry: on_log(entry, model)))
+    try:
+        run = evaluate_run(model, method, run_config, result, dataset, ref, eval_config, oracle)
+        if out_dir is not None:
+            write_run(run, dataset, out_dir, dataset.views("test").names)
+    except KeyboardInterrupt as exc:  # trained and checkpointed: a resume only evaluates
+        if checkpointer is None:
+            raise
+        raise interrupted_message(exc, checkpointer.path, result.steps, " while evaluating") from None
     return run
 
 
@@ -221,6 +240,12 @@ def save_parameters(path: Path, params: Mapping[str, Any]) -> None:
 
 
 def write_run(run: RunResult, dataset: Dataset, out_dir: Path, test_names) -> None:
+    """Write the run into ``out_dir``, renamed into place whole (:func:`mitsnerf.data.atomic.atomic_dir`).
+
+    Entries of an existing ``out_dir`` that a run does not write (:data:`mitsnerf.run_dir.RUN_FILES`:
+    renders, exports, a user's notes) are carried into the new directory (hard links, else copies),
+    so rewriting a run loses nothing else that was there.
+    """
     out_dir = Path(out_dir)
     out_dir.parent.mkdir(parents=True, exist_ok=True)
     with atomic_dir(out_dir, overwrite=True) as tmp:
@@ -235,25 +260,53 @@ def write_run(run: RunResult, dataset: Dataset, out_dir: Path, test_names) -> No
             stem = Path(name).name
             write_exr(tmp / "test" / f"{stem}.exr", np.concatenate([rendered.rgb, rendered.opacity[..., None]], axis=-1))
             write_png(tmp / "test" / f"{stem}.png", rendered.rgb)
+        _carry_over(out_dir, tmp)
+
+
+def _link_or_copy(src: str, dst: str) -> None:
+    try:
+        os.link(src, dst)
+    except OSError:
+        shutil.copy2(src, dst)
+
+
+def _carry_over(old: Path, new: Path) -> None:
+    """Link (else copy) into ``new`` every entry of ``old`` that a run does not write."""
+    if not old.is_dir():
+        return
+    for p in old.iterdir():
+        if p.name in RUN_FILES or (new / p.name).exists():
+            continue
+        if p.is_dir() and not p.is_symlink():
+            shutil.copytree(p, new / p.name, symlinks=True, copy_function=_link_or_copy)
+        else:
+            _link_or_copy(str(p), str(new / p.name))
 
 
 def resume_run(run_dir: Path, train_overrides: Mapping[str, Any] | None = None, *, progress: bool = True,
-               dataset: Dataset | None = None) -> RunResult:
+               dataset: Dataset | None = None, verify_hashes: bool = True) -> RunResult:
     """Continue the run in ``run_dir`` from its checkpoint (``mitsnerf train --resume``).
 
-    Everything comes from the checkpoint's config (method, settings, dataset, box);
-    ``train_overrides`` may change only :data:`RESUMABLE_CHANGES`, e.g. ``{"steps": 2000}``
-    to train longer (the learning-rate schedule then stretches to the new length).
+    Everything comes from the checkpoint's config (method, settings, dataset, box, one thread or
+    not); ``train_overrides`` may change only :data:`RESUMABLE_CHANGES`, e.g. ``{"steps": 2000}``
+    to train longer (the learning-rate schedule then stretches to the new length). The dataset
+    the checkpoint names is verified (:func:`mitsnerf.data.verify.verify_dataset`) when opened
+    here. A finished run (``metrics.json``) resumes only with more steps.
     """
     run_dir = Path(run_dir)
     path = run_dir / CHECKPOINT_FILE
     ckpt = load_checkpoint(path)
     train_config = from_dict(TrainConfig, {**(ckpt.config.get("train") or {}), **dict(train_overrides or {})})
+    if ckpt.step >= train_config.steps and (run_dir / "metrics.json").is_file():
+        raise OutputError(run_dir, None, f"the run finished at step {ckpt.step} (metrics.json); nothing to resume: "
+                                         f"pass --steps N (N > {ckpt.step}) to train it on")
     eval_config = from_dict(EvalConfig, ckpt.config.get("eval") or {})
     if dataset is None:
         dataset = open_dataset(ckpt.config, path)
+        verify_dataset(dataset, hashes=verify_hashes)
     return fit(dataset, ckpt.config["method"], ckpt.config.get("method_config"), train_config, run_dir,
-               eval_config=eval_config, progress=progress, resume=True)
+               eval_config=eval_config, progress=progress, resume=True,
+               deterministic=bool(ckpt.config.get("deterministic")))
 
 
 def load_run(run_dir: Path) -> tuple[Model, Dataset, dict]:
@@ -276,11 +329,7 @@ def load_run(run_dir: Path) -> tuple[Model, Dataset, dict]:
         if not (run_dir / "config.json").is_file() or not where.is_file():
             raise DatasetError(run_dir, None, "neither checkpoint.npz nor config.json + params.npz: not a run directory")
         config = read_json(run_dir / "config.json")
-        try:
-            with np.load(where, allow_pickle=False) as z:
-                params = {k: z[k] for k in z.files}
-        except (OSError, ValueError) as exc:
-            raise DatasetError(where, None, f"not a readable parameter file: {exc}") from None
+        params = read_npz(where, "parameter file")
         extra = {}
     dataset = open_dataset(config, where)
     info = scene_info(dataset, dataset.views("train").images)

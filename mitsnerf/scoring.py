@@ -339,15 +339,12 @@ def load_true_sigma_t(root) -> np.ndarray | None:
     """The ground-truth ``sigma_t`` grid of a generated dataset (None for foreign data)."""
     from pathlib import Path
 
-    from mitsnerf.errors import DatasetError
+    from mitsnerf.data.arrays import read_npy
 
     path = Path(root) / "volume" / "sigma_t.npy"
     if not path.exists():
         return None
-    try:
-        return np.load(path, allow_pickle=False)
-    except (OSError, ValueError) as exc:
-        raise DatasetError(path, None, f"not a readable numpy grid: {exc}") from None
+    return read_npy(path, "numpy grid")
 
 
 def reference(dataset, split: str = "test") -> Reference:

@@ -15,7 +15,7 @@ from pathlib import Path
 import mitsnerf
 
 LAYERS = (
-    ("mitsnerf", "mitsnerf._llvm", "mitsnerf.env", "mitsnerf.errors", "mitsnerf.config"),
+    ("mitsnerf", "mitsnerf._llvm", "mitsnerf.env", "mitsnerf.errors", "mitsnerf.config", "mitsnerf.outputs"),
     ("mitsnerf.math",),
     ("mitsnerf.volumes", "mitsnerf.data"),
     ("mitsnerf.scene",),
@@ -24,7 +24,7 @@ LAYERS = (
     ("mitsnerf.scoring", "mitsnerf.oracle"),
     ("mitsnerf.methods",),
     ("mitsnerf.train", "mitsnerf.checkpoint", "mitsnerf.evaluate", "mitsnerf.generate"),
-    ("mitsnerf.run",),
+    ("mitsnerf.run", "mitsnerf.run_dir"),
     ("mitsnerf.export", "mitsnerf.novel", "mitsnerf.external"),
     ("mitsnerf.verify", "mitsnerf.bench"),
     ("mitsnerf.cli",),

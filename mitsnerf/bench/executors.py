@@ -113,8 +113,10 @@ def run_ray(cells: Sequence[Cell], on_done: OnDone, on_error: OnError, *, addres
     try:
         import ray
     except ImportError:
-        raise ValueError("--executor ray: Ray is not installed; pip install 'mitsnerf[ray]' "
-                         "(or: pip install 'ray[default]')") from None
+        from mitsnerf.errors import UsageError
+
+        raise UsageError("--executor ray", "Ray is not installed; pip install 'mitsnerf[ray]' "
+                                           "(or: pip install 'ray[default]')") from None
 
     threads = threads or 1
     started_here = not ray.is_initialized()
@@ -153,17 +155,20 @@ def run_ray(cells: Sequence[Cell], on_done: OnDone, on_error: OnError, *, addres
 
 
 def check_options(executor: str, workers: int = 0, threads: int = 0, address: str | None = None) -> None:
-    """ValueError (naming the CLI option) for settings the executor cannot honour."""
+    """A :class:`~mitsnerf.errors.UsageError` (a ValueError naming the CLI option) for settings the
+    executor cannot honour."""
+    from mitsnerf.errors import UsageError
+
     if executor not in EXECUTORS:
-        raise ValueError(f"--executor: must be one of {', '.join(EXECUTORS)}, got {executor!r}")
+        raise UsageError("--executor", f"must be one of {', '.join(EXECUTORS)}, got {executor!r}")
     if address is not None and executor != "ray":
-        raise ValueError("--address: only with --executor ray")
+        raise UsageError("--address", "only with --executor ray")
     if workers < 0 or threads < 0:
-        raise ValueError("--workers, --cpus-per-cell: must be >= 0")
+        raise UsageError("--workers, --cpus-per-cell", "must be >= 0")
     if executor == "sequential" and workers > 1:
-        raise ValueError("--workers: the sequential executor runs one cell at a time (use --executor pool or ray)")
+        raise UsageError("--workers", "the sequential executor runs one cell at a time (use --executor pool or ray)")
     if executor == "ray" and not ray_available():
-        raise ValueError("--executor ray: Ray is not installed; pip install 'mitsnerf[ray]' (or: pip install 'ray[default]')")
+        raise UsageError("--executor ray", "Ray is not installed; pip install 'mitsnerf[ray]' (or: pip install 'ray[default]')")
 
 
 def run_cells(executor: str, cells: Sequence[Cell], on_done: OnDone, on_error: OnError, *, progress: bool = True,

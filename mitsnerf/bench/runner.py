@@ -67,6 +67,8 @@ class BenchOptions:
     """The code version results are keyed by (None: :func:`mitsnerf.bench.cells.code_version`)."""
     report: bool = True
     """Write the plots and the HTML report (tables are always written)."""
+    verify_hashes: bool = True
+    """Check a cached dataset's files against its manifest's sha256 hashes (``--no-verify``: not)."""
 
 
 @dataclass
@@ -176,7 +178,7 @@ def _generate(cells: list[Cell], options: BenchOptions, log: Callable[[str], Non
         if not (Path(cell.dataset_dir) / "manifest.json").is_file():
             log(f"[{cell.scene}] rendering the ground truth (cached for later runs) ...")
         path = generate_dataset(parse_scene(dict(cell.spec), f"<scene {cell.scene}>"), Path(cell.data_root),
-                                progress=options.progress)
+                                progress=options.progress, verify_hashes=options.verify_hashes)
         if str(path.resolve()) != str(Path(cell.dataset_dir).resolve()):  # pragma: no cover (hash drift)
             raise RuntimeError(f"dataset of {cell.scene} went to {path}, planned {cell.dataset_dir}")
         if cell.oracle is not None:
@@ -353,8 +355,12 @@ def run_benchmark(config: BenchConfig, options: BenchOptions, log: Callable[[str
             run_cells(options.executor, pending, on_done, on_error, progress=options.progress,
                       workers=options.workers, threads=options.cpus_per_cell, address=options.address,
                       on_start=on_start)
-        except KeyboardInterrupt:
-            raise KeyboardInterrupt(
-                f"{len(result.computed)} cells finished in this run are saved under {out_root}; run the same "
-                "command again to resume (cells not finished start over)") from None
+        except KeyboardInterrupt as exc:  # Ctrl-C, SIGTERM, SIGHUP: the same exit status, the cells kept
+            from mitsnerf.errors import Interrupted
+            from mitsnerf.train.checkpointing import signal_number
+
+            raise Interrupted(signal_number(exc), (f"{exc}; " if str(exc) else "") +
+                              f"{len(result.computed)} cells finished in this run are saved under {out_root}; run the "
+                              "same command again to resume (the cell in flight continues from its checkpoint, "
+                              "if it reached one)") from None
     return write_outputs(config, options, cells, result)

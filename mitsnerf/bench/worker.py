@@ -55,6 +55,13 @@ class CurveRecorder:
         self.done = 0
         self.eval_seconds = 0.0
 
+    def restore(self, history: list[dict]) -> None:
+        """The points an interrupted run evaluated before its checkpoint (kept in its history entries)."""
+        self.points = [{"step": int(e["step"]), "seconds": float(e["seconds"]), "psnr": e["psnr_heldout"],
+                        "psnr_medium": e.get("psnr_heldout_medium")} for e in history if "psnr_heldout" in e]
+        if self.points:
+            self.done = min(self.n_points, self.points[-1]["step"] * self.n_points // self.steps)
+
     def __call__(self, entry: dict, model) -> None:
         if not self.n_points or entry["step"] * self.n_points < (self.done + 1) * self.steps:
             return
@@ -92,12 +99,17 @@ def time_to_targets(points: list[dict[str, Any]], targets) -> dict[str, Any]:
 
 
 def _open_dataset(cell: Cell, progress: bool):
-    """The cell's dataset: the driver's copy, else generated (cached) under the cell's data root."""
+    """The cell's dataset: the driver's copy (whose hashes the driver verified when it found it in
+    the cache; the grids and views are checked again here), else generated (cached, verified) under
+    the cell's data root."""
     from mitsnerf.data.dataset import load_dataset
+    from mitsnerf.data.verify import verify_dataset
 
     path = Path(cell.dataset_dir)
     if (path / "manifest.json").is_file():
-        return load_dataset(path)
+        dataset = load_dataset(path)
+        verify_dataset(dataset, hashes=False)
+        return dataset
     from mitsnerf.generate import generate_dataset
     from mitsnerf.scene.spec import parse_scene
 
@@ -134,6 +146,44 @@ def oracle_summary(oracle, footprint: int) -> dict[str, Any] | None:
             "error_split": info.get("error_split"), "seconds": info.get("seconds")}
 
 
+#: Which cell the checkpoint in ``CELL/run`` belongs to (config hash and code version), written before
+#: training: a sweep stopped by a signal continues the cell in flight from its checkpoint only if they match.
+IN_FLIGHT_FILE = "in_flight.json"
+
+
+def _resumable(cell: Cell) -> bool:
+    """Whether ``CELL/run`` holds an interrupted run of this very cell (same config and code)."""
+    from mitsnerf.bench.cells import read_record
+    from mitsnerf.run_dir import inspect_run_dir
+
+    mark = read_record(cell.path, IN_FLIGHT_FILE) or {}
+    return (mark.get("config_hash"), mark.get("code_version")) == (cell.config_hash, cell.code_version) \
+        and inspect_run_dir(cell.path / "run").kind == "interrupted"
+
+
+def _fit(cell: Cell, dataset, train_config, evalc, curve: CurveRecorder, ref, oracle: dict | None, progress: bool):
+    """:func:`mitsnerf.run.fit` into ``CELL/run``, claimed (locked); an interrupted run of the cell is
+    continued. Returns ``(run, step resumed from or None)``."""
+    from mitsnerf.checkpoint import CHECKPOINT_FILE, load_checkpoint
+    from mitsnerf.data.atomic import atomic_write_json
+    from mitsnerf.run import fit
+    from mitsnerf.run_dir import claim_run_dir
+
+    run_dir = cell.path / "run"
+    resume = _resumable(cell)
+    with claim_run_dir(run_dir, resume=resume, force=not resume, option="cell run directory"):
+        start = None
+        if resume:
+            ckpt = load_checkpoint(run_dir / CHECKPOINT_FILE)
+            curve.restore(ckpt.history)
+            start = ckpt.step
+        else:
+            atomic_write_json(cell.path / IN_FLIGHT_FILE, {"key": cell.key, "config_hash": cell.config_hash,
+                                                           "code_version": cell.code_version})
+        return fit(dataset, cell.method, dict(cell.method_config), train_config, run_dir, eval_config=evalc,
+                   progress=progress, on_log=curve, reference=ref, oracle=oracle, resume=resume), start
+
+
 def run_cell(cell: Cell, *, progress: bool = False, threads: int = 0, executor: str = "sequential",
              fresh_process: bool = False) -> tuple[dict[str, Any], bytes]:
     """Train and score one cell; returns ``(record, artefacts)`` (see :mod:`mitsnerf.bench.cells`).
@@ -149,7 +199,6 @@ def run_cell(cell: Cell, *, progress: bool = False, threads: int = 0, executor: 
 
     from mitsnerf.config import from_dict
     from mitsnerf.evaluate import EvalConfig
-    from mitsnerf.run import fit
     from mitsnerf.scoring import reference
     from mitsnerf.train import TrainConfig
 
@@ -166,9 +215,8 @@ def run_cell(cell: Cell, *, progress: bool = False, threads: int = 0, executor: 
     curve_ref = replace(ref, images=ref.images[:k], cameras=ref.cameras[:k],
                         masks=None if ref.masks is None else ref.masks[:k])
     curve = CurveRecorder(curve_ref, train_config.steps, evalc.curve_points, evalc.footprint)
-    run = fit(dataset, cell.method, dict(cell.method_config), train_config, Path(cell.out_dir) / "run",
-              eval_config=evalc, progress=progress, on_log=curve, reference=ref,
-              oracle=None if oracle is None else oracle.metrics(evalc.footprint))
+    run, resumed_from = _fit(cell, dataset, train_config, evalc, curve, ref,
+                             None if oracle is None else oracle.metrics(evalc.footprint), progress)
 
     metrics = run.metrics()
     metrics.pop("method", None)
@@ -185,7 +233,7 @@ def run_cell(cell: Cell, *, progress: bool = False, threads: int = 0, executor: 
     record = _record(cell, dataset, metrics, points, k, evalc, run.train.history)
     record["oracle"] = oracle_summary(oracle, evalc.footprint)
     record["worker"] = {"executor": executor, "host": platform.node(), "pid": os.getpid(),
-                        "fresh_process": fresh_process, "threads": dr.thread_count(),
+                        "fresh_process": fresh_process, "threads": dr.thread_count(), "resumed_from_step": resumed_from,
                         "peak_rss_mb_at_start": rss_before, "peak_memory_note": PEAK_MEMORY_NOTE}
     record["started"], record["finished"] = started, time.time()
     return record, _artefacts(run, ref, evalc.report_view)

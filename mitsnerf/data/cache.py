@@ -10,7 +10,6 @@ by the next writer of that dataset at once, and those of other datasets once the
 from __future__ import annotations
 
 import contextlib
-import fcntl
 import hashlib
 import json
 import os
@@ -20,6 +19,7 @@ from pathlib import Path
 from typing import Any, Iterator
 
 from mitsnerf.data.atomic import clean_stale_temps
+from mitsnerf.outputs import exclusive_lock
 
 #: Temporaries of *other* datasets are removed once this old (seconds); a dataset's own at once.
 STALE_TEMP_AGE_S = 24 * 3600.0
@@ -51,19 +51,14 @@ def is_complete(directory: Path, digest: str, format_version: int) -> bool:
 
 @contextlib.contextmanager
 def dataset_lock(final: Path, progress: bool = True) -> Iterator[None]:
-    """Exclusive lock on ``.<name>.lock`` next to ``final`` while one process writes it."""
-    final.parent.mkdir(parents=True, exist_ok=True)
-    with open(final.parent / f".{final.name}.lock", "a+b") as f:
-        try:
-            fcntl.flock(f.fileno(), fcntl.LOCK_EX | fcntl.LOCK_NB)
-        except BlockingIOError:
-            if progress:
-                print(f"mitsnerf: waiting for another process writing {final} ...", file=sys.stderr, flush=True)
-            fcntl.flock(f.fileno(), fcntl.LOCK_EX)
-        try:
-            yield
-        finally:
-            fcntl.flock(f.fileno(), fcntl.LOCK_UN)
+    """Exclusive lock on ``.<name>.lock`` next to ``final`` while one process writes it; a writer
+    that has to wait says for whom (with ``progress``: a silent wait looks like a hang)."""
+    def waiting(holder: str) -> None:
+        print(f"mitsnerf: waiting for {holder}, which is writing {final} ...", file=sys.stderr, flush=True)
+
+    with exclusive_lock(final.parent / f".{final.name}.lock", wait=True, what=final,
+                        on_wait=waiting if progress else None):
+        yield
 
 
 def clean_temps(final: Path) -> None:

@@ -69,6 +69,9 @@ def _not_all_zero(name: str, v: tuple[float, float, float] | None) -> None:
 
 # --------------------------------------------------------------------------- volume
 
+#: The largest ``volume.sigma_t_scale`` (extinction per box side: ``sigma_t`` is it divided by ``world.scale``).
+SIGMA_T_SCALE_MAX = 1e4
+
 
 @dataclass(frozen=True, kw_only=True)
 class VolumeSpec:
@@ -83,8 +86,11 @@ class VolumeSpec:
     family: str = param(doc="a mitsnerf.volumes family: cloud, plume, blobs, shell, lattice, nebula")
     resolution: int = param(lo=8, hi=512, doc="grid R (R^3 voxels)")
     seed: int = param(0, lo=0, hi=2**32 - 1, doc="the family's seed")
-    sigma_t_scale: float = param(lo=0.0, lo_open=True,
-                                 doc="sigma_t = sigma_t_scale * density / world.scale (density in [0, 1])")
+    sigma_t_scale: float = param(lo=0.0, hi=SIGMA_T_SCALE_MAX, lo_open=True,
+                                 doc="sigma_t = sigma_t_scale * density / world.scale (density in [0, 1])",
+                                 hi_why=f"a mean free path below {1 / SIGMA_T_SCALE_MAX:g} of the box side is under "
+                                        "1/19 of the finest grid's voxel (1/512 of it): the medium would render as an "
+                                        "opaque surface")
     params: Mapping[str, Any] = param(default_factory=lambda: MappingProxyType({}),
                                       doc="the family's parameters; defaults are filled in (and hashed)")
 

@@ -7,7 +7,8 @@
 - :mod:`.monitor`: NaN and divergence checks;
 - :mod:`.clock`: training seconds, evaluation excluded;
 - :mod:`.checkpointing`: when checkpoints are written, and stopping on SIGINT/SIGTERM/SIGHUP;
-- :mod:`.progress`: the progress bar.
+- :mod:`.progress`: the progress bar;
+- :mod:`.threads`: one thread for bit-identical runs (`--deterministic`).
 """
 
 from mitsnerf.train.config import TrainConfig

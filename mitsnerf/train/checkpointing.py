@@ -14,6 +14,7 @@ from __future__ import annotations
 import signal
 import threading
 from contextlib import contextmanager
+from pathlib import Path
 from typing import Iterator
 
 from mitsnerf.errors import Interrupted
@@ -45,6 +46,13 @@ def signal_number(exc: KeyboardInterrupt) -> int:
     return exc.signum if isinstance(exc, Interrupted) else int(signal.SIGINT)
 
 
+def interrupted_message(exc: KeyboardInterrupt, checkpoint: Path, step: int, while_: str = "") -> Interrupted:
+    """The :class:`Interrupted` of ``exc`` saying which checkpoint is saved and how to continue."""
+    signum = signal_number(exc)
+    return Interrupted(signum, f"stopped by {signal.Signals(signum).name}{while_}; checkpoint of step {step} saved to "
+                               f"{checkpoint}; continue with mitsnerf train --resume --out {checkpoint.parent}")
+
+
 class CheckpointPolicy:
     """Decides which steps are saved; ``checkpointer`` None (no run directory) saves nothing."""
 
@@ -64,7 +72,4 @@ class CheckpointPolicy:
         name = signal.Signals(signum).name
         if self.checkpointer is None:
             return Interrupted(signum, f"stopped by {name}; no run directory, nothing saved")
-        step = save()
-        return Interrupted(signum, f"stopped by {name}; checkpoint of step {step} saved to "
-                                   f"{self.checkpointer.path}; continue with mitsnerf train --resume "
-                                   f"--out {self.checkpointer.path.parent}")
+        return interrupted_message(exc, self.checkpointer.path, save())

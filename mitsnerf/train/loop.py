@@ -19,7 +19,7 @@ from typing import Any, Callable
 import drjit as dr
 import drjit.opt  # noqa: F401  (makes dr.opt available)
 
-from mitsnerf.errors import TrainingError
+from mitsnerf.errors import TrainingError, signal_cause
 from mitsnerf.methods.base import Model
 from mitsnerf.train.checkpointing import CheckpointPolicy, stop_signals
 from mitsnerf.train.clock import Clock
@@ -52,9 +52,9 @@ class TrainResult:
     steps: int
     """Steps completed in all (a resumed run counts the earlier ones)."""
     seconds: float
-    rays_per_s: float
-    """Over the steps run in this session (0 when none ran)."""
-    samples_per_s: float
+    rays_per_s: float | None
+    """Over the steps run in this session (None when none ran: a resumed run that only evaluates)."""
+    samples_per_s: float | None
     final_loss: float
     history: list[dict] = field(default_factory=list)
     stopped_by: str = "steps"
@@ -139,9 +139,10 @@ class _Loop:
 
     def result(self, seconds_of_steps: float) -> TrainResult:
         ran = self.step - self.start_step
-        rate = self.rays / seconds_of_steps if ran and seconds_of_steps > 0 else 0.0
-        return TrainResult(self.step, self.clock.seconds(), rate, rate * max(self.model.samples_per_ray(), 1),
-                           self.loss, self.history, "seconds" if self.step < self.config.steps else "steps", ran)
+        rate = self.rays / seconds_of_steps if ran and seconds_of_steps > 0 else None
+        samples = None if rate is None else rate * max(self.model.samples_per_ray(), 1)
+        return TrainResult(self.step, self.clock.seconds(), rate, samples, self.loss, self.history,
+                           "seconds" if self.step < self.config.steps else "steps", ran)
 
 
 def train(model: Model, data: PixelData, config: TrainConfig, base_lr: float, *, state: TrainState | None = None,
@@ -170,8 +171,11 @@ def train(model: Model, data: PixelData, config: TrainConfig, base_lr: float, *,
                 bar.step()
                 if loop.history and loop.history[-1]["step"] == loop.step:
                     bar.show(loop.history[-1])
-    except KeyboardInterrupt as exc:
-        raise loop.policy.interrupted(exc, lambda: loop.save(loop.snapshot)) from None
+    except BaseException as exc:  # a signal, also one a library turned into another error
+        stop = signal_cause(exc)
+        if stop is None:
+            raise
+        raise loop.policy.interrupted(stop, lambda: loop.save(loop.snapshot)) from None
     finally:
         bar.close()
     result = loop.result(loop.clock.seconds() - t0)

@@ -22,6 +22,7 @@ from typing import Callable, Iterable
 
 import numpy as np
 
+from mitsnerf.errors import UsageError  # a ValueError naming the command-line option
 from mitsnerf.math.box import UNIT_BOX
 from mitsnerf.verify import cases as C
 from mitsnerf.verify import scenarios as S
@@ -252,7 +253,7 @@ def _quality(quality: C.Quality | str) -> C.Quality:
     if isinstance(quality, C.Quality):
         return quality
     if quality not in C.QUALITIES:
-        raise ValueError(f"unknown quality {quality!r}; choose one of {', '.join(C.QUALITIES)}")
+        raise UsageError("--quality", f"unknown quality {quality!r}; choose one of {', '.join(C.QUALITIES)}")
     return C.QUALITIES[quality]
 
 
@@ -261,7 +262,7 @@ def _wanted(only: Iterable[str] | None) -> set[str] | None:
     if wanted:
         unknown = wanted - set(C.ALL_CASE_NAMES)
         if unknown:
-            raise ValueError(f"unknown case(s) {', '.join(sorted(unknown))}; known: {', '.join(C.ALL_CASE_NAMES)}")
+            raise UsageError("--case", f"unknown case(s) {', '.join(sorted(unknown))}; known: {', '.join(C.ALL_CASE_NAMES)}")
     return wanted
 
 

@@ -1,0 +1,71 @@
+"""numpy ``.npy`` and ``.npz`` files read safely: never unpickled, and every way a file can be wrong
+(missing, truncated, another format, garbage) is one :class:`~mitsnerf.errors.DatasetError` naming
+the file and saying what was expected, instead of numpy's "contains pickled (object) data" or
+zipfile's ``BadZipFile``.
+
+>>> import tempfile
+>>> d = Path(tempfile.mkdtemp())
+>>> np.save(d / "a.npy", np.zeros(3, np.float32)); read_npy(d / "a.npy", "grid").tolist()
+[0.0, 0.0, 0.0]
+>>> _ = (d / "b.npz").write_bytes(b"not an archive")
+>>> read_npz(d / "b.npz", "checkpoint")
+Traceback (most recent call last):
+...
+mitsnerf.errors.DatasetError: ...b.npz: not a readable checkpoint: not a numpy .npz archive (truncated, or another kind of file)
+"""
+
+from __future__ import annotations
+
+import os
+import zipfile
+from pathlib import Path
+
+import numpy as np
+
+from mitsnerf.errors import DatasetError
+
+#: What numpy and zipfile raise on a damaged or foreign file (a pickle numpy refuses is a ValueError).
+_READ_ERRORS = (OSError, ValueError, EOFError, zipfile.BadZipFile, KeyError)
+
+
+def _problem(path: Path, exc: BaseException, kind: str) -> str:
+    """Why ``path`` is not a ``kind`` file, in words a user can act on."""
+    head = path.read_bytes()[:8] if path.is_file() else b""
+    if kind == "npz" and not head.startswith(b"PK"):
+        return "not a numpy .npz archive (truncated, or another kind of file)"
+    if kind == "npy" and not head.startswith(b"\x93NUMPY"):
+        return "not a numpy .npy file (another kind of file, or garbage)"
+    if isinstance(exc, (zipfile.BadZipFile, EOFError)):
+        return f"a damaged {kind} file (truncated?): {exc}"
+    return f"a damaged {kind} file: {exc}"
+
+
+def _check_file(path: Path, what: str) -> None:
+    if not path.exists():
+        raise DatasetError(path, None, f"{what} not found")
+    if not path.is_file():
+        raise DatasetError(path, None, f"a {what} must be a file, this is a directory")
+
+
+def read_npz(path: str | os.PathLike, what: str = "array archive") -> dict[str, np.ndarray]:
+    """Every array of an ``.npz`` file (read whole, ``allow_pickle=False``); ``what`` names it in errors."""
+    path = Path(path)
+    _check_file(path, what)
+    try:
+        with np.load(path, allow_pickle=False) as z:
+            return {k: z[k] for k in z.files}
+    except _READ_ERRORS as exc:
+        raise DatasetError(path, None, f"not a readable {what}: {_problem(path, exc, 'npz')}") from None
+
+
+def read_npy(path: str | os.PathLike, what: str = "array") -> np.ndarray:
+    """The array of an ``.npy`` file (``allow_pickle=False``); ``what`` names it in errors."""
+    path = Path(path)
+    _check_file(path, what)
+    try:
+        arr = np.load(path, allow_pickle=False)
+    except _READ_ERRORS as exc:
+        raise DatasetError(path, None, f"not a readable {what}: {_problem(path, exc, 'npy')}") from None
+    if not isinstance(arr, np.ndarray):
+        raise DatasetError(path, None, f"not a readable {what}: an .npz archive, expected one .npy array")
+    return arr

@@ -1,0 +1,123 @@
+"""A run directory before training: what it holds, whether this run may write it, and its lock.
+
+``mitsnerf train --out RUN`` (and each benchmark cell) claims ``RUN`` before any work starts
+(:func:`claim_run_dir`): it must be a writable directory (or creatable) whose parent is writable
+(a finished run is renamed into place whole); it is locked for the whole training
+(``.RUN.lock`` beside it, holding the writer's pid), so a second writer is refused at once; and
+what is already there decides what may happen:
+
+========================= ================ ====================== =====================
+RUN holds                 plain ``train``   ``--resume``            ``--force``
+========================= ================ ====================== =====================
+nothing (or is missing)   trains           refused: no checkpoint  trains
+an interrupted run        refused          continues it            starts over
+a finished run            refused          continues it (with      replaces it
+                                            more ``--steps``)
+other files, no run       refused          refused                 refused
+========================= ================ ====================== =====================
+
+An interrupted run is a ``checkpoint.npz`` without ``metrics.json``; a finished one has
+``metrics.json``. Entries a run does not write (renders, exports, notes) are kept by every
+rewrite of the directory (:func:`mitsnerf.run.write_run`).
+"""
+
+from __future__ import annotations
+
+import contextlib
+import json
+import os
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Iterator
+
+from mitsnerf.checkpoint import CHECKPOINT_FILE
+from mitsnerf.errors import OutputError
+from mitsnerf.outputs import check_output_dir, exclusive_lock
+
+#: What a run writes in its directory (:func:`mitsnerf.run.write_run`); a fresh run removes these.
+RUN_FILES = ("config.json", "params.npz", "history.json", "metrics.json", CHECKPOINT_FILE, "test")
+
+
+@dataclass(frozen=True)
+class RunDirState:
+    kind: str
+    """``"new"`` (missing or empty), ``"interrupted"``, ``"finished"`` or ``"foreign"`` (files, no run)."""
+    detail: str = ""
+    """For messages: the run's method and step, or the entries of a foreign directory."""
+
+
+def _run_detail(path: Path) -> str:
+    """``nerf, 120 steps`` from ``metrics.json``, ``""`` where it cannot be read."""
+    try:
+        m = json.loads((path / "metrics.json").read_text(encoding="utf-8"))
+        return f"{m['method']}, {m['steps']} steps"
+    except (OSError, ValueError, KeyError, TypeError):
+        return ""
+
+
+def inspect_run_dir(path: str | os.PathLike) -> RunDirState:
+    """What ``path`` holds (see the module's table)."""
+    path = Path(path)
+    if not path.is_dir():
+        return RunDirState("new")
+    names = sorted(p.name for p in path.iterdir())
+    if (path / "metrics.json").is_file():
+        return RunDirState("finished", _run_detail(path))
+    if (path / CHECKPOINT_FILE).is_file():
+        return RunDirState("interrupted")
+    if not names:
+        return RunDirState("new")
+    shown = ", ".join(names[:4]) + (f" and {len(names) - 4} more" if len(names) > 4 else "")
+    return RunDirState("foreign", shown)
+
+
+def check_run_dir(path: str | os.PathLike, *, resume: bool, force: bool, option: str = "--out") -> RunDirState:
+    """Refuse ``path`` for this run (an :class:`~mitsnerf.errors.OutputError`) per the module's table;
+    returns its state. (Writability and the lock: :func:`claim_run_dir`.)"""
+    path = Path(path)
+    state = inspect_run_dir(path)
+    if state.kind == "foreign":
+        raise OutputError(path, option, f"not a mitsnerf run directory (holds {state.detail}); "
+                                        "pick a new or empty directory")
+    if resume and state.kind == "new":
+        raise OutputError(path, option, f"no {CHECKPOINT_FILE} to resume from (train into it without --resume)")
+    if not resume and not force and state.kind == "finished":
+        what = f" ({state.detail})" if state.detail else ""
+        raise OutputError(path, option, f"holds a finished run{what}; pass --force to replace it, "
+                                        "or --resume --steps N to train it on")
+    if not resume and not force and state.kind == "interrupted":
+        raise OutputError(path, option, f"holds an interrupted run ({CHECKPOINT_FILE}); pass --resume to "
+                                        "continue it or --force to start over")
+    return state
+
+
+def lock_path(path: str | os.PathLike) -> Path:
+    """The lock file of run directory ``path``: ``.NAME.lock`` beside it (the directory itself is
+    renamed into place when the run finishes, so its lock cannot live inside it)."""
+    path = Path(path).resolve()
+    return path.parent / f".{path.name}.lock"
+
+
+def remove_run_files(path: Path) -> None:
+    """Delete what a run wrote in ``path`` (a fresh run starting over), keeping everything else."""
+    import shutil
+
+    for name in RUN_FILES:
+        p = path / name
+        if p.is_dir() and not p.is_symlink():
+            shutil.rmtree(p)
+        elif p.exists() or p.is_symlink():
+            p.unlink()
+
+
+@contextlib.contextmanager
+def claim_run_dir(path: str | os.PathLike, *, resume: bool = False, force: bool = False,
+                  option: str = "--out") -> Iterator[RunDirState]:
+    """Check that ``path`` can be written, take its lock (refused at once if another process holds
+    it), then check what it holds (:func:`check_run_dir`) and hold the lock for the block. Yields the
+    state. A run started over (``--force``) removes the old one's files only when training starts
+    (:func:`mitsnerf.run.fit`), so a refusal on the way (a bad dataset) loses nothing."""
+    path = Path(path)
+    check_output_dir(path, option, replaced=True)
+    with exclusive_lock(lock_path(path), wait=False, what=path):
+        yield check_run_dir(path, resume=resume, force=force, option=option)

@@ -1,0 +1,244 @@
+"""Interruptions of the real command in a child process: SIGTERM and SIGHUP while training, two
+trainings into one run directory, SIGTERM in a benchmark sweep and while generating.
+
+What ``timeout``, systemd, Slurm and Ray send must leave what Ctrl-C leaves: a checkpoint of the
+last completed step, the line that says how to continue, exit status 128 + the signal's number,
+and a run that ``--resume`` finishes exactly as an uninterrupted one.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import shutil
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from mitsnerf.cli import main
+
+REPO = Path(__file__).resolve().parents[2]
+
+
+@pytest.fixture
+def fast(world) -> list[str]:
+    """The tiny nerf at 512 rays a step, a checkpoint after every step."""
+    return [*world.nerf[:-2], "--batch-rays", "512", "--checkpoint-every", "1"]
+
+
+def spawn(argv: list[str]) -> subprocess.Popen:
+    env = {**os.environ, "PYTHONPATH": str(REPO)}
+    return subprocess.Popen([sys.executable, "-m", "mitsnerf.cli", *argv], env=env, stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE, text=True)
+
+
+def wait_for(path: Path, proc: subprocess.Popen, timeout: float = 60.0) -> None:
+    """Until ``path`` exists (the child still running), polling."""
+    end = time.monotonic() + timeout
+    while not path.exists():
+        assert proc.poll() is None, f"the child ended first: {proc.communicate()}"
+        assert time.monotonic() < end, f"{path} did not appear"
+        time.sleep(0.02)
+
+
+def stop(proc: subprocess.Popen, signum: int) -> tuple[int, str]:
+    proc.send_signal(signum)
+    _, err = proc.communicate(timeout=60)
+    return proc.returncode, err
+
+
+def _params(run: Path) -> dict:
+    with np.load(run / "params.npz") as z:
+        return {k: z[k] for k in z.files}
+
+
+def _interrupt(world, fast, run: Path, signum: int) -> int:
+    """Train into ``run``, send ``signum`` after the first checkpoint, check what the signal leaves;
+    returns the checkpoint's step."""
+    from mitsnerf.checkpoint import load_checkpoint
+
+    proc = spawn(["train", str(world.dataset), "--out", str(run), "--steps", "30", *fast])
+    wait_for(run / "checkpoint.npz", proc)
+    code, err = stop(proc, signum)
+    assert code == 128 + signum, err
+    assert "Traceback" not in err
+    last = err.strip().splitlines()[-1]
+    step = load_checkpoint(run / "checkpoint.npz").step
+    assert 1 <= step < 30
+    assert last == (f"mitsnerf: interrupted; stopped by {signal.Signals(signum).name}; checkpoint of step {step} saved "
+                    f"to {run / 'checkpoint.npz'}; continue with mitsnerf train --resume --out {run}")
+    assert sorted(p.name for p in run.parent.iterdir()) == [run.name], "no lock file or temporary left"
+    return step
+
+
+def test_sighup_saves_a_checkpoint_and_says_how_to_continue(world, fast, tmp_path):
+    _interrupt(world, fast, tmp_path / "run", signal.SIGHUP)
+
+
+def test_sigterm_saves_a_checkpoint_and_the_resume_equals_a_straight_run(world, fast, tmp_path):
+    run = tmp_path / "interrupted" / "run"
+    run.parent.mkdir()
+    _interrupt(world, fast, run, signal.SIGTERM)
+
+    assert main(["train", "--resume", "--out", str(run)]) == 0
+    straight = tmp_path / "straight"
+    assert main(["train", str(world.dataset), "--out", str(straight), "--steps", "30", *fast]) == 0
+    resumed, reference = _params(run), _params(straight)
+    assert resumed.keys() == reference.keys()
+    for key in reference:
+        np.testing.assert_array_equal(resumed[key], reference[key], err_msg=key)  # nerf resumes bit for bit
+    history = [json.loads((r / "history.json").read_text()) for r in (run, straight)]
+    assert [(h["step"], h["loss"], h["loss_mean"]) for h in history[0]] == \
+        [(h["step"], h["loss"], h["loss_mean"]) for h in history[1]]
+
+
+def test_a_second_training_into_a_run_being_written_is_refused_at_once(world, fast, tmp_path):
+    run = tmp_path / "run"
+    first = spawn(["train", str(world.dataset), "--out", str(run), "--steps", "30", *fast])
+    wait_for(run / "checkpoint.npz", first)
+    second = spawn(["train", str(world.dataset), "--out", str(run), "--steps", "3", *fast, "--force"])
+    _, err = second.communicate(timeout=60)
+    assert second.returncode == 2, err
+    assert err.strip().splitlines()[-1] == (f"mitsnerf: error: {run}: pid {first.pid} is writing it now (lock .run.lock); "
+                                            "wait for it to finish or pick another output")
+    assert first.wait(timeout=120) == 0, first.communicate()
+    assert json.loads((run / "metrics.json").read_text())["steps"] == 30
+
+
+BENCH = """\
+name = "b"
+scenes = ["SPEC"]
+seeds = [0]
+train = { steps = 40, batch_rays = 512, log_every = 5, checkpoint_every = 1 }
+eval = { curve_points = 4, od_samples = 16 }
+oracle = { enabled = false }  # not what this test is about: it would cost a minute before the first cell
+[[methods]]
+name = "nerf"
+config = { network = { width = 8, depth = 1, head_width = 8, features = 4 }, n_samples = 8, n_importance = 0 }
+"""
+
+
+def test_a_stopped_sweep_continues_the_cell_in_flight_from_its_checkpoint(world, tmp_path):
+    config = tmp_path / "b.toml"
+    config.write_text(BENCH.replace("SPEC", str(world.spec)))
+    data = tmp_path / "data"
+    shutil.copytree(world.dataset.parent, data)
+    argv = ["bench", str(config), "--results", str(tmp_path / "res"), "--data", str(data), "--no-progress"]
+    cell = tmp_path / "res" / "b" / "cells" / "tiny" / "nerf-seed0"
+    proc = spawn(argv)
+    wait_for(cell / "run" / "checkpoint.npz", proc)
+    time.sleep(0.5)  # past the first held-out evaluation (step 10), so the curve resumes too
+    code, err = stop(proc, signal.SIGTERM)
+    assert code == 143, err
+    assert "Traceback" not in err and "run the same command again to resume" in err.strip().splitlines()[-1]
+    assert not (cell / "result.json").exists() and (cell / "in_flight.json").is_file()
+    from mitsnerf.checkpoint import load_checkpoint
+
+    step = load_checkpoint(cell / "run" / "checkpoint.npz").step
+
+    assert main(argv) == 0
+    record = json.loads((cell / "result.json").read_text())
+    assert record["worker"]["resumed_from_step"] == step and record["metrics"]["steps"] == 40
+    assert [p["step"] for p in record["curve"]["points"]] == [10, 20, 30, 40]
+
+
+def test_a_stopped_generate_leaves_nothing_that_looks_complete(world, tmp_path):
+    spec = tmp_path / "slow.toml"
+    spec.write_text(world.spec.read_text().replace('"tiny"', '"slow"').replace("spp_test = 8", "spp_test = 2048"))
+    proc = spawn(["generate", str(spec), "--out", str(tmp_path / "data")])
+    end = time.monotonic() + 60
+    while not list((tmp_path / "data").glob(".slow-*.tmp-*")):  # the dataset is being built
+        assert proc.poll() is None and time.monotonic() < end, proc.communicate()
+        time.sleep(0.02)
+    time.sleep(0.5)  # into the rendering (the test views take seconds)
+    assert proc.poll() is None, "generate finished before the signal: make the spec slower"
+    code, err = stop(proc, signal.SIGTERM)
+    assert code == 143, err
+    assert "Traceback" not in err and "mitsnerf: interrupted; stopped by SIGTERM" in err
+    assert sorted(p.name for p in (tmp_path / "data").iterdir()) == [], "no dataset, temporary or lock left"
+
+
+def test_a_resume_runs_the_log_hook_again_on_the_entry_a_signal_stopped_it_on(world, tmp_path):
+    from mitsnerf.data.dataset import load_dataset
+    from mitsnerf.errors import Interrupted
+    from mitsnerf.run import fit
+    from mitsnerf.train import TrainConfig
+
+    overrides = {"network": {"width": 8, "depth": 1, "head_width": 8, "features": 4}, "n_samples": 8}
+    config = TrainConfig(steps=8, batch_rays=64, log_every=2, checkpoint_every=1)
+    seen: list[int] = []
+
+    def stopped_inside_at_4(entry, model):
+        if entry["step"] == 4:
+            raise KeyboardInterrupt  # as a signal arriving while the hook evaluates
+        seen.append(entry["step"])
+
+    dataset = load_dataset(world.dataset)
+    with pytest.raises(Interrupted, match="checkpoint of step 4"):
+        fit(dataset, "nerf", overrides, config, tmp_path / "run", progress=False, on_log=stopped_inside_at_4)
+    fit(dataset, "nerf", overrides, config, tmp_path / "run", progress=False, resume=True,
+        on_log=lambda entry, model: seen.append(entry["step"]))
+    assert seen == [2, 4, 6, 8]
+
+
+def test_a_signal_while_evaluating_keeps_the_trained_checkpoint_and_the_resume_only_evaluates(world, tmp_path,
+                                                                                              monkeypatch, capsys):
+    import mitsnerf.run
+
+    run = tmp_path / "run"
+    evaluate = mitsnerf.run.evaluate_run
+
+    def stopped(*args, **kwargs):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(mitsnerf.run, "evaluate_run", stopped)
+    assert main(["train", str(world.dataset), "--out", str(run), "--steps", "3", *world.nerf]) == 130
+    assert capsys.readouterr().err.strip().splitlines()[-1] == (
+        f"mitsnerf: interrupted; stopped by SIGINT while evaluating; checkpoint of step 3 saved to "
+        f"{run / 'checkpoint.npz'}; continue with mitsnerf train --resume --out {run}")
+    monkeypatch.setattr(mitsnerf.run, "evaluate_run", evaluate)
+    assert main(["train", "--resume", "--out", str(run)]) == 0
+    metrics = json.loads((run / "metrics.json").read_text())
+    assert metrics["steps"] == 3 and metrics["rays_per_s"] is None  # no step ran in the session that evaluated
+    assert "3 steps in" in capsys.readouterr().out
+
+
+def test_a_signal_that_an_import_turned_into_another_error_still_exits_as_the_signal(world, tmp_path, monkeypatch,
+                                                                                    capsys):
+    import mitsnerf.run
+    from mitsnerf.errors import Interrupted
+
+    def import_stopped(*args, **kwargs):
+        try:
+            raise Interrupted(15, "stopped by SIGTERM")
+        except Interrupted as exc:
+            raise ImportError("initialization failed") from exc  # what a C extension's import makes of it
+
+    monkeypatch.setattr(mitsnerf.run, "fit", import_stopped)
+    assert main(["train", str(world.dataset), "--out", str(tmp_path / "r"), *world.nerf]) == 143
+    assert capsys.readouterr().err.strip().splitlines()[-1] == "mitsnerf: interrupted; stopped by SIGTERM"
+
+
+def test_training_saves_its_checkpoint_when_a_library_wraps_the_signal_in_another_error(world, tmp_path):
+    from mitsnerf.data.dataset import load_dataset
+    from mitsnerf.errors import Interrupted
+    from mitsnerf.run import fit
+    from mitsnerf.train import TrainConfig
+
+    def wrapped_at_4(entry, model):
+        if entry["step"] == 4:
+            try:
+                raise Interrupted(1, "stopped by SIGHUP")
+            except Interrupted as exc:
+                raise RuntimeError("a callback failed") from exc  # as a C++ library may report it
+
+    overrides = {"network": {"width": 8, "depth": 1, "head_width": 8, "features": 4}, "n_samples": 8}
+    with pytest.raises(Interrupted, match=r"stopped by SIGHUP; checkpoint of step 4 saved") as info:
+        fit(load_dataset(world.dataset), "nerf", overrides, TrainConfig(steps=8, batch_rays=64, log_every=2),
+            tmp_path / "run", progress=False, on_log=wrapped_at_4)
+    assert info.value.exit_status == 129
