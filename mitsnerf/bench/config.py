@@ -3,7 +3,7 @@
 ```toml
 name = "default"                 # default: the file's stem
 description = "..."
-scenes = ["cloud"]               # scene names or spec paths, or "all" (every scene mitsnerf scenes lists)
+scenes = ["cloud"]               # scene names or spec paths (relative to this file's folder), or "all"
 seeds = [0]
 train = { seconds = 240 }        # training settings shared by every method (TrainConfig keys)
 [eval]                           # EvalConfig: what is measured besides the final test PSNR

@@ -36,7 +36,8 @@ class ExternalEntry:
 def plan_externals(config: BenchConfig, quick: bool, cells: Sequence) -> list[ExternalEntry]:
     """Every (external, scene) of the profile being run; paths relative to the config file's folder.
 
-    A scene name that is not one of the benchmark's is a SpecError at ``external.I.renders.NAME``.
+    A scene name that is not one of the benchmark's, or a renders folder that does not exist, is a
+    SpecError at ``external.I.renders.NAME``.
     """
     datasets = {c.scene: Path(c.dataset_dir) for c in cells}
     base = Path(config.source).parent if config.source else Path(".")
@@ -49,6 +50,8 @@ def plan_externals(config: BenchConfig, quick: bool, cells: Sequence) -> list[Ex
                     raise SpecError(config.source, f"{where}.{part}.{scene}",
                                     f"not a scene of this benchmark (scenes: {', '.join(datasets)})")
         for scene, folder in files.renders.items():
+            if not (base / folder).is_dir():  # before the datasets and oracles are made, not after
+                raise SpecError(config.source, f"{where}.renders.{scene}", f"{base / folder}: renders folder not found")
             density = files.density.get(scene)
             entries.append(ExternalEntry(run, scene, datasets[scene], base / folder,
                                          None if density is None else base / density))

@@ -123,12 +123,16 @@ def plan_cells(config: BenchConfig, options: BenchOptions) -> list[Cell]:
 
 
 def _scene_specs(config: BenchConfig, quick: bool) -> list:
-    """The benchmark's scene specs, with the quick profile's overrides (blamed on ``quick.scene.KEY``)."""
-    from mitsnerf.scene.spec import load_scene
+    """The benchmark's scene specs, with the quick profile's overrides (blamed on ``quick.scene.KEY``).
 
+    A spec given by a relative path is relative to the config file's folder, as external renders are.
+    """
+    from mitsnerf.scene.spec import is_spec_path, load_scene
+
+    base = Path(config.source).parent if config.source else Path(".")
     specs = []
     for name in config.scenes:
-        spec = load_scene(name)
+        spec = load_scene(base / name if is_spec_path(name) else name)
         if quick and config.quick.scene:
             try:
                 spec = spec.with_overrides(config.quick.scene)

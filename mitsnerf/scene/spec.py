@@ -364,10 +364,20 @@ def load_scene(name_or_path: str | os.PathLike) -> SceneSpec:
     return parse_scene(read_toml(path, "a spec file"), path)
 
 
+def is_spec_path(name_or_path: str | os.PathLike) -> bool:
+    """Whether ``name_or_path`` is a spec file's path rather than a library name.
+
+    >>> is_spec_path("cloud"), is_spec_path("my_cloud.toml"), is_spec_path("specs/cloud")
+    (False, True, True)
+    """
+    text = os.fspath(name_or_path)
+    return isinstance(name_or_path, Path) or "/" in text or os.sep in text or text.endswith(".toml")
+
+
 def _spec_path(name_or_path: str | os.PathLike) -> Path:
     """The file a scene name or spec path means; a SpecError if there is none."""
     text = os.fspath(name_or_path)
-    if isinstance(name_or_path, Path) or "/" in text or os.sep in text or text.endswith(".toml"):
+    if is_spec_path(name_or_path):
         path = Path(text)
         if not path.exists():
             raise SpecError(path, None, "no such spec file")

@@ -12,6 +12,8 @@ from mitsnerf.errors import SpecError
 from mitsnerf.methods import METHODS
 from mitsnerf.scene.spec import list_scenes
 
+from .conftest import write_scene
+
 
 def test_the_shipped_configs_load_and_plan(tmp_path):
     names = sorted(p.stem for p in benchmarks_dir().glob("*.toml"))
@@ -161,3 +163,14 @@ def test_an_undecodable_or_empty_bench_file_is_named(tmp_path, capsys):
     (tmp_path / "binary.toml").write_bytes(b"\xc3\x28")
     assert main(["bench", str(tmp_path / "binary.toml")]) == 2
     assert capsys.readouterr().err == f"mitsnerf: error: {tmp_path / 'binary.toml'}: not a text file (invalid UTF-8 at byte 0)\n"
+
+
+def test_a_relative_spec_path_is_relative_to_the_config_file(tmp_path, monkeypatch):
+    folder = tmp_path / "configs"
+    (folder / "specs").mkdir(parents=True)
+    write_scene(folder / "specs", "mine")
+    (folder / "b.toml").write_text('scenes = ["specs/mine.toml"]\n[[methods]]\nname = "voxel"\n')
+    monkeypatch.chdir(tmp_path)  # not the config's folder: the path must not be read from the working directory
+    options = BenchOptions(data_root=tmp_path, results_root=tmp_path, code_version="t")
+    cells = plan_cells(load_bench_config(folder / "b.toml"), options)
+    assert [c.scene for c in cells] == ["mine"]

@@ -9,6 +9,7 @@ from pathlib import Path
 
 import pytest
 
+import mitsnerf.bench.runner as runner
 import mitsnerf.bench.worker as worker
 from mitsnerf.bench.config import parse_bench_config
 from mitsnerf.bench.runner import plan_cells, run_benchmark
@@ -74,10 +75,19 @@ def test_bad_external_stops_before_training(tiny_bench, tmp_path, monkeypatch):
         run_benchmark(wrong, options("fresh"))
 
 
+def test_a_missing_renders_folder_stops_before_any_dataset_or_oracle_is_made(tiny_bench, tmp_path, monkeypatch):
+    config, options = tiny_bench
+    monkeypatch.setattr(runner, "_generate", lambda *a, **k: pytest.fail("a dataset was generated"))
+    ext = _with_external(config, [{"name": "ref", "renders": {"tcloud": "gone"}}], tmp_path)
+    with pytest.raises(SpecError, match=r"ext.toml: external.0.renders.tcloud: .*gone: renders folder not found"):
+        run_benchmark(ext, options("fresh"))
+
+
 def test_external_entries_need_a_quick_table_for_quick(tiny_bench, tmp_path):
     from mitsnerf.bench.external import plan_externals
 
     config, options = tiny_bench
+    (tmp_path / "ref").mkdir()
     ext = _with_external(config, [{"name": "ref", "renders": {"tcloud": "ref"}}], tmp_path)
     cells = plan_cells(ext, options("fresh"))
     assert [e.key for e in plan_externals(ext, False, cells)] == ["tcloud/ref (external)"]
