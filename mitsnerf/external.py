@@ -1,11 +1,12 @@
 """Renders from any tool, scored against a dataset's test views as a benchmark cell is (``mitsnerf score``).
 
 **Images.** ``RENDERS`` is a folder of ``.png`` and ``.exr`` files (other files are ignored; with
-``fmt`` only that kind is read). EXR is linear radiance, used as it is (an alpha channel is not
-applied: mitsnerf's own EXRs already hold the background). PNG is sRGB, decoded to linear; a PNG
-with alpha is straight alpha over a transparent background and is composited over what each
-pixel of the dataset sees behind the medium (its ``background``: a constant, or the environment
-map averaged over the pixel), ``rgb * a + B * (1 - a)`` in linear space. Every image must have
+``fmt`` only that kind is read). Both are composited over what each pixel of the dataset sees
+behind the medium (its ``background``: a constant, or the environment map averaged over the pixel)
+where they have an alpha channel, by each format's convention: EXR is linear radiance with
+premultiplied alpha (OpenEXR's rule), ``rgb + B * (1 - a)``; PNG is sRGB with straight alpha,
+decoded to linear, ``rgb * a + B * (1 - a)``. Without alpha, or with alpha 1 (mitsnerf's own
+images, which hold the background already), an image is used as it is. Every image must have
 the test frame's size and finite values.
 
 **Matching** (:func:`match_renders`), against the test frames' names (``r_000``, ...):
@@ -111,14 +112,14 @@ def match_renders(folder: Path, names: Sequence[str], fmt: str | None = None) ->
 
 
 def _to_linear(path: Path, img: np.ndarray, background: np.ndarray) -> np.ndarray:
-    """Linear RGB of one render (module docstring): EXR as is, PNG decoded and composited by its alpha."""
-    if path.suffix.lower() == ".exr":
-        return img[..., :3]
-    rgb = srgb_to_linear(img[..., :3])
-    if img.shape[2] == 4:
-        a = img[..., 3:4]
-        rgb = rgb * a + background * (1.0 - a)
-    return rgb
+    """Linear RGB of one render (module docstring): EXR premultiplied, PNG sRGB with straight alpha, each
+    composited over ``background`` by its alpha when it has one."""
+    exr = path.suffix.lower() == ".exr"
+    rgb = img[..., :3] if exr else srgb_to_linear(img[..., :3])
+    if img.shape[2] != 4 or background is None:  # no alpha, or alpha 1 everywhere
+        return rgb
+    a = img[..., 3:4]
+    return (rgb if exr else rgb * a) + background * (1.0 - a)
 
 
 def read_renders(dataset: Dataset, folder: Path, fmt: str | None = None, split: str = "test") -> tuple[np.ndarray, list[Path], str]:
@@ -138,7 +139,7 @@ def read_renders(dataset: Dataset, folder: Path, fmt: str | None = None, split: 
         if bad.any():
             r, c, _ = np.argwhere(bad)[0]
             raise DatasetError(path, None, f"{int(bad.sum())} non-finite pixel values (NaN/inf), first at row {r}, column {c}")
-        if background is None and path.suffix.lower() == ".png" and img.shape[2] == 4:
+        if background is None and img.shape[2] == 4 and (img[..., 3] < 1).any():
             bg = make_background(dataset.background, dataset.root)
             background = pixel_background(bg, views.cameras, views.pixel_center).astype(np.float32)
         images[i] = _to_linear(path, img, None if background is None else background[i])
