@@ -6,6 +6,8 @@ package registries cannot fetch them, so every ``ns-train nerfacto`` and ``ns-re
 the model again) stops there with ``URLError``. LPIPS is an evaluation metric only (nerfacto's loss
 never uses it), so this launcher replaces it by a module that returns NaN, and then runs nerfstudio's
 unchanged entry point. Training and rendering are nerfstudio's own; nerfstudio's logged LPIPS is NaN.
+It also lets ``ns-render`` load the checkpoint ``ns-train`` wrote: nerfstudio 1.1.5 stores numpy
+scalars in it, which torch >= 2.6 refuses to load by default (``weights_only=True``).
 mitsnerf scores the renders itself (``mitsnerf score``).
 
 Run with nerfstudio's interpreter (``run_nerfacto.sh`` does)::
@@ -16,6 +18,7 @@ Run with nerfstudio's interpreter (``run_nerfacto.sh`` does)::
 
 from __future__ import annotations
 
+import os
 import sys
 
 import torch
@@ -36,6 +39,9 @@ def main() -> None:
     if len(sys.argv) < 2 or sys.argv[1] not in ("train", "render"):
         sys.exit("usage: ns_launch.py train|render ARGS... (the arguments of ns-train / ns-render)")
     torchmetrics.image.lpip.LearnedPerceptualImagePatchSimilarity = NoLPIPS
+    # nerfstudio 1.1.5 saves numpy scalars in its checkpoints, which torch >= 2.6's default
+    # torch.load(weights_only=True) refuses; the checkpoint is the one ns-train just wrote.
+    os.environ.setdefault("TORCH_FORCE_NO_WEIGHTS_ONLY_LOAD", "1")
     command = sys.argv.pop(1)
     sys.argv[0] = f"ns-{command}"
     if command == "train":
