@@ -257,7 +257,7 @@ def cmd_score(args) -> int:
     check_output_file(out, "--out")
     dataset = _load(args, args.dataset)
     result = score_renders(dataset, renders, density=Path(args.density) if args.density else None, name=args.name,
-                           fmt=args.format, footprint=args.footprint)
+                           fmt=args.format, footprint=args.footprint, exr_alpha=args.exr_alpha)
     record = result.record(dataset, renders)
     scene = (dataset.manifest or {}).get("name") or Path(dataset.root).resolve().name
     row = scene_rows([{"scene": scene, "method": f"{result.name} (external)", "seed": 0, "metrics": result.metrics}])
@@ -521,12 +521,16 @@ def _score_parser(sub) -> None:
                                    "dataset has one cached, DATASET/oracle/), and with --density the density errors. "
                                    "Images are matched to the test frames by file name (r_000.png ...) or, when no "
                                    "name is a frame's, by the frame number in each name; PNG alpha is composited "
-                                   "over the dataset's background, EXR is linear radiance used as is.")
+                                   "over the dataset's background as straight alpha, EXR alpha as premultiplied "
+                                   "(--exr-alpha to say otherwise).")
     p.add_argument("dataset", help="dataset directory (mitsnerf generate output, NeRF-synthetic or instant-ngp)")
     p.add_argument("renders", help="folder of the renders of the test views")
     p.add_argument("--density", metavar="GRID", help="sigma_t on a grid over the dataset's box: .npy [z, y, x] or Mitsuba .vol")
     p.add_argument("--name", help="the row's name (default: the renders folder's name)")
     p.add_argument("--format", choices=("png", "exr"), help="read only these images (needed when both are there)")
+    p.add_argument("--exr-alpha", choices=("premultiplied", "straight", "ignore"), default="premultiplied",
+                   help="how an RGBA EXR's alpha composites over the dataset's background (default premultiplied, "
+                        "OpenEXR's rule; ignore: the RGB as it is)")
     p.add_argument("--out", help="JSON record to write (default: RENDERS/scores.json)")
     p.add_argument("--footprint", type=int, default=1, metavar="K",
                    help="the tool's rays per pixel side (default 1: one through each pixel centre): which of the "

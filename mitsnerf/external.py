@@ -6,7 +6,10 @@ behind the medium (its ``background``: a constant, or the environment map averag
 where they have an alpha channel, by each format's convention: EXR is linear radiance with
 premultiplied alpha (OpenEXR's rule), ``rgb + B * (1 - a)``; PNG is sRGB with straight alpha,
 decoded to linear, ``rgb * a + B * (1 - a)``. Without alpha, or with alpha 1 (mitsnerf's own
-images, which hold the background already), an image is used as it is. Every image must have
+images, which hold the background already), an image is used as it is. A tool that writes EXR
+otherwise says so with ``exr_alpha``: ``"straight"`` (``rgb * a + B * (1 - a)``) or ``"ignore"``
+(the RGB as it is, as :func:`mitsnerf.data.dataset.load_dataset` reads a dataset's own EXRs
+unless its transforms say ``"exr_alpha": "premultiplied"``). Every image must have
 the test frame's size and finite values.
 
 **Matching** (:func:`match_renders`), against the test frames' names (``r_000``, ...):
@@ -50,6 +53,8 @@ from mitsnerf.math.box import Box
 from mitsnerf.math.color import srgb_to_linear
 
 FORMATS = ("png", "exr")
+#: How an EXR render's alpha is applied (module docstring).
+EXR_ALPHA = ("premultiplied", "straight", "ignore")
 _NUMBER = re.compile(r"(\d+)(?!.*\d)")
 
 
@@ -111,19 +116,22 @@ def match_renders(folder: Path, names: Sequence[str], fmt: str | None = None) ->
     return [numbered[k] for k in sorted(numbered)], "order"
 
 
-def _to_linear(path: Path, img: np.ndarray, background: np.ndarray) -> np.ndarray:
-    """Linear RGB of one render (module docstring): EXR premultiplied, PNG sRGB with straight alpha, each
-    composited over ``background`` by its alpha when it has one."""
+def _to_linear(path: Path, img: np.ndarray, background: np.ndarray | None, exr_alpha: str = "premultiplied") -> np.ndarray:
+    """Linear RGB of one render (module docstring): EXR by ``exr_alpha`` (premultiplied by default), PNG
+    sRGB with straight alpha, each composited over ``background`` by its alpha when it has one."""
     exr = path.suffix.lower() == ".exr"
     rgb = img[..., :3] if exr else srgb_to_linear(img[..., :3])
-    if img.shape[2] != 4 or background is None:  # no alpha, or alpha 1 everywhere
+    if img.shape[2] != 4 or background is None or (exr and exr_alpha == "ignore"):  # no alpha, or alpha 1 everywhere
         return rgb
     a = img[..., 3:4]
-    return (rgb if exr else rgb * a) + background * (1.0 - a)
+    return (rgb if exr and exr_alpha == "premultiplied" else rgb * a) + background * (1.0 - a)
 
 
-def read_renders(dataset: Dataset, folder: Path, fmt: str | None = None, split: str = "test") -> tuple[np.ndarray, list[Path], str]:
+def read_renders(dataset: Dataset, folder: Path, fmt: str | None = None, split: str = "test",
+                 exr_alpha: str = "premultiplied") -> tuple[np.ndarray, list[Path], str]:
     """The renders of ``split``'s views as linear RGB ``(V, H, W, 3)``, their files and the matching rule."""
+    if exr_alpha not in EXR_ALPHA:
+        raise ValueError(f"--exr-alpha: must be one of {', '.join(EXR_ALPHA)}, got {exr_alpha!r}")
     from mitsnerf.render.background import make_background, pixel_background
 
     views = dataset.views(split)
@@ -142,7 +150,7 @@ def read_renders(dataset: Dataset, folder: Path, fmt: str | None = None, split: 
         if background is None and img.shape[2] == 4 and (img[..., 3] < 1).any():
             bg = make_background(dataset.background, dataset.root)
             background = pixel_background(bg, views.cameras, views.pixel_center).astype(np.float32)
-        images[i] = _to_linear(path, img, None if background is None else background[i])
+        images[i] = _to_linear(path, img, None if background is None else background[i], exr_alpha)
     return images, paths, rule
 
 
@@ -220,7 +228,8 @@ class ExternalScore:
 
 
 def score_renders(dataset: Dataset, folder: Path, *, density: Path | None = None, name: str | None = None,
-                  fmt: str | None = None, footprint: int = 1, oracle=None) -> ExternalScore:
+                  fmt: str | None = None, footprint: int = 1, oracle=None,
+                  exr_alpha: str = "premultiplied") -> ExternalScore:
     """Score the renders in ``folder`` against ``dataset``'s test views: the metrics of a benchmark
     cell (:func:`mitsnerf.scoring.score_views`), with the oracle's at ``footprint`` (``oracle``, else
     :func:`read_oracle`'s) where there is one."""
@@ -230,7 +239,7 @@ def score_renders(dataset: Dataset, folder: Path, *, density: Path | None = None
         raise ValueError(f"--footprint: must be >= 1, got {footprint}")
     folder = Path(folder)
     grid = read_density(density, dataset.box) if density is not None else None  # bad input before the work
-    images, paths, rule = read_renders(dataset, folder, fmt)
+    images, paths, rule = read_renders(dataset, folder, fmt, exr_alpha=exr_alpha)
     if oracle is None or f"footprint_{footprint}" not in oracle.scores:
         oracle, oracle_source = read_oracle(dataset, footprint)
     else:

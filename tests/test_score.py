@@ -96,6 +96,27 @@ def test_exr_alpha_is_premultiplied(dataset, tmp_path):
         write_exr(folder / f"{name}.exr", np.concatenate([rgb, np.full_like(rgb[..., :1], 0.5)], axis=-1))
     images, _, _ = read_renders(ds, folder)
     np.testing.assert_allclose(images, views.images[..., :3], atol=1e-6)
+    straight, _, _ = read_renders(ds, folder, exr_alpha="straight")  # rgb a + B (1 - a): not the test images
+    assert np.abs(straight - views.images[..., :3]).max() > 0.05
+    ignored, _, _ = read_renders(ds, folder, exr_alpha="ignore")
+    np.testing.assert_array_equal(ignored, views.images[..., :3] - 0.5 * background.astype(np.float32))
+
+
+def test_an_exr_with_alpha_one_is_used_as_it_is_and_a_later_one_is_composited(dataset, tmp_path):
+    """mitsnerf's own EXRs (alpha 1) are read unchanged; the background is computed when a later file needs it."""
+    from mitsnerf.data.images import read_image
+    from mitsnerf.external import read_renders
+
+    ds = load_dataset(dataset)
+    views = ds.views("test")
+    folder = _copy(dataset / "test", tmp_path / "mixed")
+    last = views.names[-1]
+    medium = read_image(dataset / "medium" / "test" / f"{last}.exr")
+    write_exr(folder / f"{last}.exr", medium)  # the medium alone, premultiplied
+    images, _, _ = read_renders(ds, folder)
+    np.testing.assert_array_equal(images[:-1], views.images[:-1, ..., :3])
+    assert np.abs(images[-1] - views.images[-1, ..., :3]).mean() < 0.02  # the composite is the view again (MC noise)
+    assert np.abs(medium[..., :3] - views.images[-1, ..., :3]).mean() > 0.05  # and the bare medium is not
 
 
 
