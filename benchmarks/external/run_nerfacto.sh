@@ -68,7 +68,7 @@ t1=$(now)
     --split test --rendered-output-names rgba --image-format png --output-path "$out/renders" 2>&1 | tee "$out/render.log"
 t2=$(now)
 "${mitsnerf[@]}" score "$dataset" "$out/renders/test/rgba" --name nerfacto --out "$out/scores.json"
-python3 - "$out" "$steps" "$rays" "$t0" "$t1" "$t2" <<'PY'
+"$venv/bin/python" - "$out" "$steps" "$rays" "$t0" "$t1" "$t2" <<'PY'
 import json, sys
 out, steps, rays, t0, t1, t2 = sys.argv[1], int(sys.argv[2]), int(sys.argv[3]), *map(float, sys.argv[4:])
 info = {"steps": steps, "rays_per_step": rays, "train_wall_s": round(t1 - t0, 1), "render_wall_s": round(t2 - t1, 1)}
