@@ -8,7 +8,7 @@ against the targets, its gradient by ``jax.value_and_grad``, and an Adam update 
 so they stay in place from one step to the next. Layers start uniform in +-1/sqrt(fan_in), biases 0.
 
 Needs only numpy and JAX (a throw-away venv: ``python3 -m venv /tmp/jaxenv &&
-/tmp/jaxenv/bin/pip install "jax[cpu]"``); ``throughput_mlp.py --jax-python`` runs it. Alone:
+/tmp/jaxenv/bin/pip install "jax[cpu]==0.10.2"``); ``throughput_mlp.py --jax-python`` runs it. Alone:
     /tmp/jaxenv/bin/python benchmarks/jax_mlp_peer.py --batch-log2 14 16 18 --steps 10
 Prints one JSON line per batch size: ``{"impl": "jax", "batch": N, "median_step_s": ..., "pts_per_s": ...}``.
 """

@@ -18,7 +18,7 @@ here can reach), and a nominal figure is printed from the core count, clock and 
 (assuming two FMA units per core; stated as such).
 
 Set-up for the peer (a throw-away venv, once): ``python3 -m venv /tmp/jaxenv &&
-/tmp/jaxenv/bin/pip install "jax[cpu]"``. Run (only on an otherwise idle machine):
+/tmp/jaxenv/bin/pip install "jax[cpu]==0.10.2"``. Run (only on an otherwise idle machine):
     .venv/bin/python benchmarks/throughput_mlp.py [--batch-log2 14 16 18] [--jax-python /tmp/jaxenv/bin/python]
 Prints one JSON line per (path, batch), the peer's lines, and a summary with the ratios.
 """
