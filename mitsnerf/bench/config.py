@@ -210,6 +210,12 @@ class BenchConfig:
         field_name = f"{path}.{error.field}" if error.field else path
         return SpecError(self.source, field_name, f"{error.message} (method {method.label})")
 
+    @property
+    def base_dir(self) -> Path:
+        """The folder relative paths in the config (spec files, external renders) are relative to: the
+        config file's (the working directory for a config made in code)."""
+        return Path(self.source).parent if self.source else Path(".")
+
     def oracle_config(self, quick: bool) -> OracleConfig:
         """The oracle's settings, with the quick profile's ``oracle`` keys over them."""
         if not quick or not self.quick.oracle:

@@ -40,7 +40,7 @@ def plan_externals(config: BenchConfig, quick: bool, cells: Sequence) -> list[Ex
     SpecError at ``external.I.renders.NAME``.
     """
     datasets = {c.scene: Path(c.dataset_dir) for c in cells}
-    base = Path(config.source).parent if config.source else Path(".")
+    base = config.base_dir
     entries = []
     for i, run in enumerate(config.external):
         files, where = run.files(quick), f"external.{i}" + (".quick" if quick else "")

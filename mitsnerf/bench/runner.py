@@ -129,10 +129,9 @@ def _scene_specs(config: BenchConfig, quick: bool) -> list:
     """
     from mitsnerf.scene.spec import is_spec_path, load_scene
 
-    base = Path(config.source).parent if config.source else Path(".")
     specs = []
     for name in config.scenes:
-        spec = load_scene(base / name if is_spec_path(name) else name)
+        spec = load_scene(config.base_dir / name if is_spec_path(name) else name)
         if quick and config.quick.scene:
             try:
                 spec = spec.with_overrides(config.quick.scene)
