@@ -1,8 +1,9 @@
 """An independent float64 quadrature of the emission-absorption integral: the plugin cases' reference.
 
 Written again in numpy, sharing nothing with the package's sampling (``stratified_t``),
-box clipping (``intersect_box``) or compositing (``composite``), so a bug there cannot reach
-it. Only the field (the content under test's input, not its quadrature) is evaluated
+the render path's box clipping (``Box.intersect``, Dr.Jit) or compositing (``composite``), so a
+bug there cannot reach it; the box is clipped by the float64 numpy slab test
+``Box.intersect_numpy``, which only scoring uses besides. Only the field (the content under test's input, not its quadrature) is evaluated
 through Dr.Jit, at the same sample positions. Per ray, with ``[t_n, t_f]`` the ray's part of
 the box ``[-0.5, 0.5]^3`` (docs/conventions.md) and ``h = (t_f - t_n) / N``::
 
@@ -11,7 +12,7 @@ the box ``[-0.5, 0.5]^3`` (docs/conventions.md) and ``h = (t_f - t_n) / N``::
     T_i     = exp(-sum_{j<i} sigma_i delta_i),   C = sum_i T_i (1 - exp(-sigma_i delta_i)) c_i + T_N bg
 
 >>> import numpy as np
->>> t_n, t_f = slab(np.array([[0.0, 0.0, -2.0]]), np.array([[0.0, 0.0, 1.0]]))
+>>> t_n, t_f, _ = UNIT_BOX.intersect_numpy(np.array([[0.0, 0.0, -2.0]]), np.array([[0.0, 0.0, 1.0]]))
 >>> t_n, t_f
 (array([1.5]), array([2.5]))
 >>> t, delta = sample_distances(t_n, t_f, 4)
@@ -28,23 +29,7 @@ from typing import Any, Callable
 
 import numpy as np
 
-BOX = (-0.5, 0.5)
-
-
-def slab(o: np.ndarray, d: np.ndarray, box=BOX) -> tuple[np.ndarray, np.ndarray]:
-    """Entry and exit distances ``(t_n, t_f)`` (R,) of rays ``o + t d`` ((R, 3)) through the cube ``box^3``.
-
-    ``t_n >= 0``; a ray that misses gets ``t_n = t_f`` (no samples contribute).
-    """
-    o = np.asarray(o, dtype=np.float64)
-    d = np.asarray(d, dtype=np.float64)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        inv = 1.0 / d
-        t0, t1 = (box[0] - o) * inv, (box[1] - o) * inv
-    t_near = np.maximum(np.nanmax(np.minimum(t0, t1), axis=-1), 0.0)
-    t_far = np.nanmin(np.maximum(t0, t1), axis=-1)
-    return t_near, np.where(t_far > t_near, t_far, t_near)
-
+from mitsnerf.math.box import UNIT_BOX
 
 def sample_distances(t_n: np.ndarray, t_f: np.ndarray, n: int, quadrature: str = "seed") -> tuple[np.ndarray, np.ndarray]:
     """Stratum midpoints ``t`` (R, N) and interval lengths ``delta`` (R, N) of the rule ``quadrature``."""
@@ -85,7 +70,7 @@ def render(field: Callable[[Any, Any], tuple[Any, Any]], o: np.ndarray, d: np.nd
     import drjit as dr
     import mitsuba as mi
 
-    t_n, t_f = slab(o, d)
+    t_n, t_f, _ = UNIT_BOX.intersect_numpy(o, d)
     t, delta = sample_distances(t_n, t_f, n, quadrature)
     x = (o[:, None, :] + t[..., None] * d[:, None, :]).reshape(-1, 3).astype(np.float32)
     dirs = np.repeat(np.asarray(d, dtype=np.float32), n, axis=0)

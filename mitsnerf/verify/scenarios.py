@@ -63,7 +63,7 @@ def prepare_scenario(s: C.VolpathScenario, quality: C.Quality) -> PreparedScenar
 
     from mitsnerf.render.background import EnvmapBackground
     from mitsnerf.verify import mitsuba_refs as M
-    from mitsnerf.verify.quadrature64 import slab
+    from mitsnerf.math.box import UNIT_BOX
     from mitsnerf.verify.sources import SOURCE_BUILDERS
 
     sigma_t, albedo = C.scenario_grids(s, quality.resolution)
@@ -78,7 +78,7 @@ def prepare_scenario(s: C.VolpathScenario, quality: C.Quality) -> PreparedScenar
     env = scene.environment()
     background = EnvmapBackground(env) if env is not None else None
     field = SOURCE_BUILDERS[s.source](s, sigma_t, albedo, scene, quality)
-    t_n, t_f = slab(o, d)
+    t_n, t_f, _ = UNIT_BOX.intersect_numpy(o, d)
     return PreparedScenario(s, quality, ref, field, background, (t_f - t_n).reshape(camera.height, camera.width))
 
 

@@ -221,11 +221,6 @@ class Family:
     mean_rejected: tuple[np.ndarray, ...]  # per test, boolean like its z_means
 
     @property
-    def z(self) -> np.ndarray:
-        """The first test's per-pixel z."""
-        return self.tests[0].z
-
-    @property
     def max_abs_z(self) -> float:
         return max(t.max_abs_z for t in self.tests)
 
@@ -242,6 +237,11 @@ class Family:
     @property
     def n_rejected(self) -> int:
         return int(sum(r.sum() for r in self.pixel_rejected))
+
+    @property
+    def n_rejected_all(self) -> int:
+        """Rejected tests of the whole family: pixels and channel means."""
+        return self.n_rejected + int(sum(r.sum() for r in self.mean_rejected))
 
     @property
     def n_pixel_tests(self) -> int:
