@@ -47,7 +47,7 @@ import numpy as np
 
 from mitsnerf import scoring
 from mitsnerf.data.dataset import Dataset
-from mitsnerf.data.images import read_image
+from mitsnerf.data.images import over, read_image
 from mitsnerf.errors import DatasetError
 from mitsnerf.math.box import Box
 from mitsnerf.math.color import srgb_to_linear
@@ -123,8 +123,7 @@ def _to_linear(path: Path, img: np.ndarray, background: np.ndarray | None, exr_a
     rgb = img[..., :3] if exr else srgb_to_linear(img[..., :3])
     if img.shape[2] != 4 or background is None or (exr and exr_alpha == "ignore"):  # no alpha, or alpha 1 everywhere
         return rgb
-    a = img[..., 3:4]
-    return (rgb if exr and exr_alpha == "premultiplied" else rgb * a) + background * (1.0 - a)
+    return over(rgb, img[..., 3:4], background, premultiplied=exr and exr_alpha == "premultiplied")
 
 
 def read_renders(dataset: Dataset, folder: Path, fmt: str | None = None, split: str = "test",
@@ -156,6 +155,7 @@ def read_renders(dataset: Dataset, folder: Path, fmt: str | None = None, split: 
 
 def read_density(path: Path, box: Box) -> np.ndarray:
     """A density grid ``(Z, Y, X)`` float32 over ``box`` from ``.npy`` or ``.vol`` (module docstring)."""
+    from mitsnerf.data.arrays import read_npy
     from mitsnerf.data.vol import read_vol
 
     path = Path(path)
@@ -168,12 +168,7 @@ def read_density(path: Path, box: Box) -> np.ndarray:
             raise DatasetError(path, "bbox", f"{[list(lo), list(hi)]} is not the dataset's box {box.to_list()}")
         grid = data[..., 0]
     elif suffix == ".npy":
-        try:
-            grid = np.load(path, allow_pickle=False)
-        except FileNotFoundError:
-            raise DatasetError(path, None, "no such file") from None
-        except (OSError, ValueError) as exc:
-            raise DatasetError(path, None, f"not a readable numpy array ({exc})") from None
+        grid = read_npy(path, "density grid")
         grid = grid[..., 0] if grid.ndim == 4 and grid.shape[3] == 1 else grid
     else:
         raise DatasetError(path, None, f"unsupported density format {suffix or '(no suffix)'!r}: .npy or .vol")

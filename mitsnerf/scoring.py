@@ -39,6 +39,7 @@ from typing import Any, Callable, Sequence
 
 import numpy as np
 
+from mitsnerf.data.images import over
 from mitsnerf.math.box import Box, optical_depth
 from mitsnerf.math.color import linear_to_srgb
 from mitsnerf.math.metrics import SSIM_WINDOW, density_error, psnr, ssim
@@ -174,15 +175,6 @@ def noise_floor(test: np.ndarray, ref: np.ndarray, masks: np.ndarray) -> dict[st
     }
 
 
-def composite(medium: np.ndarray, background: np.ndarray) -> np.ndarray:
-    """``M + (1 - alpha) B``: premultiplied RGBA ``medium`` (..., 4) over the radiance ``background`` (..., 3).
-
-    >>> composite(np.array([0.2, 0.1, 0.0, 0.25]), np.array([1.0, 1.0, 1.0])).tolist()
-    [0.95, 0.85, 0.75]
-    """
-    return medium[..., :3] + (1.0 - medium[..., 3:4]) * background
-
-
 def composite_agreement(full: np.ndarray, full_ref: np.ndarray, medium: np.ndarray, medium_ref: np.ndarray,
                         background: np.ndarray) -> dict[str, Any]:
     """Do the medium-alone renders, composited over the environment, reproduce the full images?
@@ -206,7 +198,7 @@ def composite_agreement(full: np.ndarray, full_ref: np.ndarray, medium: np.ndarr
         return np.asarray(x[..., :3], np.float64).sum(axis=-1)
 
     a, b = channels(full), channels(full_ref)
-    c1, c2 = channels(composite(medium, background)), channels(composite(medium_ref, background))
+    c1, c2 = channels(over(medium[..., :3], medium[..., 3:4], background)), channels(over(medium_ref[..., :3], medium_ref[..., 3:4], background))
     d = (a + b) / 2 - (c1 + c2) / 2
     w = ((a - b) ** 2 + (c1 - c2) ** 2) / 4
     total = float(w.sum())

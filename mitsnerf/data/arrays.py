@@ -30,7 +30,10 @@ _READ_ERRORS = (OSError, ValueError, EOFError, zipfile.BadZipFile, KeyError)
 
 def _problem(path: Path, exc: BaseException, kind: str) -> str:
     """Why ``path`` is not a ``kind`` file, in words a user can act on."""
-    head = path.read_bytes()[:8] if path.is_file() else b""
+    head = b""
+    if path.is_file():
+        with open(path, "rb") as f:
+            head = f.read(8)
     if kind == "npz" and not head.startswith(b"PK"):
         return "not a numpy .npz archive (truncated, or another kind of file)"
     if kind == "npy" and not head.startswith(b"\x93NUMPY"):

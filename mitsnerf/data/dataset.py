@@ -42,7 +42,7 @@ from typing import Any
 import numpy as np
 
 from mitsnerf.data.box import check_cameras_outside, resolve_box
-from mitsnerf.data.images import read_image
+from mitsnerf.data.images import over, read_image
 from mitsnerf.data.transforms import read_json, read_transforms
 from mitsnerf.errors import DatasetError
 from mitsnerf.math.box import Box
@@ -232,13 +232,12 @@ class Dataset:
         a = img[..., 3] if img.shape[2] == 4 else None
         if path.suffix.lower() == ".exr":
             if premultiplied and a is not None:
-                rgb = rgb + np.asarray(self.png_background, dtype=np.float32) * (1.0 - a[..., None])
+                rgb = over(rgb, a[..., None], np.asarray(self.png_background, dtype=np.float32))
             return rgb, a
         if self.color_space == "srgb":
             rgb = srgb_to_linear(rgb)
         if a is not None:
-            bg = np.asarray(self.png_background, dtype=np.float32)
-            rgb = rgb * a[..., None] + bg * (1.0 - a[..., None])
+            rgb = over(rgb, a[..., None], np.asarray(self.png_background, dtype=np.float32), premultiplied=False)
         return rgb, a
 
 

@@ -162,6 +162,18 @@ def write_png(path: str | os.PathLike, linear_image) -> None:
     atomic_write_bytes(path, buf.getvalue())
 
 
+def over(rgb: np.ndarray, alpha: np.ndarray, background, premultiplied: bool = True) -> np.ndarray:
+    """``rgb`` with ``alpha`` (..., 1) over the radiance ``background`` (broadcasting): premultiplied
+    ``rgb + (1 - a) B`` (OpenEXR's rule, mitsnerf's ``medium/`` views), or straight ``rgb a + (1 - a) B`` (PNG).
+
+    >>> over(np.array([0.2, 0.1, 0.0]), np.array([0.25]), np.array([1.0, 1.0, 1.0])).tolist()
+    [0.95, 0.85, 0.75]
+    >>> over(np.array([0.8, 0.4, 0.0]), np.array([0.25]), np.array([1.0, 1.0, 1.0]), premultiplied=False).tolist()
+    [0.95, 0.85, 0.75]
+    """
+    return (rgb if premultiplied else rgb * alpha) + background * (1.0 - alpha)
+
+
 def unpremultiply(rgba) -> np.ndarray:
     """Straight colour of a premultiplied RGBA image ``(..., 4)``: ``rgb / alpha`` where ``alpha > 0``, else 0.
 

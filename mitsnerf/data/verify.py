@@ -33,7 +33,6 @@ import numpy as np
 from mitsnerf.data.arrays import read_npy
 from mitsnerf.data.cache import sha256_file
 from mitsnerf.data.dataset import Dataset
-from mitsnerf.data.transforms import read_json
 from mitsnerf.errors import DatasetError
 
 REGENERATE = "regenerate it (mitsnerf generate SCENE --force)"
@@ -144,7 +143,7 @@ def check_views(dataset: Dataset) -> int:
         for i, image in enumerate(views.images if manifest else ()):
             problem = image_problem(image)
             if problem is not None:
-                raise DatasetError(tpath, f"frames[{i}]", f"image {read_json(tpath)['frames'][i]['file_path']}: {problem}")
+                raise DatasetError(tpath, f"frames[{i}]", f"image {views.names[i]}: {problem}")
         total += len(views)
     return total
 
