@@ -51,13 +51,13 @@ COST: tuple[Column, ...] = KEYS + (
     ("curve_eval_seconds", "curve eval s", 1),
     ("note", "note", 0),
 )
+_TO_TARGET = re.compile(r"seconds_to_(.+)db")
 BEST: dict[str, str] = {
     "psnr_test": "max", "psnr_test_medium": "max", "psnr_test_srgb": "max", "psnr_test_medium_srgb": "max",
     "ssim_test": "max", "ssim_test_srgb": "max", "psnr_train": "max",
     "density_rel_l1": "min", "density_rel_l2": "min", "density_psnr": "max", "tau_rel_l1": "min",
     "transmittance_mae": "min", "rays_per_s": "max", "samples_per_s": "max", "peak_rss_mb": "min",
-    "seconds_to_30db": "min", "seconds_to_35db": "min", "seconds_to_40db": "min",
-}
+}  # and "min" for every "seconds to X dB" column, whatever the config's targets (:func:`best_values`)
 LEGEND = (
     "PSNR/SSIM of the test views; lin: linear radiance clipped to [0, 1]; sRGB: the clipped values "
     "sRGB-encoded; medium: only pixels whose ray crosses the true medium. GT floor: PSNR between two "
@@ -103,14 +103,16 @@ def _cell_text(row: dict, key: str, digits: int) -> str:
 
 
 def best_values(rows: Sequence[dict], best: dict[str, str], group: str | None = None) -> dict[tuple[Any, str], Any]:
-    """``{(group value, key): best value}`` over rows with at least two numbers in the column."""
+    """``{(group value, key): best value}`` over rows with at least two numbers in the column; the
+    "seconds to X dB" columns found in ``rows`` are best at their minimum."""
     marks: dict[tuple[Any, str], Any] = {}
     groups: dict[Any, list[dict]] = {}
     for row in rows:
         groups.setdefault(row.get(group) if group else None, []).append(row)
+    to_target = {k: "min" for r in rows for k in r if _TO_TARGET.fullmatch(k)}
     for g, members in groups.items():
         members = [r for r in members if not r.get("ceiling")]
-        for key, how in best.items():
+        for key, how in {**to_target, **best}.items():
             values = [r[key] for r in members if _is_number(r.get(key))]
             if len(values) > 1:
                 marks[(g, key)] = max(values) if how == "max" else min(values)
@@ -227,9 +229,6 @@ def best_rules(records: Sequence[dict]) -> dict[str, str]:
     high-water mark carries the cells before it, so comparing them would mislead)."""
     fresh = all((r.get("worker") or {}).get("fresh_process") for r in records)
     return dict(BEST) if fresh else {k: v for k, v in BEST.items() if k != "peak_rss_mb"}
-
-
-_TO_TARGET = re.compile(r"seconds_to_(.+)db")
 
 
 def cost_columns(rows: Sequence[dict]) -> tuple[Column, ...]:

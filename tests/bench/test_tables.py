@@ -52,3 +52,12 @@ def test_peak_memory_is_marked_only_when_every_cell_had_a_fresh_process():
     fresh = [{"worker": {"fresh_process": True}}] * 2
     assert "peak_rss_mb" in best_rules(fresh)
     assert "peak_rss_mb" not in best_rules(fresh + [{"worker": {"fresh_process": False}}])
+
+
+def test_every_seconds_to_target_column_is_best_at_its_minimum():
+    from mitsnerf.bench.tables import BEST, best_values
+
+    rows = [{"scene": "a", "seconds_to_33db": 5.0, "seconds_to_40db": 9.0},
+            {"scene": "a", "seconds_to_33db": 2.0, "seconds_to_40db": 12.0}]
+    marks = best_values(rows, BEST, group="scene")
+    assert marks[("a", "seconds_to_33db")] == 2.0 and marks[("a", "seconds_to_40db")] == 9.0
