@@ -323,9 +323,9 @@ def cmd_export(args) -> int:
         from mitsnerf.errors import UsageError
 
         raise UsageError("--direction", "must not be 0 0 0")
-    check_output_dir(Path(args.out) if args.out else Path(args.run) / "export", "--out")
-    paths = export_run(Path(args.run), Path(args.out) if args.out else None, args.resolution,
-                       args.direction, args.directions)
+    out = Path(args.out) if args.out else Path(args.run) / "export"
+    check_output_dir(out, "--out")
+    paths = export_run(Path(args.run), out, args.resolution, args.direction, args.directions)
     print(f"{args.resolution}^3 medium -> {paths['sigma_t.vol'].parent} ({', '.join(paths)})")
     return 0
 
