@@ -38,12 +38,12 @@ def main() -> None:
     from mitsnerf.scoring import reference
 
     dataset = load_dataset(args.dataset)
+    masks = reference(dataset, "test").masks
     for spp, res, dres, n in itertools.product(args.spp, args.resolution, args.delta_resolution, args.n_samples):
         config = OracleConfig(spp=spp, resolution=res, delta_resolution=dres, n_samples=n,
                               noise_replicas=args.replicas)
         start = time.perf_counter()
         info, scores, arrays = compute_oracle(dataset, config, args.footprint)
-        masks = reference(dataset, "test").masks
         k1, kk = arrays["test_k1"], arrays[f"test_k{args.footprint}"]
         print(json.dumps({"config": info["config"], "footprint": args.footprint,
                           "psnr_medium": info["psnr_test_medium"],

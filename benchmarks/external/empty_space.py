@@ -36,8 +36,8 @@ def main() -> None:
     dataset = load_dataset(args.dataset)
     views = dataset.views("test")
     images, paths, _ = read_renders(dataset, Path(args.renders))
-    alpha = np.stack([read_image(p)[..., 3] for p in paths])
-    true_alpha = np.stack([read_image(Path(args.dataset) / "medium" / "test" / f"{n}.exr")[..., 3] for n in views.names])
+    alpha = np.stack([read_image(p)[..., 3] for p in paths])  # read_renders returns colour only
+    true_alpha = load_dataset(Path(args.dataset) / "medium").views("test").alpha  # the medium alone: 1 - T
     empty = true_alpha < args.empty
     se = np.sum((np.clip(images, 0, 1) - np.clip(views.images[..., :3], 0, 1)) ** 2, axis=-1)
     print(json.dumps({"renders": str(args.renders), "empty_fraction": float(empty.mean()),
