@@ -48,7 +48,7 @@ import numpy as np
 from mitsnerf import scoring
 from mitsnerf.data.dataset import Dataset
 from mitsnerf.data.images import over, read_image
-from mitsnerf.errors import DatasetError
+from mitsnerf.errors import DatasetError, UsageError
 from mitsnerf.math.box import Box
 from mitsnerf.math.color import srgb_to_linear
 
@@ -130,7 +130,7 @@ def read_renders(dataset: Dataset, folder: Path, fmt: str | None = None, split: 
                  exr_alpha: str = "premultiplied") -> tuple[np.ndarray, list[Path], str]:
     """The renders of ``split``'s views as linear RGB ``(V, H, W, 3)``, their files and the matching rule."""
     if exr_alpha not in EXR_ALPHA:
-        raise ValueError(f"--exr-alpha: must be one of {', '.join(EXR_ALPHA)}, got {exr_alpha!r}")
+        raise UsageError("--exr-alpha", f"must be one of {', '.join(EXR_ALPHA)}, got {exr_alpha!r}")
     from mitsnerf.render.background import make_background, pixel_background
 
     views = dataset.views(split)
@@ -229,9 +229,9 @@ def score_renders(dataset: Dataset, folder: Path, *, density: Path | None = None
     cell (:func:`mitsnerf.scoring.score_views`), with the oracle's at ``footprint`` (``oracle``, else
     :func:`read_oracle`'s) where there is one."""
     if fmt is not None and fmt not in FORMATS:
-        raise ValueError(f"--format: must be one of {', '.join(FORMATS)}, got {fmt!r}")
+        raise UsageError("--format", f"must be one of {', '.join(FORMATS)}, got {fmt!r}")
     if footprint < 1:
-        raise ValueError(f"--footprint: must be >= 1, got {footprint}")
+        raise UsageError("--footprint", f"must be >= 1, got {footprint}")
     folder = Path(folder)
     grid = read_density(density, dataset.box) if density is not None else None  # bad input before the work
     images, paths, rule = read_renders(dataset, folder, fmt, exr_alpha=exr_alpha)
