@@ -240,7 +240,7 @@ class NeRFModel(OccupancyModel):
         comp = composite(sigma, delta, rgb, n_f, background=background_radiance(scene.background, d), t=t)
         extra = {}
         if training and cfg.proposal_loss_weight > 0:
-            w_f, _ = weights(sigma, delta, n_f)
+            w_f, _ = weights(dr.detach(sigma), delta, n_f)  # the interlevel loss trains the proposal only
             loss = interlevel_loss(w_f, coarse_edges(t, t_exit, n_f), n_f, s_edges, w_p, n_p)
             extra["proposal"] = cfg.proposal_loss_weight * loss
         return RenderOutput(comp, extra)
