@@ -33,7 +33,7 @@ from mitsnerf.errors import DatasetError, OutputError
 from mitsnerf.evaluate import EvalConfig, render_views, stack_rgb
 from mitsnerf.math.box import Box
 from mitsnerf.methods import get_method
-from mitsnerf.methods.base import Model, SceneInfo, num_parameters
+from mitsnerf.methods.base import Model, ParameterShapeError, SceneInfo, num_parameters
 from mitsnerf.render.background import make_background
 from mitsnerf.render.camera import Rendered
 from mitsnerf.run_dir import RUN_FILES, remove_run_files
@@ -309,6 +309,15 @@ def resume_run(run_dir: Path, train_overrides: Mapping[str, Any] | None = None, 
                deterministic=bool(ckpt.config.get("deterministic")))
 
 
+def _written_by(run_dir: Path) -> str:
+    """`` (commit C)`` of the run's provenance in ``config.json``, or nothing."""
+    try:
+        commit = json.loads((run_dir / "config.json").read_text())["provenance"]["commit"]
+    except (OSError, ValueError, KeyError, TypeError):
+        return ""
+    return f" (commit {str(commit)[:12]})" if commit else ""
+
+
 def load_run(run_dir: Path) -> tuple[Model, Dataset, dict]:
     """A trained run back: ``(model, dataset, config)``, for ``mitsnerf render`` and ``export``.
 
@@ -339,6 +348,10 @@ def load_run(run_dir: Path) -> tuple[Model, Dataset, dict]:
     missing = sorted(set(current) - set(params))
     if missing:
         raise DatasetError(where, None, f"missing parameters {', '.join(missing)} of method {config['method']!r}")
-    model.set_parameters({k: type(current[k])(np.ascontiguousarray(params[k])) for k in current})
+    try:
+        model.set_parameters({k: type(current[k])(np.ascontiguousarray(params[k])) for k in current})
+    except ParameterShapeError as e:
+        raise DatasetError(where, e.key, f"{e} from the run's config: the run was written by another version of "
+                           f"method {config['method']!r}{_written_by(run_dir)}; retrain it") from None
     model.load_extra_state(extra)
     return model, dataset, config

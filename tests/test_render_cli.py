@@ -104,3 +104,20 @@ def test_training_errors_are_one_line_and_exit_non_zero(run_dir, monkeypatch, ca
     assert main(["train", config["dataset"], "--out", str(run_dir.parent / "never")]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert err == ["mitsnerf: error: step 7: loss became nan; stopped; last good checkpoint: RUN/checkpoint.npz (step 6)"]
+
+
+def test_a_run_whose_parameters_its_config_does_not_build_is_refused_in_one_line(run_dir, tmp_path, capsys):
+    """A run written by another version of the method (here: its config edited to take the view direction)."""
+    import shutil
+
+    old = tmp_path / "old-run"
+    shutil.copytree(run_dir, old)
+    (old / "checkpoint.npz").unlink()  # load from config.json + params.npz
+    config = json.loads((old / "config.json").read_text())
+    config["method_config"]["network"]["use_direction"] = True
+    (old / "config.json").write_text(json.dumps(config))
+    out = tmp_path / "renders"
+    assert main(["render", str(old), "--out", str(out)]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "params.npz: fine.head.0.weights: has shape" in err[0] and "retrain it" in err[0]
+    assert not out.exists()

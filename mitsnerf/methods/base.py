@@ -71,6 +71,24 @@ class RenderOutput:
         return self.composite.rgb
 
 
+class ParameterShapeError(ValueError):
+    """A parameter value whose shape is not the one the model's config builds (a run written by
+    another configuration or version of the method)."""
+
+    def __init__(self, key: str, got: tuple, want: tuple) -> None:
+        self.key, self.got, self.want = key, tuple(got), tuple(want)
+        super().__init__(f"has shape {self.got}, the method's config builds {self.want}")
+
+
+def check_shapes(current: Mapping[str, Any], values: Mapping[str, Any]) -> None:
+    """Raise :class:`ParameterShapeError` for the first of ``values`` not shaped as in ``current``
+    (``current``: the model's parameters by key; no doctest here: a second import of this module under
+    pytest's importlib mode would duplicate the model classes)."""
+    for key, value in values.items():
+        if tuple(value.shape) != tuple(current[key].shape):
+            raise ParameterShapeError(key, value.shape, current[key].shape)
+
+
 class Model(ABC):
     """A trainable scene representation (see the module docstring). Subclass one of the protocols."""
 
