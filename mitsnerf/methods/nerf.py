@@ -30,7 +30,8 @@ a ray only by the weight it would have had, which the grid bounds (``threshold``
 the early stop at ``early_stop_T``).
 
 NeRF used 64 + 128 samples and two 8 x 256 networks; the defaults keep the design at a CPU's
-size (a 2 x 32 coarse network on 32 samples, the 4 x 64 fine network on 64).
+size (a 2 x 32 coarse network on 32 samples, the 4 x 64 fine network on 64), and leave out the
+view direction (:mod:`mitsnerf.fields.nerf`: on the isotropic media generated here it cost 8 dB).
 """
 
 from __future__ import annotations
@@ -48,7 +49,7 @@ from mitsnerf.fields.occupancy import OccupancyConfig, eval_masked
 from mitsnerf.math.composite import composite, weights
 from mitsnerf.math.proposal import interlevel_loss
 from mitsnerf.math.sampling import deltas_from_sorted_t, merge_sorted_t, sample_pdf
-from mitsnerf.methods.base import RenderOutput, SceneInfo, cover_radiance
+from mitsnerf.methods.base import RenderOutput, SceneInfo, check_shapes, cover_radiance
 from mitsnerf.methods.occupancy import OccupancyModel
 from mitsnerf.render.volume import background_radiance, sample_rays
 
@@ -171,6 +172,8 @@ class NeRFModel(OccupancyModel):
         return self.networks
 
     def set_parameters(self, values: Mapping[str, Any]) -> None:
+        """New values of the networks' weights, each of the shape the config builds (the networks never change shape)."""
+        check_shapes(self.networks, values)
         self.networks.update(values)
 
     def samples_per_ray(self) -> int:

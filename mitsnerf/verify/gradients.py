@@ -107,7 +107,8 @@ def make_problem(case: GradientCase, quality: Quality) -> tuple[object, Callable
     if case.parameter == "color_grid":
         return mi.TensorXf(albedo_np), lambda theta: image_of(GridField.from_arrays(sigma_np, UNIT_BOX, color=theta))
     if case.parameter == "nerf_weights":
-        config = NeRFConfig(width=16, depth=3, skip=2, pos_octaves=3, dir_octaves=1, features=4, head_width=8)
+        config = NeRFConfig(width=16, depth=3, skip=2, pos_octaves=3, use_direction=True, dir_octaves=1, features=4,
+                            head_width=8)
         field = NeRFField.create(config, TensorXf, UNIT_BOX, seed=3)
         layer = field.net.trunk[0]
 

@@ -14,21 +14,42 @@ from mitsnerf.math.rays import RayBatch
 SMALL = NeRFConfig(width=32, depth=2, pos_octaves=6)
 
 
-def test_nerf_density_depends_on_position_only():
+def _colour_and_density_along_two_directions(network: NeRFConfig):
     info = SceneInfo(UNIT_BOX, ConstantBackground((0, 0, 0)), 1.0)
-    model = NeRFModel(NeRFMethodConfig(network=NeRFConfig(width=16, depth=2)), info)
+    model = NeRFModel(NeRFMethodConfig(network=network), info)
     x = mi.Array3f([0.1, 0.1], [0.2, 0.2], [-0.3, -0.3])
     d = mi.Array3f([1.0, 0.0], [0.0, 0.0], [0.0, 1.0])
     rgb, sigma = model.field()(x, d)
-    s = np.asarray(sigma)
+    return np.asarray(rgb.x), np.asarray(sigma)
+
+
+def test_nerf_density_depends_on_position_only_and_colour_on_the_direction_when_asked():
+    r, s = _colour_and_density_along_two_directions(NeRFConfig(width=16, depth=2, use_direction=True))
     assert s[0] == s[1]
-    assert not np.allclose(np.asarray(rgb.x)[0], np.asarray(rgb.x)[1])
+    assert not np.allclose(r[0], r[1])
 
 
-def test_the_default_is_nerfs_design():
+def test_without_the_direction_input_the_colour_is_the_same_from_every_direction():
+    r, s = _colour_and_density_along_two_directions(NeRFConfig(width=16, depth=2, use_direction=False))
+    assert s[0] == s[1] and r[0] == r[1]
+
+
+def test_the_direction_encoding_is_nerfs():
+    """``gamma((d + 1) / 2)`` at period 1 is ``sin(2^k pi d)`` up to sign (NeRF's encoding of d)."""
+    import drjit.nn as nn
+
+    d = np.linspace(-1.0, 1.0, 9, dtype=np.float32)
+    enc = nn.SinEncode(3)(mi.TensorXf(np.array([(d + 1) / 2], np.float32)))
+    got = np.asarray(enc)[[0, 2, 4], :]  # the sines of octaves 0, 1, 2
+    want = np.stack([np.sin(2.0**k * np.pi * d) for k in range(3)])
+    assert np.allclose(np.abs(got), np.abs(want), atol=1e-5)
+
+
+def test_the_default_is_nerfs_design_without_the_direction():
     config = NeRFMethodConfig()
     assert config.n_importance > 0 and config.coarse_network.width <= config.network.width
-    assert (config.network.pos_octaves, config.network.dir_octaves) == (10, 4)
+    assert (config.network.pos_octaves, config.network.use_direction) == (4, False)
+    assert config.network.dir_octaves == 4  # NeRF's, when use_direction is set
     assert config.network.skip is not None and config.network.skip < config.network.depth
 
 
@@ -171,3 +192,14 @@ def test_proposal_sampling_trains_the_fine_network_and_the_proposal(tiny_views):
     rays = RayBatch(*data.pixels.rays(mi.UInt32(np.arange(64, dtype=np.uint32)), mi.Float(0.5), mi.Float(0.5)))
     out = model.render_rays(rays.o, rays.d)
     assert not out.extra_losses and dr.all(dr.isfinite(out.rgb.x))
+
+
+def test_parameters_of_another_shape_are_refused_by_name():
+    from mitsnerf.methods.base import ParameterShapeError
+
+    info = SceneInfo(UNIT_BOX, ConstantBackground((0, 0, 0)), 1.0)
+    model = NeRFModel(NeRFMethodConfig(network=NeRFConfig(width=16, depth=2)), info)
+    wrong = dr.zeros(mi.TensorXf, (16, 3))
+    with pytest.raises(ParameterShapeError, match=r"has shape \(16, 3\), the method's config builds \(16, 27\)") as e:
+        model.set_parameters({"fine.trunk.0.weights": wrong})
+    assert e.value.key == "fine.trunk.0.weights"
