@@ -14,7 +14,8 @@ MSE against 4 smooth targets, backward and an Adam update (lr 1e-3) on the same 
 
 FLOPs per point are the peer's count, 3 x 2 x sum(d_i d_{i+1}) (forward, and twice that backward);
 the peak is measured as numpy's float32 matrix product of two 4096^2 matrices (the roof any MLP
-here can reach), and a nominal figure is printed from the core count, clock and SIMD width
+here can reach), and again on the network's own products at each batch (``layer_gemm_flops``: the
+thin shapes a BLAS runs slower), and a nominal figure is printed from the core count, clock and SIMD width
 (assuming two FMA units per core; stated as such).
 
 Set-up for the peer (a throw-away venv, once): ``python3 -m venv /tmp/jaxenv &&
@@ -55,6 +56,28 @@ def sgemm_flops(n: int = 4096, repeats: int = 5) -> float:
         a @ b
         times.append(time.perf_counter() - t0)
     return 2.0 * n**3 / float(np.median(times))
+
+
+def layer_gemm_flops(n: int, repeats: int = 5) -> float:
+    """numpy's float32 FLOP/s on this network's own products at batch ``n``: every layer's forward
+    ``W X`` and backward ``W^T dY``, ``dY X^T`` (channel-major shapes, ``DIMS``), the time summed.
+    What a BLAS reaches on these thin shapes (inner dimension 60-64) rather than on square ones."""
+    rng = np.random.default_rng(0)
+    total_flops, total_s = 0.0, 0.0
+    for c_in, c_out in zip(DIMS[:-1], DIMS[1:]):
+        w = rng.random((c_out, c_in), dtype=np.float32)
+        x = rng.random((c_in, n), dtype=np.float32)
+        dy = rng.random((c_out, n), dtype=np.float32)
+        for product in (lambda: w @ x, lambda: w.T @ dy, lambda: dy @ x.T):
+            product()
+            times = []
+            for _ in range(repeats):
+                t0 = time.perf_counter()
+                product()
+                times.append(time.perf_counter() - t0)
+            total_flops += 2.0 * c_in * c_out * n
+            total_s += float(np.median(times))
+    return total_flops / total_s
 
 
 def nominal_flops() -> tuple[float | None, str]:
@@ -156,8 +179,11 @@ def kernel_profile(step, steps: int) -> dict:
     history = dr.kernel_history()
     dr.set_flag(dr.JitFlag.KernelHistory, False)
     kernel_s = sum(k.get("execution_time", 0.0) for k in history) / 1e3 / steps
+    gemm = [k for k in history if k.get("type") == dr.KernelType.BatchedGemm]
+    gemm_s = sum(k.get("execution_time", 0.0) for k in gemm) / 1e3 / steps
     return {"wall_s": wall, "kernels_per_step": len(history) / steps, "kernel_s": kernel_s,
-            "kernel_fraction": kernel_s / wall, "other_s": wall - kernel_s}
+            "kernel_fraction": kernel_s / wall, "other_s": wall - kernel_s,
+            "gemm_tasks_per_step": len(gemm) / steps, "gemm_s": gemm_s, "gemm_fraction": gemm_s / wall}
 
 
 def point_major(n: int, steps: int) -> float:
@@ -233,11 +259,14 @@ def main() -> int:
     else:
         print(json.dumps({"impl": "jax", "skipped": f"no {args.jax_python}"}), flush=True)
     roof = None if args.no_peak else sgemm_flops()
+    layer_roof = {} if args.no_peak else {n: layer_gemm_flops(n) for n in {2**k for k in args.batch_log2}}
     nominal, how = nominal_flops()
     for (name, n), pts in ours.items():
         print(json.dumps({"summary": f"mitsnerf {name}", "batch": n, "pts_per_s": pts,
                           "ratio_to_jax": pts / peer[n] if n in peer else None,
                           "fraction_of_sgemm_roof": pts * fpp / roof if roof else None,
+                          "fraction_of_layer_gemm_roof": pts * fpp / layer_roof[n] if layer_roof else None,
+                          "layer_gemm_roof_gflops": layer_roof[n] / 1e9 if layer_roof else None,
                           "fraction_of_nominal_peak": pts * fpp / nominal if nominal else None}), flush=True)
     print(json.dumps({"flops_per_point": fpp, "sgemm_roof_gflops": roof / 1e9 if roof else None,
                       "nominal_peak_gflops": nominal / 1e9 if nominal else None, "nominal_rule": how}), flush=True)
