@@ -8,7 +8,8 @@ any emission-absorption model can do on the dataset):
 - ``baseline``: the default run;
 - ``clean views``: the same scene with noise-free-ish training views (``render.spp_train = 1024``
   instead of 64): what the training views' Monte Carlo noise costs;
-- ``finer``: a representation with twice the resolution (voxel grid 128^3; ngp's finest level 48):
+- ``finer``: a representation with twice the resolution (voxel grid 128^3; ngp's finest level 48;
+  nerf one more position octave, twice its finest frequency):
   what the representation's resolution costs;
 - ``less prior`` / ``more prior``: the regulariser 10x weaker / stronger (voxel's TV weights);
 - ``4x steps``: the optimisation budget;
@@ -39,6 +40,9 @@ def variant(method: str, name: str, settings: dict) -> dict | None:
         config.update(resolution=128, initial_resolution=32, upsample_steps=[150, 400])
     elif name == "finer" and method == "ngp":
         config["network"] = {**config.get("network", {}), "n_levels": 4, "max_resolution": 48}
+    elif name == "finer" and method == "nerf":
+        config["network"] = {**config.get("network", {}), "pos_octaves": 5}
+        config["coarse_network"] = {"width": 32, "depth": 2, **config.get("coarse_network", {}), "pos_octaves": 5}
     elif name in ("less prior", "more prior") and method == "voxel":
         f = 0.1 if name == "less prior" else 10.0
         config.update(tv_sigma=1e-3 * f, tv_sh=1e-3 * f)
