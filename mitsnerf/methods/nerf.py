@@ -126,6 +126,13 @@ def coarse_edges(t, t_f, n: int):
     return dr.select(last, tf, dr.gather(Float, dr.detach(t), ray * n + k, ~last))
 
 
+def _points(o, d, t, n: int):
+    """Sample points ``x = o + t d`` and their rays' directions (Array3f (R*n,)) of ``t`` (R*n,), n per ray."""
+    ray = dr.arange(dr.uint32_array_t(type(t)), dr.width(t)) // n
+    d_s = dr.gather(type(d), d, ray)
+    return dr.gather(type(o), o, ray) + t * d_s, d_s
+
+
 def importance_strata(n_rays: int, n: int, u, Float):
     """Increasing ``u_j = (j + xi_j) / n`` per ray for :func:`sample_pdf` (``xi = 1/2`` without jitter)."""
     UInt32 = dr.uint32_array_t(Float)
@@ -216,9 +223,7 @@ class NeRFModel(OccupancyModel):
         n = n_c + n_f
         t = merge_sorted_t(s.t, n_c, t_imp, n_f)
         delta = deltas_from_sorted_t(t, t_f, n)
-        ray = dr.arange(dr.uint32_array_t(Float), n_rays * n) // n
-        d_s = dr.gather(type(d), d, ray)
-        x = dr.gather(type(o), o, ray) + t * d_s
+        x, d_s = _points(o, d, t, n)
         rgb, sigma = self._evaluate(self.base_field, x, d_s, delta, n)
         comp = composite(sigma, delta, rgb, n, background=bg, t=t)
         return RenderOutput(comp, aux_rgb={"coarse": comp_c.rgb} if training else None)
@@ -236,9 +241,7 @@ class NeRFModel(OccupancyModel):
         s_edges = coarse_edges(s.t, t_exit, n_p)
         t = sample_pdf(s_edges, w_p, n_p, n_f, importance_strata(n_rays, n_f, u_f, Float))
         delta = deltas_from_sorted_t(t, t_exit, n_f)
-        ray = dr.arange(dr.uint32_array_t(Float), n_rays * n_f) // n_f
-        d_s = dr.gather(type(d), d, ray)
-        x = dr.gather(type(o), o, ray) + t * d_s
+        x, d_s = _points(o, d, t, n_f)
         rgb, sigma = self._evaluate(self.base_field, x, d_s, delta, n_f)
         comp = composite(sigma, delta, rgb, n_f, background=background_radiance(scene.background, d), t=t)
         extra = {}
