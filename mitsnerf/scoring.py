@@ -198,7 +198,10 @@ def composite_agreement(full: np.ndarray, full_ref: np.ndarray, medium: np.ndarr
         return np.asarray(x[..., :3], np.float64).sum(axis=-1)
 
     a, b = channels(full), channels(full_ref)
-    c1, c2 = channels(over(medium[..., :3], medium[..., 3:4], background)), channels(over(medium_ref[..., :3], medium_ref[..., 3:4], background))
+    def composited(rgba):
+        return channels(over(rgba[..., :3], rgba[..., 3:4], background))
+
+    c1, c2 = composited(medium), composited(medium_ref)
     d = (a + b) / 2 - (c1 + c2) / 2
     w = ((a - b) ** 2 + (c1 - c2) ** 2) / 4
     total = float(w.sum())

@@ -31,6 +31,7 @@ import numpy as np
 
 from mitsnerf.math.box import UNIT_BOX
 
+
 def sample_distances(t_n: np.ndarray, t_f: np.ndarray, n: int, quadrature: str = "seed") -> tuple[np.ndarray, np.ndarray]:
     """Stratum midpoints ``t`` (R, N) and interval lengths ``delta`` (R, N) of the rule ``quadrature``."""
     h = (t_f - t_n)[:, None] / n
