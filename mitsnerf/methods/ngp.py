@@ -19,7 +19,7 @@ import mitsuba as mi
 from mitsnerf.config import check_fields, param
 from mitsnerf.fields.ngp import NGPConfig, NGPField
 from mitsnerf.fields.occupancy import OccupancyConfig
-from mitsnerf.methods.base import RenderOutput, SceneInfo, cover_radiance
+from mitsnerf.methods.base import RenderOutput, SceneInfo, check_shapes, cover_radiance
 from mitsnerf.methods.occupancy import OccupancyModel
 
 
@@ -54,6 +54,8 @@ class NGPModel(OccupancyModel):
         return self.base_field.params
 
     def set_parameters(self, values: Mapping[str, Any]) -> None:
+        """New values of the field's parameters, each of the shape the config builds (they never change shape)."""
+        check_shapes(self.base_field.params, values)
         self.base_field.set_parameters(values)
 
     def render_rays(self, o, d, *, u=None, training: bool = False) -> RenderOutput:

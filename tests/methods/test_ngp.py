@@ -37,3 +37,18 @@ def test_registered_with_its_config():
     assert entry.config_type is NGPMethodConfig and entry.model_type is NGPModel
     with pytest.raises(ValueError, match="max_resolution"):
         NGPConfig(base_resolution=64, max_resolution=32)
+
+
+def test_parameters_of_another_shape_are_refused_by_name(tiny_views):
+    import drjit as dr
+    import mitsuba as mi
+
+    from mitsnerf.methods.base import ParameterShapeError
+
+    _, info = tiny_views()
+    model = NGPModel(NGPMethodConfig(), info)
+    key = next(k for k, v in model.parameters().items() if len(v.shape) == 2)
+    wrong = dr.zeros(mi.TensorXf, (model.parameters()[key].shape[0] + 1, model.parameters()[key].shape[1]))
+    with pytest.raises(ParameterShapeError, match="the method's config builds") as e:
+        model.set_parameters({key: wrong})
+    assert e.value.key == key
