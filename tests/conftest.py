@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import os
 import subprocess
 from pathlib import Path
 
@@ -37,6 +38,17 @@ def tiny_scene(overrides: dict | None = None) -> dict:
     from mitsnerf.config import apply_overrides
 
     return apply_overrides(TINY_SCENE, overrides or {})
+
+
+def child_pythonpath(repo: Path) -> str:
+    """PYTHONPATH for a child Python that must import ``repo``'s mitsnerf: ``repo`` first, then the
+    entries already set (an install by ``--target``, as scripts/offline_install.sh makes, stays reachable).
+
+    >>> child_pythonpath(Path("/r")).split(os.pathsep)[0]
+    '/r'
+    """
+    rest = [p for p in os.environ.get("PYTHONPATH", "").split(os.pathsep) if p]
+    return os.pathsep.join([str(repo), *rest])
 
 
 @pytest.fixture(scope="session")

@@ -4,7 +4,7 @@ Every ``import`` and ``from ... import`` in ``mitsnerf/`` counts, also those ins
 (a lazy import is still a dependency). Layers, lowest first: infrastructure; ``math`` (the
 floor: box, rays, sampling, compositing, metrics); ``volumes`` and ``data``; ``scene``;
 ``fields``; ``render``; ``scoring`` and the oracle; ``methods``; training and generation; ``run``; commands
-built on a run; ``verify`` and ``bench``; the CLI.
+built on a run; ``verify`` and ``bench``; the CLI (and ``python -m mitsnerf``).
 """
 
 from __future__ import annotations
@@ -27,7 +27,7 @@ LAYERS = (
     ("mitsnerf.run", "mitsnerf.run_dir"),
     ("mitsnerf.export", "mitsnerf.novel", "mitsnerf.external"),
     ("mitsnerf.verify", "mitsnerf.bench"),
-    ("mitsnerf.cli",),
+    ("mitsnerf.cli", "mitsnerf.__main__"),
 )
 ROOT = Path(mitsnerf.__file__).parent
 

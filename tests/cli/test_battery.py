@@ -26,6 +26,7 @@ import numpy as np
 import pytest
 
 from mitsnerf.cli import main
+from ..conftest import child_pythonpath
 
 
 def cli_args(argv: list[str], ctx) -> list[str]:
@@ -452,7 +453,7 @@ def test_unwritable_outputs_are_refused_before_any_work(world, tmp_path):
         p.chmod(0o555)
     try:
         prefix = ["setpriv", "--bounding-set", "-dac_override,-dac_read_search"] if os.geteuid() == 0 else []
-        env = {**os.environ, "PYTHONPATH": str(world.repo)}
+        env = {**os.environ, "PYTHONPATH": child_pythonpath(world.repo)}
         done = subprocess.run([*prefix, sys.executable, "-c", _CHILD, json.dumps(argvs)], env=env, capture_output=True,
                               text=True, timeout=120)
     finally:

@@ -21,6 +21,7 @@ import numpy as np
 import pytest
 
 from mitsnerf.cli import main
+from ..conftest import child_pythonpath
 
 REPO = Path(__file__).resolve().parents[2]
 
@@ -32,7 +33,7 @@ def fast(world) -> list[str]:
 
 
 def spawn(argv: list[str]) -> subprocess.Popen:
-    env = {**os.environ, "PYTHONPATH": str(REPO)}
+    env = {**os.environ, "PYTHONPATH": child_pythonpath(REPO)}
     return subprocess.Popen([sys.executable, "-m", "mitsnerf.cli", *argv], env=env, stdout=subprocess.PIPE,
                             stderr=subprocess.PIPE, text=True)
 
