@@ -1,27 +1,35 @@
 #!/usr/bin/env python3
-"""Network training throughput: mitsnerf's Dr.Jit MLPs against a JAX peer, and against this CPU's peak.
+"""Network training throughput: mitsnerf's Dr.Jit MLPs against JAX and PyTorch peers, and this CPU's peak.
 
-The problem (``mlp_problem.py``, shared with the peer): x in [0, 1)^3 -> [sin(2^k pi x), cos(2^k pi x)],
+The problem (``mlp_problem.py``, shared with the peers): x in [0, 1)^3 -> [sin(2^k pi x), cos(2^k pi x)],
 k < 10 (60 features) -> 2 hidden layers of 64, ReLU -> 4 outputs; one step is the encoding, forward,
 MSE against 4 smooth targets, backward and an Adam update (lr 1e-3) on the same synthetic batch
-(seed 0). The peer is ``jax_mlp_peer.py``, the same step in JAX (``jax.jit``). Two mitsnerf paths:
+(seed 0). The peers are ``jax_mlp_peer.py`` (``jax.jit``) and ``torch_mlp_peer.py`` (eager and
+``torch.compile``), each in its own Python. mitsnerf's paths (``--paths``):
 
 - ``channel-major``: ``drjit.nn.Sequential`` on (C, N) tensors (``SinEncode`` + ``Linear``), as the
   ``nerf`` field evaluates its network; the encoding's frequencies match the peer's (x / 2 in);
 - ``channel-major frozen``: the same step recorded by ``dr.freeze`` and replayed;
 - ``point-major``: ``mitsnerf.fields.mlp.dense_apply`` on (N, C) tensors (``X W + b``), as the
-  ``ngp`` field does; the encoding from ``dr.sin``/``dr.cos`` on each coordinate.
+  ``ngp`` field does; the encoding from ``dr.sin``/``dr.cos`` on each coordinate;
+- ``coopvec fp32`` / ``coopvec fp16``: the same ``Sequential`` on cooperative vectors (``nn.CoopVec``),
+  weights packed by ``nn.pack(layout="training")``; fp16 casts after the encoding. On CUDA these run
+  on the tensor cores; on the LLVM backend they are a reference path, about 3x slower than tensor mode.
 
 FLOPs per point are the peer's count, 3 x 2 x sum(d_i d_{i+1}) (forward, and twice that backward);
 the peak is measured as numpy's float32 matrix product of two 4096^2 matrices (the roof any MLP
 here can reach), and again on the network's own products at each batch (``layer_gemm_flops``: the
 thin shapes a BLAS runs slower), and a nominal figure is printed from the core count, clock and SIMD width
-(assuming two FMA units per core; stated as such).
+(assuming two FMA units per core; stated as such). On CUDA these CPU roofs mean nothing: pass ``--no-peak``.
 
-Set-up for the peer (a throw-away venv, once): ``python3 -m venv /tmp/jaxenv &&
-/tmp/jaxenv/bin/pip install "jax[cpu]==0.10.2"``. Run (only on an otherwise idle machine):
+Set-up for the peers on this CPU (throw-away venvs, once): ``python3 -m venv /tmp/jaxenv &&
+/tmp/jaxenv/bin/pip install "jax[cpu]==0.10.2"``; ``python3 -m venv /tmp/torchenv &&
+/tmp/torchenv/bin/pip install torch==2.13.0 numpy``. On a GPU machine whose Python has both, pass it
+to both flags. Run (only on an otherwise idle machine):
     .venv/bin/python benchmarks/throughput_mlp.py [--batch-log2 14 16 18] [--jax-python /tmp/jaxenv/bin/python]
-Prints one JSON line per (path, batch), the peer's lines, and a summary with the ratios.
+        [--torch-python /tmp/torchenv/bin/python] [--paths ...]
+Prints one JSON line per (path, batch), the peers' lines, and a summary with the ratios to each peer
+(to torch: its faster mode at that batch).
 """
 
 from __future__ import annotations
@@ -44,6 +52,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from mlp_problem import DIMS, FREQS, LR, batch, flops_per_point  # noqa: E402
 
 PEER = Path(__file__).resolve().parent / "jax_mlp_peer.py"
+TORCH_PEER = Path(__file__).resolve().parent / "torch_mlp_peer.py"
 
 
 def sgemm_flops(n: int = 4096, repeats: int = 5) -> float:
@@ -186,6 +195,48 @@ def kernel_profile(step, steps: int) -> dict:
             "gemm_tasks_per_step": len(gemm) / steps, "gemm_s": gemm_s, "gemm_fraction": gemm_s / wall}
 
 
+def coopvec_problem(n: int, half: bool):
+    """``(net, opt, xs, ts, Float)``: ``drjit.nn.Sequential`` on cooperative vectors (``nn.CoopVec``), its
+    weights packed in the training layout by ``nn.pack``; ``half``: fp16 weights and activations after the
+    encoding (``nn.Cast``), the loss in fp32. On CUDA the matrix-vector products run on the tensor cores."""
+    import drjit as dr
+    import drjit.nn as nn
+    import drjit.opt  # noqa: F401
+    import mitsuba as mi
+
+    Float16 = dr.float16_array_t(mi.Float)
+    cast = [nn.Cast(Float16)] if half else []
+    net = nn.Sequential(nn.SinEncode(FREQS), *cast, nn.Linear(-1, DIMS[1]), nn.ReLU(), nn.Linear(-1, DIMS[2]),
+                        nn.ReLU(), nn.Linear(-1, DIMS[3])).alloc(dr.tensor_t(Float16) if half else mi.TensorXf, 3,
+                                                                 dr.rng(seed=0))
+    packed = nn.pack(net, layout="training")
+    net = packed[-1] if isinstance(packed, tuple) else packed  # (buffer, module) in some drjit releases
+    xn, tn = batch(n)
+    xs = [mi.Float(np.ascontiguousarray(xn[:, c] / 2)) for c in range(3)]  # the peer's frequencies (x / 2 in)
+    ts = [mi.Float(np.ascontiguousarray(tn[:, c])) for c in range(DIMS[-1])]
+    opt = dr.opt.Adam(lr=LR)
+    opt.update(net)
+    return net, opt, xs, ts, mi.Float
+
+
+def coopvec(n: int, steps: int, half: bool) -> float:
+    """Median seconds per step of the cooperative-vector path (fp16 weights if ``half``)."""
+    import drjit as dr
+    import drjit.nn as nn
+
+    net, opt, xs, ts, Float = coopvec_problem(n, half)
+
+    def step() -> float:
+        net.update(opt)
+        out = net(nn.CoopVec(*xs))
+        loss = sum(dr.mean(dr.square(Float(o) - t)) for o, t in zip(out, ts)) / len(ts)
+        dr.backward(loss)
+        opt.step()
+        return loss.item()
+
+    return time_steps(step, steps)
+
+
 def point_major(n: int, steps: int) -> float:
     import drjit as dr
     import drjit.opt  # noqa: F401
@@ -217,53 +268,78 @@ def point_major(n: int, steps: int) -> float:
     return time_steps(step, steps)
 
 
-def run_peer(python: str, logs: list[int], steps: int) -> list[dict]:
-    cmd = [python, str(PEER), "--batch-log2", *map(str, logs), "--steps", str(steps)]
+PATHS = {
+    "channel-major": lambda n, s, p: channel_major(n, s, profile=p),
+    "channel-major frozen": lambda n, s, p: channel_major(n, s, frozen=True, profile=p),
+    "point-major": lambda n, s, p: point_major(n, s),
+    "coopvec fp32": lambda n, s, p: coopvec(n, s, half=False),
+    "coopvec fp16": lambda n, s, p: coopvec(n, s, half=True),
+}
+
+
+def run_peer(python: str, script: Path, logs: list[int], steps: int) -> list[dict]:
+    """The peer's JSON lines (its own Python, which need not have mitsnerf)."""
+    cmd = [python, str(script), "--batch-log2", *map(str, logs), "--steps", str(steps)]
     out = subprocess.run(cmd, capture_output=True, text=True, check=True).stdout
     return [json.loads(line) for line in out.splitlines() if line.startswith("{")]
+
+
+def peers(args) -> dict[str, dict[int, float]]:
+    """Each peer's best points/s per batch (``jax``; ``torch``: the faster of eager and compiled), its lines printed."""
+    best: dict[str, dict[int, float]] = {}
+    for name, python, script in (("jax", args.jax_python, PEER), ("torch", args.torch_python, TORCH_PEER)):
+        if not Path(python).exists():
+            print(json.dumps({"impl": name, "skipped": f"no {python}"}), flush=True)
+            continue
+        for line in run_peer(python, script, args.batch_log2, args.steps):
+            print(json.dumps(line), flush=True)
+            if "pts_per_s" in line:
+                batch_best = best.setdefault(name, {})
+                batch_best[int(line["batch"])] = max(batch_best.get(int(line["batch"]), 0.0), float(line["pts_per_s"]))
+    return best
+
+
+def ours(args, variant: str, fpp: int) -> dict[tuple[str, int], float]:
+    """mitsnerf's points/s per (path, batch), each line printed."""
+    import drjit as dr
+
+    measured: dict[tuple[str, int], float] = {}
+    for logn in args.batch_log2:
+        n = 2**logn
+        for name in args.paths:
+            profile: dict = {}
+            med = PATHS[name](n, args.steps, profile if args.profile else None)
+            measured[(name, n)] = n / med
+            print(json.dumps({"bench": "mlp", "impl": f"mitsnerf {name}", "batch": n, "dims": list(DIMS),
+                              "median_step_s": med, "pts_per_s": n / med, "gflops": fpp * n / med / 1e9,
+                              "threads": dr.thread_count(), "variant": variant,
+                              **({"profile": profile} if profile else {})}), flush=True)
+    return measured
 
 
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--batch-log2", type=int, nargs="+", default=[14, 16, 18])
     ap.add_argument("--steps", type=int, default=10, help="timed steps per batch size (after 2 warm-up steps)")
+    ap.add_argument("--paths", nargs="+", choices=list(PATHS), default=list(PATHS), help="mitsnerf's paths to time")
     ap.add_argument("--jax-python", default="/tmp/jaxenv/bin/python",
                     help="a Python with jax installed (skipped if missing)")
+    ap.add_argument("--torch-python", default="/tmp/torchenv/bin/python",
+                    help="a Python with torch installed (skipped if missing)")
     ap.add_argument("--no-peak", action="store_true", help="skip the numpy matmul roof (a few seconds)")
     ap.add_argument("--profile", action="store_true",
                     help="also the channel-major paths' kernels per step and time inside kernels (Dr.Jit's kernel history)")
     args = ap.parse_args()
     variant = env.set_variant()
-    import drjit as dr
-
     fpp = flops_per_point()
-    ours: dict[tuple[str, int], float] = {}
-    for logn in args.batch_log2:
-        n = 2**logn
-        paths = (("channel-major", lambda n, s, p: channel_major(n, s, profile=p)),
-                 ("channel-major frozen", lambda n, s, p: channel_major(n, s, frozen=True, profile=p)),
-                 ("point-major", lambda n, s, p: point_major(n, s)))
-        for name, fn in paths:
-            profile: dict = {}
-            med = fn(n, args.steps, profile if args.profile else None)
-            ours[(name, n)] = n / med
-            print(json.dumps({"bench": "mlp", "impl": f"mitsnerf {name}", "batch": n, "dims": list(DIMS),
-                              "median_step_s": med, "pts_per_s": n / med, "gflops": fpp * n / med / 1e9,
-                              "threads": dr.thread_count(), "variant": variant,
-                              **({"profile": profile} if profile else {})}), flush=True)
-    peer: dict[int, float] = {}
-    if Path(args.jax_python).exists():
-        for line in run_peer(args.jax_python, args.batch_log2, args.steps):
-            peer[int(line["batch"])] = float(line["pts_per_s"])
-            print(json.dumps(line), flush=True)
-    else:
-        print(json.dumps({"impl": "jax", "skipped": f"no {args.jax_python}"}), flush=True)
+    measured = ours(args, variant, fpp)
+    best = peers(args)
     roof = None if args.no_peak else sgemm_flops()
     layer_roof = {} if args.no_peak else {n: layer_gemm_flops(n) for n in {2**k for k in args.batch_log2}}
     nominal, how = nominal_flops()
-    for (name, n), pts in ours.items():
-        print(json.dumps({"summary": f"mitsnerf {name}", "batch": n, "pts_per_s": pts,
-                          "ratio_to_jax": pts / peer[n] if n in peer else None,
+    for (name, n), pts in measured.items():
+        ratios = {f"ratio_to_{peer}": pts / by_batch[n] if n in by_batch else None for peer, by_batch in best.items()}
+        print(json.dumps({"summary": f"mitsnerf {name}", "batch": n, "pts_per_s": pts, **ratios,
                           "fraction_of_sgemm_roof": pts * fpp / roof if roof else None,
                           "fraction_of_layer_gemm_roof": pts * fpp / layer_roof[n] if layer_roof else None,
                           "layer_gemm_roof_gflops": layer_roof[n] / 1e9 if layer_roof else None,
