@@ -5,6 +5,7 @@ name = "default"                 # default: the file's stem
 description = "..."
 scenes = ["cloud"]               # scene names or spec paths (relative to this file's folder), or "all"
 seeds = [0]
+scene = { "cameras.width" = 256 }  # dotted SceneSpec.with_overrides keys, for every scene (e.g. a paper-size version)
 train = { seconds = 240 }        # training settings shared by every method (TrainConfig keys)
 [eval]                           # EvalConfig: what is measured besides the final test PSNR
 curve_points = 8
@@ -143,6 +144,8 @@ class BenchConfig:
     scenes: tuple[str, ...] = param(doc='scene names or spec paths, or "all"')
     methods: tuple[MethodRun, ...] = param(doc='[[methods]] tables, or "all" (with [method_settings.NAME])')
     seeds: tuple[int, ...] = param((0,), lo=0, doc="training seeds; every cell runs once per seed")
+    scene: Mapping[str, Any] = param(default_factory=dict,
+                                     doc="dotted SceneSpec.with_overrides keys applied to every scene (before --quick's)")
     train: Mapping[str, Any] = param(default_factory=dict)
     """Training settings shared by every method (a method's own ``train`` wins)."""
     eval: EvalConfig = param(default_factory=EvalConfig, doc="what is measured besides the test PSNR")

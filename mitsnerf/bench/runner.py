@@ -123,20 +123,24 @@ def plan_cells(config: BenchConfig, options: BenchOptions) -> list[Cell]:
 
 
 def _scene_specs(config: BenchConfig, quick: bool) -> list:
-    """The benchmark's scene specs, with the quick profile's overrides (blamed on ``quick.scene.KEY``).
+    """The benchmark's scene specs, with the config's ``scene`` overrides, then (``quick``) the quick
+    profile's (each problem blamed on ``scene.KEY`` or ``quick.scene.KEY``).
 
     A spec given by a relative path is relative to the config file's folder, as external renders are.
     """
     from mitsnerf.scene.spec import is_spec_path, load_scene
 
+    layers = [("scene", config.scene)] + ([("quick.scene", config.quick.scene)] if quick else [])
     specs = []
     for name in config.scenes:
         spec = load_scene(config.base_dir / name if is_spec_path(name) else name)
-        if quick and config.quick.scene:
+        for where, overrides in layers:
+            if not overrides:
+                continue
             try:
-                spec = spec.with_overrides(config.quick.scene)
+                spec = spec.with_overrides(overrides)
             except SpecError as exc:
-                raise SpecError(config.source, f"quick.scene.{exc.field}" if exc.field else "quick.scene",
+                raise SpecError(config.source, f"{where}.{exc.field}" if exc.field else where,
                                 f"{exc.message} (scene {name})") from None
         specs.append(spec)
     names = [s.name for s in specs]

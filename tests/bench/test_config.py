@@ -27,7 +27,7 @@ def test_the_shipped_configs_load_and_plan(tmp_path):
             assert len(cells) == len(config.scenes) * len(config.methods) * len(config.seeds)
 
 
-@pytest.mark.parametrize("name", ["default", "full", "targets"])
+@pytest.mark.parametrize("name", ["default", "full", "targets", "paper"])
 def test_shipped_budgets_are_steps(name):
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
@@ -138,6 +138,8 @@ BAD_BENCH = [  # (raw config, quick, field, message); every error names benchmar
      "quick.scene.cameras.width", "must be an integer in [1, 8192], got 0 (scene cloud)"),
     ({"scenes": ["cloud"], "methods": NERF, "quick": {"scene": {"lights.5.radiance": [1, 1, 1]}}}, True,
      "quick.scene.lights.5.radiance", "no item '5' (there are 2) (scene cloud)"),
+    ({"scenes": ["cloud"], "methods": NERF, "scene": {"cameras.n_train": 0}}, False,
+     "scene.cameras.n_train", "must be an integer in [1, 10000], got 0 (scene cloud)"),
     ({"scenes": ["cloud"], "methods": NERF, "quick": {"eval": {"curve_pionts": 1}}}, True, "quick.eval.curve_pionts",
      "unknown field (did you mean 'curve_points'?)"),
     ({"scenes": ["cloud"], "methods": "all", "method_settings": {"nerf": {"config": {"n_samples": 0}}}}, False,
@@ -152,6 +154,28 @@ def test_bench_errors_name_the_bench_file_and_the_field(tmp_path, raw, quick, fi
     with pytest.raises(SpecError) as info:
         _plan(raw, quick=quick, tmp=tmp_path)
     assert (info.value.where, info.value.field, info.value.message) == ("benchmarks/x.toml", field, message)
+
+
+def test_scene_overrides_apply_to_every_scene_and_quick_goes_over_them(tmp_path):
+    raw = {"scenes": ["cloud", "plume"], "methods": NERF, "scene": {"cameras.width": 40, "cameras.height": 30},
+           "quick": {"scene": {"cameras.width": 16}}}
+    full = {c.scene: c.spec["cameras"] for c in _plan(raw, tmp=tmp_path)}
+    quick = {c.scene: c.spec["cameras"] for c in _plan(raw, quick=True, tmp=tmp_path)}
+    assert sorted(full) == ["cloud", "plume"]
+    assert {(c["width"], c["height"]) for c in full.values()} == {(40, 30)}
+    assert {(c["width"], c["height"]) for c in quick.values()} == {(16, 30)}
+
+
+def test_paper_is_sized_like_the_fields_benchmarks(tmp_path):
+    """At least 3 library scenes, 256x256 or more, 100 train views, every method, step budgets."""
+    config = load_bench_config("paper")
+    options = BenchOptions(data_root=tmp_path, results_root=tmp_path, code_version="t")
+    specs = {c.scene: c.spec for c in plan_cells(config, options)}
+    assert len(specs) >= 3 and set(specs) <= set(list_scenes())
+    for spec in specs.values():
+        assert min(spec["cameras"]["width"], spec["cameras"]["height"]) >= 256 and spec["cameras"]["n_train"] == 100
+        assert spec["render"]["noise_floor"] and spec["render"]["spp_test"] >= 2048
+    assert sorted(m.name for m in config.methods) == sorted(METHODS)
 
 
 def test_an_undecodable_or_empty_bench_file_is_named(tmp_path, capsys):
