@@ -340,7 +340,7 @@ Use it in Mitsuba (gridvolume maps [0, 1]^3 onto the box; here the unit box [-0.
 default-scale dataset; for another box: translate(box_min).scale(box_max - box_min) for the grids,
 translate(centre).scale(size / 2) for the cube):
 
-  grid = lambda f: {"type": "gridvolume", "filename": "OUT/" + f,
+  grid = lambda f: {"type": "gridvolume", "filename": "OUT/" + f, "accel": False,   # full precision on CUDA too
                     "to_world": mi.ScalarTransform4f().translate(-0.5)}
   scene = mi.load_dict({"type": "scene", "integrator": {"type": "volpath"},
       "medium_box": {"type": "cube", "to_world": mi.ScalarTransform4f().scale(0.5),

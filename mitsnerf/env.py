@@ -81,6 +81,23 @@ def default_variant(environ: dict[str, str] | None = None) -> str:
     return "cuda_ad_rgb" if cuda_device_count() > 0 else "llvm_ad_rgb"
 
 
+def usable_variants() -> tuple[str, ...]:
+    """The supported variants this machine can run, in :data:`SUPPORTED_VARIANTS` order: each one's
+    Mitsuba module is installed (a wheel trimmed to some variants lacks the others) and its Dr.Jit
+    backend is available (a libLLVM >= 16 for ``llvm_ad_rgb``, a CUDA device for ``cuda_ad_rgb``).
+
+    >>> "llvm_ad_rgb" in usable_variants() or "cuda_ad_rgb" in usable_variants()
+    True
+    """
+    import importlib.util
+
+    import drjit as dr
+
+    backend = {"llvm_ad_rgb": dr.JitBackend.LLVM, "cuda_ad_rgb": dr.JitBackend.CUDA}
+    return tuple(v for v in SUPPORTED_VARIANTS
+                 if importlib.util.find_spec(f"mitsuba.{v}") is not None and dr.has_backend(backend[v]))
+
+
 def set_variant(variant: str | None = None) -> str:
     """Select the Mitsuba variant (``None``: :func:`default_variant`) and return its name."""
     import mitsuba as mi

@@ -35,7 +35,7 @@ and ``hi``; below the unit box ``[-0.5, 0.5]^3`` of mitsnerf's own scenes)::
     import mitsuba as mi
     mi.set_variant("llvm_ad_rgb")
     lo, hi = [-0.5] * 3, [0.5] * 3
-    grid = lambda name: {"type": "gridvolume", "filename": f"OUT/{name}",
+    grid = lambda name: {"type": "gridvolume", "filename": f"OUT/{name}", "accel": False,  # no fp16 interpolation on CUDA
                          "to_world": mi.ScalarTransform4f().translate(lo).scale([b - a for a, b in zip(lo, hi)])}
     scene = mi.load_dict({
         "type": "scene",

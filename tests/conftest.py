@@ -19,6 +19,16 @@ def variant() -> str:
     return env.set_variant()
 
 
+@pytest.fixture(params=env.usable_variants())
+def each_variant(request, variant) -> str:
+    """A variant-dependent test runs once on each variant this machine can run (both on a machine
+    with a GPU, ``llvm_ad_rgb`` alone on a CPU); the session's variant is restored after it."""
+    try:
+        yield env.set_variant(request.param)
+    finally:
+        env.set_variant(variant)
+
+
 TINY_SCENE = {
     "name": "tiny",
     "description": "a 16^3 cloud, 8x8 views",

@@ -15,7 +15,7 @@ from mitsnerf.render.march import march_rays
 from mitsnerf.render.volume import render_rays
 
 
-def test_march_equals_render_rays_on_a_grid_field(blob_grid):
+def test_march_equals_render_rays_on_a_grid_field(blob_grid, each_variant):
     rng = np.random.default_rng(1)
     colour = rng.uniform(0.1, 1.0, (*blob_grid.shape, 3)).astype(np.float32)
     box = Box((-0.7, -0.5, -0.4), (0.6, 0.5, 0.6))  # not the unit box: the march maps the box it is given

@@ -22,7 +22,7 @@ def test_box_intersection_clips_rays_and_marks_misses():
     assert list(np.asarray(hit)) == [True, True, False, True]
 
 
-def test_homogeneous_box_through_the_renderer_matches_beer_lambert():
+def test_homogeneous_box_through_the_renderer_matches_beer_lambert(each_variant):
     # sigma = 3 everywhere in the box; rays along z through the box have L = 1, diagonal ones longer.
     sigma = 3.0
     field = GridField.from_arrays(np.full((4, 4, 4), sigma, np.float32), UNIT_BOX, color=(1.0, 1.0, 1.0))
@@ -42,7 +42,7 @@ def test_rays_missing_the_box_see_exactly_the_background():
     assert _np(out.opacity)[0] == 0.0
 
 
-def test_midpoint_quadrature_error_is_first_order(blob_grid):
+def test_midpoint_quadrature_error_is_first_order(blob_grid, each_variant):
     # The stratified quadrature covers [t_0, t_f]; with midpoints its optical-depth error is
     # -(h/2) sigma_t(t_f) (half an interval missing at the exit), so the error of the rendered
     # opacity of a homogeneous medium falls as 1/N: halving when N doubles.

@@ -7,7 +7,7 @@ from mitsnerf.verify.closed_form import EXPECTED_ORDERS, convergence, run_closed
 from mitsnerf.verify.mutations import MUTATIONS, planted
 
 
-def test_the_quadrature_meets_every_closed_form():
+def test_the_quadrature_meets_every_closed_form(each_variant):
     r = run_closed_form(C.CLOSED_FORM)
     assert r.passed, r.failures
     assert r.max_rel_error < C.CLOSED_FORM.rtol / 5  # the tolerance is float32 round-off, not slack
@@ -23,7 +23,7 @@ def test_first_order_error_is_half_the_exit_density_times_h_and_the_midpoint_rul
 
 
 @pytest.mark.parametrize("mutation", C.CLOSED_FORM.detects)
-def test_mutations_are_detected(mutation):
+def test_mutations_are_detected(mutation, each_variant):
     with planted(MUTATIONS[mutation]):
         r = run_closed_form(C.CLOSED_FORM)
     assert not r.passed

@@ -11,7 +11,7 @@ CASES = {g.name: g for g in C.GRADIENT_CASES}
 
 
 @pytest.mark.parametrize("name", list(CASES))
-def test_reverse_and_forward_mode_match_finite_differences(name):
+def test_reverse_and_forward_mode_match_finite_differences(name, each_variant):
     r = check_gradients(CASES[name], QUALITY)
     assert r.passed, r.failures
     # Forward mode and reverse mode agree with each other far more tightly than with FD, and the
@@ -21,7 +21,7 @@ def test_reverse_and_forward_mode_match_finite_differences(name):
 
 
 @pytest.mark.parametrize("name,mutation", [(g.name, m) for g in C.GRADIENT_CASES for m in g.detects])
-def test_gradient_mutations_are_detected(name, mutation):
+def test_gradient_mutations_are_detected(name, mutation, each_variant):
     with planted(MUTATIONS[mutation]):
         r = check_gradients(CASES[name], QUALITY)
     assert not r.passed

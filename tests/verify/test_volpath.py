@@ -1,7 +1,8 @@
 """The integrator against Mitsuba's volpath on the same rays, and the planted bugs it must catch.
 
-The volpath references are rendered once per module (quick quality: 12x12 pixels,
-4096-16384 spp).
+The volpath references are rendered once per module and variant (quick quality: 12x12 pixels,
+4096-16384 spp); every test that compares with them runs on each variant the machine can run
+(``each_variant``: both, where a GPU is there).
 """
 
 import dataclasses
@@ -23,8 +24,16 @@ SCENARIOS = {s.name: s for s in C.SCENARIOS}
 
 
 @pytest.fixture(scope="module")
-def prepared():
-    return {name: prepare_scenario(s, QUALITY) for name, s in SCENARIOS.items()}
+def prepared_by_variant() -> dict:
+    return {}
+
+
+@pytest.fixture
+def prepared(each_variant, prepared_by_variant):
+    """The scenarios with their volpath references, rendered on ``each_variant`` (once per module)."""
+    if each_variant not in prepared_by_variant:
+        prepared_by_variant[each_variant] = {name: prepare_scenario(s, QUALITY) for name, s in SCENARIOS.items()}
+    return prepared_by_variant[each_variant]
 
 
 @pytest.mark.parametrize("name", list(SCENARIOS))
@@ -87,13 +96,13 @@ def test_volpath_max_depth_2_is_single_scattering_and_3_is_not(prepared):
     assert ref3.mean.sum() > p.reference.mean.sum()
 
 
-def test_mitsuba_furnace_is_one_and_sees_the_energy_volpath_loses_at_finite_depth():
+def test_mitsuba_furnace_is_one_and_sees_the_energy_volpath_loses_at_finite_depth(each_variant):
     assert mitsuba_furnace(C.MITSUBA_FURNACE, QUALITY).family.passed
     outcome = mitsuba_furnace(dataclasses.replace(C.MITSUBA_FURNACE, max_depth=6), QUALITY)
     assert not outcome.family.passed and outcome.family.z_mean > 0  # 1 is brighter than volpath
 
 
-def test_grids_are_laid_out_as_mitsuba_reads_them():
+def test_grids_are_laid_out_as_mitsuba_reads_them(each_variant):
     # A medium that is dense only in the +x half: Mitsuba's gridvolume (to_world translate(-0.5)
     # over the cube scale(0.5)) must see it there too. One ray each side, 256 spp, albedo 0.
     r = 8
