@@ -21,11 +21,14 @@ direction octaves, 32.0 with 2, 36.2 with the raw direction, 36.9 without any, a
 it at 4 position octaves. ``use_direction = true`` (``dir_octaves = 4``: NeRF's) stays for
 anisotropic media and foreign data. ``ngp`` made the same choice (SH degree 0).
 
-Tensor mode (a (C, M) tensor through ``nn.Linear``'s weights and biases) is used: on the
-LLVM backend it measured about 3x faster than cooperative vectors (fp32 ``nn.pack``: 0.3 M
-against 0.87 M points/s training this network's size on the 2-core CPU).
-The layers are evaluated by :func:`linear`, not ``nn.Linear.__call__``, so that their bias
-gradients are summed in a fixed order (training runs are reproducible bit for bit).
+Two ways to evaluate the same parameters (``network_path``): tensor mode, a (C, M) tensor through
+``nn.Linear``'s weights and biases, and ``drjit.nn`` cooperative vectors, the weights packed by
+``nn.pack`` on every pass (fp32, or fp16 copies for the tensor cores). ``auto`` takes tensor mode on
+the LLVM backend, where it measured 4-5x faster than cooperative vectors (benchmarks/README.md,
+"Cooperative vectors and a PyTorch peer"), and fp16 cooperative vectors on CUDA. In tensor mode the
+layers are evaluated by :func:`linear`, not ``nn.Linear.__call__``, so that their bias gradients are
+summed in a fixed order (training runs are reproducible bit for bit); cooperative vectors accumulate
+their gradients in their own order.
 """
 
 from __future__ import annotations
@@ -39,6 +42,27 @@ import drjit.nn as nn
 from mitsnerf.config import check_fields, param
 from mitsnerf.math.activations import sigmoid, softplus
 from mitsnerf.math.box import Box
+
+
+NETWORK_PATHS = ("auto", "tensor", "coopvec-fp32", "coopvec-fp16")
+
+
+def network_path(requested: str, TensorXf) -> str:
+    """The path ``requested`` (a :data:`NETWORK_PATHS` entry) resolves to on ``TensorXf``'s backend.
+
+    ``auto`` is ``tensor`` on the LLVM backend (measured 4-5x faster than cooperative vectors in fp32
+    on the 2-core CPU, and fp16 slower again: benchmarks/README.md) and ``coopvec-fp16`` on CUDA, where
+    Dr.Jit maps fp16 cooperative vectors onto the tensor cores (Dr.Jit's documentation; the GPU issue
+    measures it).
+
+    >>> import mitsuba as mi
+    >>> from mitsnerf.env import set_variant; _ = set_variant("llvm_ad_rgb")
+    >>> network_path("auto", mi.TensorXf), network_path("coopvec-fp32", mi.TensorXf)
+    ('tensor', 'coopvec-fp32')
+    """
+    if requested != "auto":
+        return requested
+    return "coopvec-fp16" if dr.backend_v(TensorXf) == dr.JitBackend.CUDA else "tensor"
 
 
 @dataclass(frozen=True)
@@ -69,6 +93,11 @@ class NeRFConfig:
     """Initial bias of the density pre-activation (starts nearly transparent)."""
     c_max: float = param(1.0, lo=0.0, lo_open=True)
     """Largest colour (radiance) the head can output."""
+    network_path: str = param("auto", choices=NETWORK_PATHS)
+    """How the layers are evaluated: ``tensor`` ((C, M) tensors and matrix products), ``coopvec-fp32`` /
+    ``coopvec-fp16`` (``drjit.nn`` cooperative vectors, the weights packed each pass; on CUDA they run
+    on the tensor cores), or ``auto``: :func:`network_path` of the backend. The parameters are the same
+    fp32 tensors on every path, so a run trained on one renders on another."""
 
     def __post_init__(self) -> None:
         check_fields(self)
@@ -193,36 +222,104 @@ class NeRFField:
         """A field of a freshly initialised network; ``head=False``: density only (:meth:`density`)."""
         return cls(config, build_network(config, TensorXf, seed, head), box)
 
-    def _tensor(self, v, width: int):
-        """A (3, width) tensor of an Array3f (broadcast to ``width``)."""
+    def _ops(self, width: int):
+        """The layer operations of this field's :func:`network_path`, for ``width`` points."""
         TensorXf = type(self.net.out.weights)
-        if dr.width(v) != width:
-            v = v + dr.zeros(type(v), width)
-        return TensorXf(dr.ravel(v, order="C"), shape=(3, width))
+        path = network_path(self.config.network_path, TensorXf)
+        return _TensorOps(TensorXf, width) if path == "tensor" else _CoopOps(TensorXf, half=path == "coopvec-fp16")
 
-    def _trunk(self, x):
-        p = self.box.to_unit(x)
-        enc = _encode(self._tensor(p, dr.width(x)), self.config.pos_octaves)
+    def _trunk(self, ops, x):
+        enc = ops.encode(self.box.to_unit(x), self.config.pos_octaves)
+        *trunk, out = ops.layers(self.net.trunk + [self.net.out])
         h = enc
-        for i, layer in enumerate(self.net.trunk):
+        for i, layer in enumerate(trunk):
             if self.config.skip and i == self.config.skip:
-                h = dr.concat([h, enc], axis=0)
-            h = dr.maximum(linear(layer, h), 0.0)
-        return linear(self.net.out, h)
+                h = ops.concat(h, enc)
+            h = dr.maximum(layer(h), 0.0)
+        return out(h)
 
     def density(self, x):
         """``sigma(x)``, Float (M,)."""
-        raw = self._trunk(x)[0].array
-        return softplus(raw) * self.config.sigma_scale
+        ops = self._ops(dr.width(x))
+        return softplus(ops.first(self._trunk(ops, x))) * self.config.sigma_scale
 
     def __call__(self, x, d):
-        out = self._trunk(x)
-        sigma = softplus(out[0].array) * self.config.sigma_scale
-        h = out[1:]
+        ops = self._ops(dr.width(x))
+        out = self._trunk(ops, x)
+        sigma = softplus(ops.first(out)) * self.config.sigma_scale
+        h = ops.rest(out)
         if self.config.use_direction:
-            enc_d = _encode(self._tensor(dr.fma(d, 0.5, 0.5), dr.width(x)), self.config.dir_octaves)
-            h = dr.concat([h, enc_d], axis=0)
-        h = dr.maximum(linear(self.net.head[0], h), 0.0)
-        c = sigmoid(linear(self.net.head[1], h)) * self.config.c_max
-        Array3f = type(x)
-        return Array3f(c[0].array, c[1].array, c[2].array), sigma
+            h = ops.concat(h, ops.encode(dr.fma(d, 0.5, 0.5), self.config.dir_octaves))
+        head_1, head_2 = ops.layers(self.net.head)
+        c = ops.rows(head_2(dr.maximum(head_1(h), 0.0)))
+        return type(x)(*(sigmoid(c_k) * self.config.c_max for c_k in c)), sigma
+
+
+class _TensorOps:
+    """The network on (C, M) tensors: each layer by :func:`linear` (fixed-order bias gradients)."""
+
+    def __init__(self, TensorXf, width: int) -> None:
+        self.TensorXf, self.width = TensorXf, width
+
+    def encode(self, v, octaves: int):
+        """:func:`_encode` of an Array3f ``v`` (broadcast to the width) as a (3 (1 + 2L), M) tensor."""
+        if dr.width(v) != self.width:
+            v = v + dr.zeros(type(v), self.width)
+        return _encode(self.TensorXf(dr.ravel(v, order="C"), shape=(3, self.width)), octaves)
+
+    def concat(self, a, b):
+        return dr.concat([a, b], axis=0)
+
+    def layers(self, layers):
+        return [lambda h, layer=layer: linear(layer, h) for layer in layers]
+
+    def rows(self, out):
+        """The rows of a (C, M) tensor, C Floats."""
+        return [out[k].array for k in range(out.shape[0])]
+
+    def first(self, out):
+        return out[0].array
+
+    def rest(self, out):
+        return out[1:]
+
+
+class _CoopOps:
+    """The network on ``drjit.nn`` cooperative vectors, the layers' fp32 weights packed each pass by
+    ``nn.pack`` (fp16 copies if ``half``): the gradients flow back through the packing to them."""
+
+    def __init__(self, TensorXf, half: bool) -> None:
+        Float = dr.leaf_t(TensorXf)
+        self.Float, self.half = Float, half
+        self.Half = dr.float16_array_t(Float)
+
+    def encode(self, v, octaves: int):
+        """``[v, sin(2 pi 2^k v), cos(2 pi 2^k v)]_{k < L}`` as a cooperative vector (:func:`_encode`'s order)."""
+        cv = nn.CoopVec(v.x, v.y, v.z)
+        if octaves:
+            cv = nn.CoopVec(*cv, *nn.SinEncode(octaves)(cv))
+        return nn.cast(cv, self.Half) if self.half else cv
+
+    def concat(self, a, b):
+        return nn.CoopVec(*a, *b)
+
+    def layers(self, layers):
+        """``nn.matvec`` of each layer on packed views of its weights and bias.
+
+        Inside ``dr.suspend_grad()`` the tensors are detached first: drjit 1.5 aborts the process when
+        ``nn.pack`` meets tensors whose gradients are enabled but suspended (the occupancy grid's update).
+        """
+        Tensor = dr.tensor_t(self.Half) if self.half else None
+        tensors = [t if dr.grad_enabled(t) else dr.detach(t) for layer in layers for t in (layer.weights, layer.bias)]
+        tensors = [t if Tensor is None else Tensor(t) for t in tensors]
+        views = nn.pack(*tensors, layout="training")
+        return [lambda h, w=w, b=b: nn.matvec(w, h, b) for w, b in zip(views[0::2], views[1::2])]
+
+    def rows(self, out):
+        return [self.Float(v) for v in out]
+
+    def first(self, out):
+        return self.Float(next(iter(out)))
+
+    def rest(self, out):
+        return nn.CoopVec(*list(out)[1:])

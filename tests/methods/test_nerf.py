@@ -65,6 +65,28 @@ def test_single_pass_training_lowers_the_loss(tiny_views):
     assert result.samples_per_s == pytest.approx(result.rays_per_s * 24)
 
 
+def test_training_on_cooperative_vectors_follows_tensor_mode_and_its_weights_render_on_either(tiny_views):
+    """The same seed and batches on both paths: the fp32 losses agree to round-off growing over the steps,
+    and the trained parameters, shared by the paths, render the same image on each."""
+    import dataclasses
+
+    data, info = tiny_views()
+    losses, models = {}, {}
+    for path in ("tensor", "coopvec-fp32"):
+        config = NeRFMethodConfig.single_pass(16, network=dataclasses.replace(SMALL, network_path=path))
+        models[path] = NeRFModel(config, info)
+        result, _ = train(models[path], data, TrainConfig(steps=30, batch_rays=128, log_every=10), 2e-2, progress=False)
+        losses[path] = [h["loss"] for h in result.history]
+    np.testing.assert_allclose(losses["coopvec-fp32"], losses["tensor"], rtol=1e-3)
+    assert losses["tensor"][-1] < 0.7 * losses["tensor"][0]
+    x, d = mi.Array3f([0.1, -0.2], [0.0, 0.1], [0.05, 0.2]), mi.Array3f(0.0, 0.0, 1.0)
+    trained = models["coopvec-fp32"].field()
+    other = models["tensor"]
+    other.set_parameters(dict(models["coopvec-fp32"].parameters().items()))
+    for a, b in zip((*trained(x, d)[0], trained(x, d)[1]), (*other.field()(x, d)[0], other.field()(x, d)[1])):
+        np.testing.assert_allclose(np.asarray(b), np.asarray(a), rtol=1e-5, atol=1e-6)
+
+
 def test_hierarchical_training_lowers_both_losses(tiny_views):
     data, info = tiny_views()
     config = NeRFMethodConfig(network=SMALL, coarse_network=NeRFConfig(width=16, depth=1, pos_octaves=4),
