@@ -1,0 +1,56 @@
+#!/usr/bin/env bash
+# mitsnerf on a CUDA machine with no package index: install, test, measure, in steps that each fit a
+# 10-minute command. Run from the checkout's root, with the wheelhouse of scripts/offline_wheels.py:
+#
+#   bash scripts/gpu_check.sh WHEELHOUSE OUTDIR STEP [STEP ...]
+#
+# Steps (each writes OUTDIR/STEP.log, and JSON lines where a benchmark prints them):
+#   install     scripts/offline_install.sh into /tmp/mitsnerf-site, nvidia-smi, the versions
+#   tests       the suite on cuda_ad_rgb (the variant-dependent tests also on llvm_ad_rgb where it runs)
+#   groundtruth volpath samples/s through mitsnerf generate against raw Mitsuba (256x256, 4 views, 256 spp)
+#   integrator  the integrator's samples/s forward and backward (256x256 views, N = 64, 128, 256)
+#   mlp         the NeRF MLP: tensor mode, cooperative vectors fp32/fp16, JAX and PyTorch (this Python)
+#   paper       mitsnerf bench paper (ground truth cached in ./data between calls on a warm machine)
+#
+# install must have run on this machine first (it is idempotent). Nothing here reaches a network.
+set -uo pipefail
+WHEELS=${1:?usage: gpu_check.sh WHEELHOUSE OUTDIR STEP [STEP ...]}
+OUT=${2:?usage: gpu_check.sh WHEELHOUSE OUTDIR STEP [STEP ...]}
+shift 2
+SITE=/tmp/mitsnerf-site
+PYTHON=${PYTHON:-python3}
+mkdir -p "$OUT"
+export PYTHONPATH="$PWD:$SITE" PYTHONUNBUFFERED=1 MITSNERF_VARIANT=${MITSNERF_VARIANT:-cuda_ad_rgb}
+
+run() {  # run STEP COMMAND...: log to OUT/STEP.log, say how it ended and how long it took
+    local step=$1; shift
+    local t0=$SECONDS
+    "$@" > "$OUT/$step.log" 2>&1
+    local rc=$?
+    echo "$step: exit $rc, $((SECONDS - t0)) s" | tee -a "$OUT/summary.txt"
+    tail -n 5 "$OUT/$step.log"
+    return $rc
+}
+
+status=0
+for step in "$@"; do
+    case $step in
+        install)
+            run install bash -c "nvidia-smi; PYTHON=$PYTHON bash scripts/offline_install.sh '$WHEELS' '$SITE'" ;;
+        tests)
+            run tests "$PYTHON" -m pytest -q -m "not slow" -p no:cacheprovider ;;
+        groundtruth)
+            run groundtruth "$PYTHON" benchmarks/throughput_groundtruth.py --scene cloud --views 4 --size 256 --spp 256 ;;
+        integrator)
+            run integrator "$PYTHON" benchmarks/throughput_integrator.py --scene cloud --size 256 --views 8 --samples 64 128 256 ;;
+        mlp)
+            run mlp "$PYTHON" benchmarks/throughput_mlp.py --batch-log2 14 16 18 20 --no-peak \
+                --jax-python "$(command -v "$PYTHON")" --torch-python "$(command -v "$PYTHON")" ;;
+        paper)
+            run paper "$PYTHON" -m mitsnerf bench paper --no-progress --data data --results "$OUT/results" ;;
+        *)
+            echo "gpu_check: unknown step '$step' (install, tests, groundtruth, integrator, mlp, paper)" >&2
+            exit 2 ;;
+    esac || status=1
+done
+exit $status
