@@ -1,4 +1,5 @@
-"""Small fully connected networks on point-major tensors: ``Y = X W + b`` with X of shape (M, C).
+"""Small fully connected networks on point-major tensors: ``Y = X W + b`` with X of shape (M, C),
+and the choice of how a field evaluates its network (:func:`network_path`).
 
 ``drjit.nn.Linear`` evaluates ``W X`` on channel-major (C, M) tensors. On the LLVM
 backend the point-major product ``X W`` measured 2-4x faster for the narrow layers
@@ -13,6 +14,68 @@ from __future__ import annotations
 import sys
 
 import drjit as dr
+import drjit.nn as nn
+
+NETWORK_PATHS = ("auto", "tensor", "coopvec-fp32", "coopvec-fp16")
+"""How a field evaluates its layers: on tensors (its own layout), on ``drjit.nn`` cooperative vectors
+in fp32 or fp16 (on CUDA, the tensor cores), or ``auto`` (:func:`network_path`)."""
+
+
+def network_path(requested: str, TensorXf) -> str:
+    """The path ``requested`` (a :data:`NETWORK_PATHS` entry) resolves to on ``TensorXf``'s backend.
+
+    ``auto`` is ``tensor`` on the LLVM backend (measured 3-5x faster than cooperative vectors in fp32
+    on the 2-core CPU, and fp16 slower again: benchmarks/README.md) and ``coopvec-fp16`` on CUDA, where
+    Dr.Jit maps fp16 cooperative vectors onto the tensor cores (Dr.Jit's documentation; the GPU issue
+    measures it).
+
+    >>> import mitsuba as mi
+    >>> from mitsnerf.env import set_variant; _ = set_variant("llvm_ad_rgb")
+    >>> network_path("auto", mi.TensorXf), network_path("coopvec-fp32", mi.TensorXf)
+    ('tensor', 'coopvec-fp32')
+    """
+    if requested != "auto":
+        return requested
+    return "coopvec-fp16" if dr.backend_v(TensorXf) == dr.JitBackend.CUDA else "tensor"
+
+
+def pack_layers(tensors, half: bool) -> list:
+    """Views of fp32 weight and bias ``tensors`` packed (``nn.pack``, training layout) for ``nn.matvec``;
+    ``half``: of fp16 copies. Gradients flow back through the packing to the fp32 tensors.
+
+    Inside ``dr.suspend_grad()`` the tensors are detached first: drjit 1.5 aborts the process when
+    ``nn.pack`` meets tensors whose gradients are enabled but suspended (an occupancy grid's update).
+    """
+    tensors = [t if dr.grad_enabled(t) else dr.detach(t) for t in tensors]
+    if half:
+        Half = dr.tensor_t(dr.float16_array_t(dr.leaf_t(type(tensors[0]))))
+        tensors = [Half(t) for t in tensors]
+    return list(nn.pack(*tensors, layout="training"))
+
+
+def dense_apply_coop(params, prefix: str, n_layers: int, x, half: bool = False):
+    """:func:`dense_apply` on a cooperative vector ``x`` (``nn.CoopVec`` of C_in Floats) -> C_out Floats.
+
+    The same (C_in, C_out) weights, packed each call (:func:`pack_layers`) and applied transposed
+    (``nn.matvec(W, x, b, transpose=True)`` is ``W^T x + b``, one point's ``x W + b``); ReLU between
+    layers; ``half``: in fp16, the outputs cast back to fp32.
+
+    >>> import mitsuba as mi
+    >>> from mitsnerf.env import set_variant; _ = set_variant("llvm_ad_rgb")
+    >>> p = dense_init([3, 8, 2], mi.TensorXf, dr.rng(seed=0))
+    >>> len(dense_apply_coop(p, "", 2, nn.CoopVec(mi.Float(0, 1), mi.Float(1, 2), mi.Float(2, 3))))
+    2
+    """
+    names = [f"{prefix}{i}.{kind}" for i in range(n_layers) for kind in ("weights", "bias")]
+    views = pack_layers([params[n] for n in names], half)
+    if half:
+        x = nn.cast(x, dr.float16_array_t(type(next(iter(x)))))
+    for i in range(n_layers):
+        x = nn.matvec(views[2 * i], x, views[2 * i + 1], transpose=True)
+        if i + 1 < n_layers:
+            x = dr.maximum(x, 0.0)
+    Float = dr.float32_array_t(type(next(iter(x))))
+    return [Float(v) for v in x]
 
 
 def dense_init(sizes, TensorXf, rng, prefix: str = "") -> dict:

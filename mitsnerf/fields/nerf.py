@@ -40,29 +40,9 @@ import drjit as dr
 import drjit.nn as nn
 
 from mitsnerf.config import check_fields, param
+from mitsnerf.fields.mlp import NETWORK_PATHS, network_path, pack_layers
 from mitsnerf.math.activations import sigmoid, softplus
 from mitsnerf.math.box import Box
-
-
-NETWORK_PATHS = ("auto", "tensor", "coopvec-fp32", "coopvec-fp16")
-
-
-def network_path(requested: str, TensorXf) -> str:
-    """The path ``requested`` (a :data:`NETWORK_PATHS` entry) resolves to on ``TensorXf``'s backend.
-
-    ``auto`` is ``tensor`` on the LLVM backend (measured 4-5x faster than cooperative vectors in fp32
-    on the 2-core CPU, and fp16 slower again: benchmarks/README.md) and ``coopvec-fp16`` on CUDA, where
-    Dr.Jit maps fp16 cooperative vectors onto the tensor cores (Dr.Jit's documentation; the GPU issue
-    measures it).
-
-    >>> import mitsuba as mi
-    >>> from mitsnerf.env import set_variant; _ = set_variant("llvm_ad_rgb")
-    >>> network_path("auto", mi.TensorXf), network_path("coopvec-fp32", mi.TensorXf)
-    ('tensor', 'coopvec-fp32')
-    """
-    if requested != "auto":
-        return requested
-    return "coopvec-fp16" if dr.backend_v(TensorXf) == dr.JitBackend.CUDA else "tensor"
 
 
 @dataclass(frozen=True)
@@ -304,15 +284,8 @@ class _CoopOps:
         return nn.CoopVec(*a, *b)
 
     def layers(self, layers):
-        """``nn.matvec`` of each layer on packed views of its weights and bias.
-
-        Inside ``dr.suspend_grad()`` the tensors are detached first: drjit 1.5 aborts the process when
-        ``nn.pack`` meets tensors whose gradients are enabled but suspended (the occupancy grid's update).
-        """
-        Tensor = dr.tensor_t(self.Half) if self.half else None
-        tensors = [t if dr.grad_enabled(t) else dr.detach(t) for layer in layers for t in (layer.weights, layer.bias)]
-        tensors = [t if Tensor is None else Tensor(t) for t in tensors]
-        views = nn.pack(*tensors, layout="training")
+        """``nn.matvec`` of each layer on packed views of its weights and bias (:func:`pack_layers`)."""
+        views = pack_layers([t for layer in layers for t in (layer.weights, layer.bias)], self.half)
         return [lambda h, w=w, b=b: nn.matvec(w, h, b) for w, b in zip(views[0::2], views[1::2])]
 
     def rows(self, out):

@@ -26,7 +26,8 @@ phase function, so their exact emission ``albedo * J(x)`` does not depend on the
 direction; ``sh_degree`` 1-3 remain for anisotropic media or foreign data.
 
 The MLPs are point-major tensor products (:mod:`mitsnerf.fields.mlp`), the fastest
-path measured on the LLVM backend. The hash table is one flat Float array kept by the
+path measured on the LLVM backend, or ``drjit.nn`` cooperative vectors on the same parameters
+(``network_path``; ``auto``: tensors on LLVM, fp16 cooperative vectors on CUDA). The hash table is one flat Float array kept by the
 field (``encoding.data``), apart from the MLPs: ``drjit.nn`` does not pack it.
 Its size matters on this CPU: forward + backward of 16 levels measured 10 ms per
 2^16 points with 2^15 entries per level, 80 ms with 2^16 (the scattered
@@ -43,7 +44,7 @@ import drjit as dr
 import drjit.nn as nn
 
 from mitsnerf.config import check_fields, param
-from mitsnerf.fields.mlp import column, dense_apply, dense_init, rows_tensor
+from mitsnerf.fields.mlp import NETWORK_PATHS, column, dense_apply, dense_apply_coop, dense_init, network_path, rows_tensor
 from mitsnerf.fields.sh import MAX_DEGREE, num_coefficients, sh_basis
 from mitsnerf.math.activations import sigmoid
 from mitsnerf.math.box import Box
@@ -88,6 +89,9 @@ class NGPConfig:
     """Largest colour (radiance) the colour MLP can output."""
     init_scale: float = param(1e-4, lo=0.0, lo_open=True)
     """Hash-table entries start uniform in ``+-init_scale``."""
+    network_path: str = param("auto", choices=NETWORK_PATHS)
+    """How the MLPs are evaluated (:func:`mitsnerf.fields.mlp.network_path`): point-major tensors or
+    cooperative vectors (fp32, fp16), on the same parameters; ``auto`` by the backend."""
 
     def __post_init__(self) -> None:
         check_fields(self)
@@ -153,26 +157,41 @@ class NGPField:
 
     # -- evaluation ----------------------------------------------------------------
 
+    def _coop_half(self) -> bool | None:
+        """None on the tensor path; on cooperative vectors, whether in fp16."""
+        path = network_path(self.config.network_path, self.TensorXf)
+        return None if path == "tensor" else path == "coopvec-fp16"
+
+    def _features(self, x):
+        """The hash-grid encoding of ``x``: n_levels * features_per_level Floats."""
+        return self.encoding(dr.clip(self.box.to_unit(x), 0.0, 1.0))
+
     def _density_mlp(self, x):
-        """(M, 1 + geo_features): the density pre-activation and the geometry features."""
-        p = dr.clip(self.box.to_unit(x), 0.0, 1.0)
-        return dense_apply(self.params, "density.", 2, rows_tensor(self.TensorXf, self.encoding(p), dr.width(x)))
+        """(M, 1 + geo_features): the density pre-activation and the geometry features (tensor path)."""
+        return dense_apply(self.params, "density.", 2, rows_tensor(self.TensorXf, self._features(x), dr.width(x)))
 
     def _sigma(self, raw):
         return dr.exp(dr.minimum(raw + self.config.sigma_bias, SIGMA_RAW_MAX))
 
     def density(self, x):
         """``sigma(x)``, Float (M,)."""
+        half = self._coop_half()
+        if half is not None:
+            return self._sigma(dense_apply_coop(self.params, "density.", 2, nn.CoopVec(*self._features(x)), half)[0])
         return self._sigma(column(self._density_mlp(x), 0))
 
     def __call__(self, x, d):
         width = dr.width(x)
-        out = self._density_mlp(x)
-        sigma = self._sigma(column(out, 0))
         if dr.width(d) != width:
             d = d + dr.zeros(type(d), width)
-        sh = rows_tensor(self.TensorXf, sh_basis(d, self.config.sh_degree), width)
+        sh = sh_basis(d, self.config.sh_degree)
         n_color = self.config.color_layers + 1
-        c = sigmoid(dense_apply(self.params, "color.", n_color, dr.concat([out[:, 1:], sh], axis=1))) * self.config.c_max
-        Array3f = type(x)
-        return Array3f(column(c, 0), column(c, 1), column(c, 2)), sigma
+        half = self._coop_half()
+        if half is not None:
+            out = dense_apply_coop(self.params, "density.", 2, nn.CoopVec(*self._features(x)), half)
+            c = dense_apply_coop(self.params, "color.", n_color, nn.CoopVec(*out[1:], *sh), half)
+            return type(x)(*(sigmoid(c_k) * self.config.c_max for c_k in c)), self._sigma(out[0])
+        out = self._density_mlp(x)
+        sh_rows = rows_tensor(self.TensorXf, sh, width)
+        c = sigmoid(dense_apply(self.params, "color.", n_color, dr.concat([out[:, 1:], sh_rows], axis=1))) * self.config.c_max
+        return type(x)(column(c, 0), column(c, 1), column(c, 2)), self._sigma(column(out, 0))

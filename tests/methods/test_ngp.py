@@ -25,6 +25,22 @@ def test_training_lowers_the_loss_and_the_occupancy_grid_skips_empty_space(tiny_
     assert state["occupancy.rho"].shape == (16**3,)
 
 
+def test_training_on_cooperative_vectors_follows_the_tensor_path(tiny_views):
+    """The same seed and batches through the occupancy grid's updates: fp32 losses agree to round-off."""
+    import dataclasses
+
+    data, info = tiny_views()
+    losses = {}
+    for path in ("tensor", "coopvec-fp32"):
+        config = NGPMethodConfig(network=dataclasses.replace(TINY, network_path=path),
+                                 occupancy=OccupancyConfig(resolution=16, update_every=10), n_samples=16)
+        result, _ = train(NGPModel(config, info), data, TrainConfig(steps=30, batch_rays=128, log_every=10), 2e-2,
+                          progress=False)
+        losses[path] = [h["loss"] for h in result.history]
+    np.testing.assert_allclose(losses["coopvec-fp32"], losses["tensor"], rtol=1e-3)
+    assert losses["tensor"][-1] < 0.7 * losses["tensor"][0]
+
+
 def test_without_occupancy_every_sample_is_evaluated(tiny_views):
     data, info = tiny_views(n_views=2, size=6)
     model = NGPModel(NGPMethodConfig(network=TINY, use_occupancy=False, n_samples=8), info)

@@ -1,4 +1,5 @@
-"""The NeRF field's network paths: tensor mode and cooperative vectors evaluate the same parameters.
+"""The fields' network paths: tensor mode and cooperative vectors evaluate the same parameters
+(``nerf``'s channel-major network, ``ngp``'s point-major MLPs behind the hash grid).
 
 fp32 cooperative vectors compute the same products in another summation order, so values and
 gradients agree to float32 round-off (1e-5 relative); fp16 rounds weights and activations to 11
@@ -15,7 +16,9 @@ import mitsuba as mi
 import numpy as np
 import pytest
 
-from mitsnerf.fields.nerf import NeRFConfig, NeRFField, _CoopOps, network_path
+from mitsnerf.fields.mlp import network_path
+from mitsnerf.fields.nerf import NeRFConfig, NeRFField, _CoopOps
+from mitsnerf.fields.ngp import NGPConfig, NGPField
 from mitsnerf.math.box import UNIT_BOX
 
 CONFIG = NeRFConfig(width=16, depth=3, skip=1, features=5, head_width=8, pos_octaves=2, use_direction=True,
@@ -30,10 +33,22 @@ def _points(m: int = 257):
     return mi.Array3f(*x), mi.Array3f(*d)
 
 
-def _evaluate(path: str):
-    """``(rgb, sigma, gradient of a weighted sum with respect to every parameter)`` on ``path``."""
+NGP = NGPConfig(n_levels=4, max_resolution=32, hidden=16, geo_features=5, color_hidden=8, sh_degree=1,
+                init_scale=0.5)
+
+
+def _field(path: str, kind: str = "nerf"):
+    """A seeded field of ``kind`` on ``path`` and its parameters by key."""
+    if kind == "ngp":
+        field = NGPField(dataclasses.replace(NGP, network_path=path), mi.TensorXf, UNIT_BOX, seed=4)
+        return field, field.params
     field = NeRFField.create(dataclasses.replace(CONFIG, network_path=path), mi.TensorXf, UNIT_BOX, seed=4)
-    params = dict(field.net.items())
+    return field, dict(field.net.items())
+
+
+def _evaluate(path: str, kind: str = "nerf"):
+    """``(rgb, sigma, gradient of a weighted sum with respect to every parameter, density)`` on ``path``."""
+    field, params = _field(path, kind)
     dr.enable_grad(*params.values())
     x, d = _points()
     rgb, sigma = field(x, d)
@@ -42,27 +57,29 @@ def _evaluate(path: str):
     return np.array(rgb), np.array(sigma), grads, np.array(field.density(x))
 
 
-def _compare(path: str, rtol: float, atol: float, grad_tol: float) -> None:
-    rgb, sigma, grads, density = _evaluate("tensor")
-    rgb_c, sigma_c, grads_c, density_c = _evaluate(path)
+def _compare(path: str, rtol: float, atol: float, grad_tol: float, kind: str = "nerf") -> None:
+    rgb, sigma, grads, density = _evaluate("tensor", kind)
+    rgb_c, sigma_c, grads_c, density_c = _evaluate(path, kind)
     np.testing.assert_allclose(rgb_c, rgb, rtol=rtol, atol=atol)
     np.testing.assert_allclose(sigma_c, sigma, rtol=rtol, atol=atol)
     np.testing.assert_allclose(density_c, density, rtol=rtol, atol=atol)
-    assert grads_c.keys() == grads.keys() and len(grads) == 2 * (CONFIG.depth + 3)
+    n_params = 2 * (CONFIG.depth + 3) if kind == "nerf" else 1 + 2 * (2 + NGP.color_layers + 1)
+    assert grads_c.keys() == grads.keys() and len(grads) == n_params
     for key, g in grads.items():
         scale = np.abs(g).max()
         assert scale > 0, key  # every parameter is reached, on both paths
         np.testing.assert_allclose(grads_c[key], g, rtol=0, atol=grad_tol * scale, err_msg=key)
 
 
-# Measured: fp32 values and gradients within 7e-7 of tensor mode (relative to the largest); fp16
+# Measured (nerf; ngp closer): fp32 values and gradients within 7e-7 of tensor mode (relative to the largest); fp16
 # sigma within 4e-3, colours within 2e-4, gradients within 4.6% of each parameter's largest.
 TOLERANCES = {"coopvec-fp32": (1e-5, 1e-6, 1e-5), "coopvec-fp16": (2e-2, 5e-3, 0.1)}
 
 
+@pytest.mark.parametrize("kind", ["nerf", "ngp"])
 @pytest.mark.parametrize("path", list(TOLERANCES))
-def test_cooperative_vectors_compute_what_tensor_mode_computes(path):
-    _compare(path, *TOLERANCES[path])
+def test_cooperative_vectors_compute_what_tensor_mode_computes(path, kind):
+    _compare(path, *TOLERANCES[path], kind=kind)
 
 
 def test_the_comparison_fails_when_the_cooperative_encoding_is_out_of_order(monkeypatch):
@@ -88,14 +105,15 @@ def test_an_unknown_path_is_refused_by_name():
         NeRFConfig(network_path="cuda")
 
 
+@pytest.mark.parametrize("kind", ["nerf", "ngp"])
 @pytest.mark.parametrize("path", list(TOLERANCES))
-def test_cooperative_vectors_evaluate_under_suspended_gradients(path):
+def test_cooperative_vectors_evaluate_under_suspended_gradients(path, kind):
     # The occupancy grid evaluates the density of a network in training inside dr.suspend_grad(),
     # where drjit 1.5 aborts the process if nn.pack meets tensors whose gradients are enabled.
-    field = NeRFField.create(dataclasses.replace(CONFIG, network_path=path), mi.TensorXf, UNIT_BOX, seed=4)
-    dr.enable_grad(*dict(field.net.items()).values())
+    field, params = _field(path, kind)
+    dr.enable_grad(*params.values())
     x, _ = _points(9)
     with dr.suspend_grad():
         sigma = field.density(x)
-    reference = NeRFField(dataclasses.replace(CONFIG, network_path="tensor"), field.net, UNIT_BOX).density(x)
+        reference = _field("tensor", kind)[0].density(x)
     np.testing.assert_allclose(np.asarray(sigma), np.asarray(reference), rtol=TOLERANCES[path][0], atol=TOLERANCES[path][1])
