@@ -14,7 +14,7 @@ MSE against 4 smooth targets, backward and an Adam update (lr 1e-3) on the same 
   ``ngp`` field does; the encoding from ``dr.sin``/``dr.cos`` on each coordinate;
 - ``coopvec fp32`` / ``coopvec fp16``: the same ``Sequential`` on cooperative vectors (``nn.CoopVec``),
   weights packed by ``nn.pack(layout="training")``; fp16 casts after the encoding. On CUDA these run
-  on the tensor cores; on the LLVM backend they are a reference path, about 3x slower than tensor mode.
+  on the tensor cores; on the LLVM backend they are a reference path, 4-5x slower than tensor mode.
 
 FLOPs per point are the peer's count, 3 x 2 x sum(d_i d_{i+1}) (forward, and twice that backward);
 the peak is measured as numpy's float32 matrix product of two 4096^2 matrices (the roof any MLP
@@ -290,6 +290,9 @@ def peers(args) -> dict[str, dict[int, float]]:
     for name, python, script in (("jax", args.jax_python, PEER), ("torch", args.torch_python, TORCH_PEER)):
         if not Path(python).exists():
             print(json.dumps({"impl": name, "skipped": f"no {python}"}), flush=True)
+            continue
+        if subprocess.run([python, "-c", f"import {name}"], capture_output=True).returncode != 0:
+            print(json.dumps({"impl": name, "skipped": f"{python} cannot import {name}"}), flush=True)
             continue
         for line in run_peer(python, script, args.batch_log2, args.steps):
             print(json.dumps(line), flush=True)

@@ -4,7 +4,7 @@ Importing the package first makes drjit safe to load: it points
 ``DRJIT_LIBLLVM_PATH`` at a libLLVM >= 16, or raises
 :class:`mitsnerf._llvm.LLVMError` with the fix, instead of letting drjit 1.5 abort
 the process on LLVM 15. (Run from the ``mitsnerf`` command, the same problem is
-one error line and exit status 2.)
+one error line and exit status 2, as from ``python -m mitsnerf``.)
 """
 
 import os as _os
@@ -18,7 +18,8 @@ __version__ = "0.1.0"
 try:
     _env.prepare()
 except _llvm.LLVMError as _exc:
-    if _os.path.basename(_sys.argv[0] if _sys.argv else "") == "mitsnerf":
+    _argv0 = _sys.argv[0] if _sys.argv else ""
+    if _os.path.basename(_argv0) == "mitsnerf" or _argv0 == "-m":  # the command, or python -m mitsnerf[.cli]
         print(f"mitsnerf: error: {_exc}", file=_sys.stderr)
         raise SystemExit(2) from None
     raise

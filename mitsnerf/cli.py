@@ -341,7 +341,7 @@ default-scale dataset; for another box: translate(box_min).scale(box_max - box_m
 translate(centre).scale(size / 2) for the cube):
 
   grid = lambda f: {"type": "gridvolume", "filename": "OUT/" + f, "accel": False,   # full precision on CUDA too
-                    "to_world": mi.ScalarTransform4f().translate(-0.5)}
+                    "to_world": mi.ScalarTransform4f().translate([-0.5] * 3).scale([1.0] * 3)}
   scene = mi.load_dict({"type": "scene", "integrator": {"type": "volpath"},
       "medium_box": {"type": "cube", "to_world": mi.ScalarTransform4f().scale(0.5),
           "bsdf": {"type": "null"},

@@ -107,7 +107,10 @@ def set_variant(variant: str | None = None) -> str:
         raise EnvironmentError_(
             f"variant {variant!r} is not supported; choose one of {', '.join(SUPPORTED_VARIANTS)}"
         )
-    if variant not in mi.variants():
+    import importlib.util
+
+    if variant not in mi.variants() or importlib.util.find_spec(f"mitsuba.{variant}") is None:
+        # (a wheel trimmed to some variants still lists all of them in mi.variants())
         raise EnvironmentError_(f"variant {variant!r} is not built into this Mitsuba")
     if mi.variant() != variant:
         try:

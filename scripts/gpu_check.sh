@@ -36,7 +36,7 @@ status=0
 for step in "$@"; do
     case $step in
         install)
-            run install bash -c "nvidia-smi; PYTHON=$PYTHON bash scripts/offline_install.sh '$WHEELS' '$SITE'" ;;
+            run install bash -c 'nvidia-smi; PYTHON="$1" bash scripts/offline_install.sh "$2" "$3"' _ "$PYTHON" "$WHEELS" "$SITE" ;;
         tests)
             run tests "$PYTHON" -m pytest -q -m "not slow" -p no:cacheprovider ;;
         groundtruth)

@@ -8,8 +8,9 @@ spectral upsampling table ``data/srgb.coeff`` (9 MB, read only by spectral varia
 62.6 MB in all for 3.9.1 on CPython 3.12. This script downloads the three wheels for the target
 Python and platform and rewrites Mitsuba's to keep only the variants named (by default the two
 mitsnerf runs on and ``scalar_rgb``), dropping the headers, CMake files and, when no spectral
-variant is kept, the spectral table. ``mitsuba/config.py``'s ``MI_VARIANTS`` is narrowed to
-match, and the wheel's ``RECORD`` is rewritten with the new hashes, so pip installs it as usual.
+variant is kept, the spectral table. The wheel's ``RECORD`` is rewritten with the new hashes, so
+pip installs it as usual. ``mitsuba.variants()`` is compiled in and still lists all thirteen;
+mitsnerf checks that a variant's module is installed before it sets it.
 
 Run where pip reaches the index (here), then carry the folder and install it there with
 ``scripts/offline_install.sh``::
@@ -125,7 +126,8 @@ def build(out: Path, pins: dict[str, str], python_version: str, variants: tuple[
     """Download, trim and check the size; ``out`` is written whole or not at all. Returns total bytes."""
     if out.exists():
         raise WheelhouseError(f"{out}: already exists; remove it or name another folder")
-    with tempfile.TemporaryDirectory(dir=out.parent if out.parent.exists() else None) as tmp:
+    out.parent.mkdir(parents=True, exist_ok=True)
+    with tempfile.TemporaryDirectory(dir=out.parent) as tmp:  # beside out: the final rename stays on one filesystem
         raw, stage = Path(tmp) / "raw", Path(tmp) / "stage"
         raw.mkdir()
         stage.mkdir()

@@ -19,7 +19,12 @@ def variant() -> str:
     return env.set_variant()
 
 
-@pytest.fixture(params=env.usable_variants())
+USABLE_VARIANTS = env.usable_variants()
+if not USABLE_VARIANTS:  # every variant-dependent test would be skipped in silence
+    raise RuntimeError(f"no Mitsuba variant of {env.SUPPORTED_VARIANTS} can run here (see mitsnerf env)")
+
+
+@pytest.fixture(params=USABLE_VARIANTS)
 def each_variant(request, variant) -> str:
     """A variant-dependent test runs once on each variant this machine can run (both on a machine
     with a GPU, ``llvm_ad_rgb`` alone on a CPU); the session's variant is restored after it."""

@@ -56,6 +56,18 @@ def test_cli_with_old_llvm_prints_one_line_instead_of_aborting(tmp_path):
     assert len(lines) == 1 and "LLVM 15 is too old" in lines[0]
 
 
+def test_python_m_mitsnerf_with_old_llvm_prints_one_line_too(tmp_path):
+    fake = tmp_path / "libLLVM-15.so.1"
+    fake.write_bytes(b"")
+    repo = Path(env.__file__).resolve().parents[1]
+    pythonpath = os.pathsep.join([str(repo), *filter(None, os.environ.get("PYTHONPATH", "").split(os.pathsep))])
+    proc = subprocess.run([sys.executable, "-m", "mitsnerf", "env"], capture_output=True, text=True, cwd=tmp_path,
+                          env={**os.environ, "DRJIT_LIBLLVM_PATH": str(fake), "PYTHONPATH": pythonpath}, timeout=120)
+    assert proc.returncode == 2
+    lines = proc.stderr.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith("mitsnerf: error: ") and "LLVM 15 is too old" in lines[0]
+
+
 def test_import_with_old_llvm_raises_a_clear_error_not_an_abort(tmp_path):
     fake = tmp_path / "libLLVM-15.so.1"
     fake.write_bytes(b"")

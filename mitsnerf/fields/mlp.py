@@ -24,19 +24,21 @@ in fp32 or fp16 (on CUDA, the tensor cores), or ``auto`` (:func:`network_path`).
 def network_path(requested: str, TensorXf) -> str:
     """The path ``requested`` (a :data:`NETWORK_PATHS` entry) resolves to on ``TensorXf``'s backend.
 
-    ``auto`` is ``tensor`` on the LLVM backend (measured 3-5x faster than cooperative vectors in fp32
-    on the 2-core CPU, and fp16 slower again: benchmarks/README.md) and ``coopvec-fp16`` on CUDA, where
-    Dr.Jit maps fp16 cooperative vectors onto the tensor cores (Dr.Jit's documentation; the GPU issue
-    measures it).
+    ``auto`` is ``tensor`` on every backend for now. On the LLVM backend tensors measured 4-5x faster
+    than cooperative vectors in fp32 on the 2-core CPU, and fp16 slower again (benchmarks/README.md,
+    "Cooperative vectors and a PyTorch peer"). On CUDA, Dr.Jit runs fp16 cooperative vectors on the
+    tensor cores, but that has not been measured here, and fp16 gives up tensor mode's bit-for-bit
+    reproducible training: ``auto`` moves to a cooperative-vector path on CUDA only once a GPU run has
+    measured it faster at the same quality. Name a path to use one.
 
     >>> import mitsuba as mi
     >>> from mitsnerf.env import set_variant; _ = set_variant("llvm_ad_rgb")
     >>> network_path("auto", mi.TensorXf), network_path("coopvec-fp32", mi.TensorXf)
     ('tensor', 'coopvec-fp32')
     """
-    if requested != "auto":
-        return requested
-    return "coopvec-fp16" if dr.backend_v(TensorXf) == dr.JitBackend.CUDA else "tensor"
+    if requested not in NETWORK_PATHS:
+        raise ValueError(f"network_path: must be one of {', '.join(NETWORK_PATHS)}, got {requested!r}")
+    return "tensor" if requested == "auto" else requested
 
 
 def pack_layers(tensors, half: bool) -> list:

@@ -27,7 +27,7 @@ direction; ``sh_degree`` 1-3 remain for anisotropic media or foreign data.
 
 The MLPs are point-major tensor products (:mod:`mitsnerf.fields.mlp`), the fastest
 path measured on the LLVM backend, or ``drjit.nn`` cooperative vectors on the same parameters
-(``network_path``; ``auto``: tensors on LLVM, fp16 cooperative vectors on CUDA). The hash table is one flat Float array kept by the
+(``network_path``; ``auto``: tensors, :func:`mitsnerf.fields.mlp.network_path`). The hash table is one flat Float array kept by the
 field (``encoding.data``), apart from the MLPs: ``drjit.nn`` does not pack it.
 Its size matters on this CPU: forward + backward of 16 levels measured 10 ms per
 2^16 points with 2^15 entries per level, 80 ms with 2^16 (the scattered
@@ -91,7 +91,7 @@ class NGPConfig:
     """Hash-table entries start uniform in ``+-init_scale``."""
     network_path: str = param("auto", choices=NETWORK_PATHS)
     """How the MLPs are evaluated (:func:`mitsnerf.fields.mlp.network_path`): point-major tensors or
-    cooperative vectors (fp32, fp16), on the same parameters; ``auto`` by the backend."""
+    cooperative vectors (fp32, fp16), on the same parameters; ``auto``: tensors for now."""
 
     def __post_init__(self) -> None:
         check_fields(self)

@@ -93,11 +93,12 @@ def test_the_comparison_fails_when_the_cooperative_encoding_is_out_of_order(monk
         _compare("coopvec-fp32", *TOLERANCES["coopvec-fp32"])
 
 
-def test_auto_is_tensor_mode_on_llvm_and_a_path_named_is_kept():
-    assert network_path("auto", mi.TensorXf) == ("coopvec-fp16" if dr.backend_v(mi.TensorXf) == dr.JitBackend.CUDA
-                                                 else "tensor")
+def test_auto_is_tensor_mode_until_a_gpu_has_measured_otherwise_and_a_path_named_is_kept():
+    assert network_path("auto", mi.TensorXf) == "tensor"
     for path in ("tensor", "coopvec-fp32", "coopvec-fp16"):
         assert network_path(path, mi.TensorXf) == path
+    with pytest.raises(ValueError, match="network_path"):
+        network_path("cuda", mi.TensorXf)
 
 
 def test_an_unknown_path_is_refused_by_name():
