@@ -12,6 +12,7 @@ Variant choice: ``--variant`` on the CLI, else ``$MITSNERF_VARIANT``, else
 from __future__ import annotations
 
 import ctypes
+import importlib.util
 import os
 import platform
 import subprocess
@@ -81,6 +82,12 @@ def default_variant(environ: dict[str, str] | None = None) -> str:
     return "cuda_ad_rgb" if cuda_device_count() > 0 else "llvm_ad_rgb"
 
 
+def _installed(variant: str) -> bool:
+    """Whether Mitsuba's module of ``variant`` is installed (a wheel trimmed to some variants lacks the
+    others, yet ``mitsuba.variants()``, compiled in, still lists them all)."""
+    return importlib.util.find_spec(f"mitsuba.{variant}") is not None
+
+
 def usable_variants() -> tuple[str, ...]:
     """The supported variants this machine can run, in :data:`SUPPORTED_VARIANTS` order: each one's
     Mitsuba module is installed (a wheel trimmed to some variants lacks the others) and its Dr.Jit
@@ -89,13 +96,10 @@ def usable_variants() -> tuple[str, ...]:
     >>> "llvm_ad_rgb" in usable_variants() or "cuda_ad_rgb" in usable_variants()
     True
     """
-    import importlib.util
-
     import drjit as dr
 
     backend = {"llvm_ad_rgb": dr.JitBackend.LLVM, "cuda_ad_rgb": dr.JitBackend.CUDA}
-    return tuple(v for v in SUPPORTED_VARIANTS
-                 if importlib.util.find_spec(f"mitsuba.{v}") is not None and dr.has_backend(backend[v]))
+    return tuple(v for v in SUPPORTED_VARIANTS if _installed(v) and dr.has_backend(backend[v]))
 
 
 def set_variant(variant: str | None = None) -> str:
@@ -107,10 +111,7 @@ def set_variant(variant: str | None = None) -> str:
         raise EnvironmentError_(
             f"variant {variant!r} is not supported; choose one of {', '.join(SUPPORTED_VARIANTS)}"
         )
-    import importlib.util
-
-    if variant not in mi.variants() or importlib.util.find_spec(f"mitsuba.{variant}") is None:
-        # (a wheel trimmed to some variants still lists all of them in mi.variants())
+    if variant not in mi.variants() or not _installed(variant):
         raise EnvironmentError_(f"variant {variant!r} is not built into this Mitsuba")
     if mi.variant() != variant:
         try:

@@ -7,6 +7,8 @@ import pytest
 
 from mitsnerf import _llvm, env
 
+from .conftest import child_pythonpath
+
 
 def test_llvm_version_from_library_names():
     assert _llvm.llvm_version_from_name("/usr/lib/x86_64-linux-gnu/libLLVM.so.19.1") == 19
@@ -59,8 +61,7 @@ def test_cli_with_old_llvm_prints_one_line_instead_of_aborting(tmp_path):
 def test_python_m_mitsnerf_with_old_llvm_prints_one_line_too(tmp_path):
     fake = tmp_path / "libLLVM-15.so.1"
     fake.write_bytes(b"")
-    repo = Path(env.__file__).resolve().parents[1]
-    pythonpath = os.pathsep.join([str(repo), *filter(None, os.environ.get("PYTHONPATH", "").split(os.pathsep))])
+    pythonpath = child_pythonpath(Path(env.__file__).resolve().parents[1])
     proc = subprocess.run([sys.executable, "-m", "mitsnerf", "env"], capture_output=True, text=True, cwd=tmp_path,
                           env={**os.environ, "DRJIT_LIBLLVM_PATH": str(fake), "PYTHONPATH": pythonpath}, timeout=120)
     assert proc.returncode == 2

@@ -166,6 +166,10 @@ class NGPField:
         """The hash-grid encoding of ``x``: n_levels * features_per_level Floats."""
         return self.encoding(dr.clip(self.box.to_unit(x), 0.0, 1.0))
 
+    def _density_coop(self, x, half: bool) -> list:
+        """1 + geo_features Floats: the density MLP on cooperative vectors (fp16 if ``half``)."""
+        return dense_apply_coop(self.params, "density.", 2, nn.CoopVec(*self._features(x)), half)
+
     def _density_mlp(self, x):
         """(M, 1 + geo_features): the density pre-activation and the geometry features (tensor path)."""
         return dense_apply(self.params, "density.", 2, rows_tensor(self.TensorXf, self._features(x), dr.width(x)))
@@ -177,7 +181,7 @@ class NGPField:
         """``sigma(x)``, Float (M,)."""
         half = self._coop_half()
         if half is not None:
-            return self._sigma(dense_apply_coop(self.params, "density.", 2, nn.CoopVec(*self._features(x)), half)[0])
+            return self._sigma(self._density_coop(x, half)[0])
         return self._sigma(column(self._density_mlp(x), 0))
 
     def __call__(self, x, d):
@@ -188,7 +192,7 @@ class NGPField:
         n_color = self.config.color_layers + 1
         half = self._coop_half()
         if half is not None:
-            out = dense_apply_coop(self.params, "density.", 2, nn.CoopVec(*self._features(x)), half)
+            out = self._density_coop(x, half)
             c = dense_apply_coop(self.params, "color.", n_color, nn.CoopVec(*out[1:], *sh), half)
             return type(x)(*(sigmoid(c_k) * self.config.c_max for c_k in c)), self._sigma(out[0])
         out = self._density_mlp(x)

@@ -3,7 +3,7 @@
 
 fp32 cooperative vectors compute the same products in another summation order, so values and
 gradients agree to float32 round-off (1e-5 relative); fp16 rounds weights and activations to 11
-significant bits, so the agreement is ~1e-2. ``auto`` is tensor mode on the LLVM backend.
+significant bits, so the agreement is ~1e-2. ``auto`` is tensor mode on every backend for now.
 """
 
 from __future__ import annotations

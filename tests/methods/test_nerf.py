@@ -80,10 +80,9 @@ def test_training_on_cooperative_vectors_follows_tensor_mode_and_its_weights_ren
     np.testing.assert_allclose(losses["coopvec-fp32"], losses["tensor"], rtol=1e-3)
     assert losses["tensor"][-1] < 0.7 * losses["tensor"][0]
     x, d = mi.Array3f([0.1, -0.2], [0.0, 0.1], [0.05, 0.2]), mi.Array3f(0.0, 0.0, 1.0)
-    trained = models["coopvec-fp32"].field()
-    other = models["tensor"]
-    other.set_parameters(dict(models["coopvec-fp32"].parameters().items()))
-    for a, b in zip((*trained(x, d)[0], trained(x, d)[1]), (*other.field()(x, d)[0], other.field()(x, d)[1])):
+    models["tensor"].set_parameters(dict(models["coopvec-fp32"].parameters().items()))
+    (rgb_c, sigma_c), (rgb_t, sigma_t) = (models[p].field()(x, d) for p in ("coopvec-fp32", "tensor"))
+    for a, b in zip((*rgb_c, sigma_c), (*rgb_t, sigma_t)):
         np.testing.assert_allclose(np.asarray(b), np.asarray(a), rtol=1e-5, atol=1e-6)
 
 
