@@ -8,6 +8,7 @@ Each names where the problem is (a file and, where it applies, a field in it)::
 
 from __future__ import annotations
 
+import errno
 from pathlib import Path
 
 
@@ -55,6 +56,35 @@ class OutputError(MitsnerfError):
     """An output location cannot be used: not writable, a file where a directory goes, a finished
     run that would be replaced, or a run directory another process is writing. Raised before any
     work starts."""
+
+
+#: The errnos of a full disk or an exhausted quota.
+DISK_FULL_ERRNOS = frozenset({errno.ENOSPC, errno.EDQUOT})
+
+
+class DiskFullError(OutputError):
+    """The disk (or the user's quota) filled while an output was written. Names the path, the file
+    being written in it when that is another, and what was kept (the atomic writers of
+    :mod:`mitsnerf.data.atomic` leave the previous version or nothing, never half a file)::
+
+        >>> str(DiskFullError("data/tiny-0e80", "No space left on device", "data/tiny-0e80 was not created",
+        ...                   writing="train/r_001.exr"))
+        'data/tiny-0e80: disk full (No space left on device) writing train/r_001.exr; data/tiny-0e80 was not created'
+    """
+
+    def __init__(self, path: str | Path, reason: str, kept: str, writing: str | None = None) -> None:
+        self.path, self.reason, self.kept, self.writing = Path(path), reason, kept, writing
+        doing = f" writing {writing}" if writing else ""
+        super().__init__(path, None, f"disk full ({reason}){doing}; {kept}")
+
+    @classmethod
+    def of(cls, exc: BaseException) -> "DiskFullError | None":
+        """``exc`` as a DiskFullError (an OSError of :data:`DISK_FULL_ERRNOS`: its file, else unnamed), or None."""
+        if isinstance(exc, DiskFullError):
+            return exc
+        if isinstance(exc, OSError) and exc.errno in DISK_FULL_ERRNOS:
+            return cls(exc.filename or "an output", exc.strerror or "no space left", "it was not written")
+        return None
 
 
 class Interrupted(KeyboardInterrupt):

@@ -14,7 +14,7 @@ over the sphere (a Fibonacci lattice), i.e. the **view-averaged** colour; with
 the averaging.) Sampling at voxel centres makes Mitsuba's trilinear ``gridvolume`` lookup
 return exactly the sampled values there.
 
-Files written to ``OUT`` (atomically)::
+Files written to ``OUT`` (atomically, all or none: :func:`mitsnerf.data.atomic.atomic_files`)::
 
     sigma_t.vol   (R, R, R, 1) float32 extinction per unit length, Mitsuba's .vol format
     albedo.vol    (R, R, R, 3) the colour clipped to [0, 1]
@@ -60,12 +60,15 @@ from typing import Any, Sequence
 import numpy as np
 
 from mitsnerf import env
-from mitsnerf.data.atomic import atomic_write_bytes, atomic_write_json
+from mitsnerf.data.atomic import atomic_files, atomic_write_bytes, atomic_write_json
 from mitsnerf.data.vol import write_vol
 from mitsnerf.errors import DatasetError
 from mitsnerf.math.box import Box
 
 DEFAULT_DIRECTIONS = 16
+#: The largest grid resolution ``R`` exported: ``R^3`` voxels, each 8 float32 values in the files and
+#: about 60 bytes of memory while sampling (1024: 32 GiB of files, 64 GiB of memory).
+MAX_RESOLUTION = 1024
 
 
 def fibonacci_directions(m: int) -> np.ndarray:
@@ -99,8 +102,8 @@ def sample_field(
     import drjit as dr
     import mitsuba as mi
 
-    if resolution < 1:
-        raise ValueError(f"resolution: must be >= 1, got {resolution}")
+    if not 1 <= resolution <= MAX_RESOLUTION:
+        raise ValueError(f"resolution: must be in [1, {MAX_RESOLUTION}], got {resolution}")
     dirs = fibonacci_directions(DEFAULT_DIRECTIONS) if directions is None else np.asarray(directions, dtype=np.float64)
     dirs = dirs.reshape(-1, 3)
     norms = np.linalg.norm(dirs, axis=1, keepdims=True)
@@ -151,15 +154,21 @@ def export_field(
         raise DatasetError((info or {}).get("run"), None, "the learned field returned non-finite values "
                                                           "(a diverged run?); nothing exported")
     out_dir = Path(out_dir)
-    out_dir.mkdir(parents=True, exist_ok=True)
-    paths = {name: out_dir / name for name in ("sigma_t.vol", "albedo.vol", "sigma_t.npy", "color.npy", "export.json")}
+    names = ("sigma_t.vol", "albedo.vol", "sigma_t.npy", "color.npy", "export.json")
+    with atomic_files(out_dir, names) as tmp:
+        _write_export(tmp, sigma, color, box, {**(info or {}), "resolution": resolution}, direction, n_directions)
+    return {name: out_dir / name for name in names}
+
+
+def _write_export(paths: dict[str, Path], sigma: np.ndarray, color: np.ndarray, box: Box, info: dict[str, Any],
+                  direction: Sequence[float] | None, n_directions: int) -> None:
+    """The files of the module docstring, each to its path in ``paths``."""
     write_vol(paths["sigma_t.vol"], np.maximum(sigma, 0.0), box.lo, box.hi)
     write_vol(paths["albedo.vol"], np.clip(color, 0.0, 1.0), box.lo, box.hi)
     _save_npy(paths["sigma_t.npy"], sigma)
     _save_npy(paths["color.npy"], color)
     atomic_write_json(paths["export.json"], {
-        **(info or {}),
-        "resolution": resolution,
+        **info,
         "box_min": list(box.lo),
         "box_max": list(box.hi),
         "colour": (f"seen looking along {np.asarray(direction, dtype=float).tolist()}" if direction is not None
@@ -167,7 +176,6 @@ def export_field(
         "sigma_t_max": float(sigma.max()),
         "sampled_at": "voxel centres ((i + 0.5) / R) of the box, [z, y, x]",
     })
-    return paths
 
 
 def export_run(run_dir: Path, out_dir: Path | None = None, resolution: int = 64,

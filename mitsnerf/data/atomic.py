@@ -4,6 +4,11 @@ Everything is first written to a temporary sibling named ``.<name>.tmp-<random>`
 (same directory, hence same filesystem) and then renamed with ``os.replace`` /
 ``os.rename``, which POSIX makes atomic. A crash can leave such temporaries
 behind, never a half-written ``<name>``; :func:`clean_stale_temps` removes them.
+:func:`atomic_files` does the same for a group of files in one directory (all or none).
+
+A full disk or quota (``ENOSPC``, ``EDQUOT``) while writing is a
+:class:`~mitsnerf.errors.DiskFullError` naming the path being written and what was kept: the
+previous file or directory as it was, or nothing (the temporaries are removed).
 
 >>> import tempfile
 >>> d = Path(tempfile.mkdtemp())
@@ -26,13 +31,31 @@ import shutil
 import time
 from contextlib import contextmanager
 from pathlib import Path
-from typing import Any, Iterator
+from typing import Any, Iterator, Sequence
+
+from mitsnerf.errors import DiskFullError
 
 _TMP_TAG = ".tmp-"
 
 
 def _temp_name(final: Path, kind: str = "") -> Path:
     return final.parent / f".{final.name}{_TMP_TAG}{kind}{secrets.token_hex(6)}"
+
+
+def _kept(path: Path) -> str:
+    return "the previous file is kept" if path.exists() else "no file was written"
+
+
+def _disk_full(exc: BaseException, path: Path, kept: str, inside: Path | None = None) -> DiskFullError | None:
+    """The DiskFullError to raise for ``exc`` while writing ``path`` (None: ``exc`` is no full disk); a file
+    being written under the temporary ``inside`` is named relative to it."""
+    full = DiskFullError.of(exc)
+    if full is None:
+        return None
+    writing = None
+    if inside is not None and full.path.is_relative_to(inside) and full.path != inside:
+        writing = full.path.relative_to(inside).as_posix()
+    return DiskFullError(path, full.reason, kept, writing)
 
 
 def _remove(path: Path) -> None:
@@ -57,9 +80,40 @@ def atomic_path(path: str | os.PathLike) -> Iterator[Path]:
     try:
         yield tmp
         os.replace(tmp, path)
-    except BaseException:
+    except BaseException as exc:
         _remove(tmp)
-        raise
+        full = _disk_full(exc, path, _kept(path))
+        if full is None:
+            raise
+        raise full from exc
+
+
+@contextmanager
+def atomic_files(directory: str | os.PathLike, names: Sequence[str]) -> Iterator[dict[str, Path]]:
+    """Write the files ``names`` in ``directory`` all or none: yields ``{name: temporary path}`` (siblings
+    of the final files) for the body to write, then renames each onto its name. If the body raises, the
+    temporaries are removed (and ``directory`` too if this created it and it is empty); the files already
+    there are left as they were.
+    """
+    directory = Path(directory)
+    created = not directory.is_dir()
+    directory.mkdir(parents=True, exist_ok=True)
+    temps = {name: _temp_name(directory / name) for name in names}
+    try:
+        yield temps
+        for name, tmp in temps.items():
+            os.replace(tmp, directory / name)
+    except BaseException as exc:
+        for tmp in temps.values():
+            _remove(tmp)
+        if created and not any(directory.iterdir()):
+            directory.rmdir()
+        full = DiskFullError.of(exc)
+        if full is None:
+            raise
+        name = next((n for n, t in temps.items() if full.path == t), None)
+        kept = f"none of {', '.join(names)} was written; the files there before are kept"
+        raise DiskFullError(directory, full.reason, kept, name) from exc
 
 
 def atomic_write_bytes(path: str | os.PathLike, data: bytes) -> None:
@@ -123,9 +177,12 @@ def atomic_dir(final: str | os.PathLike, overwrite: bool = False) -> Iterator[Pa
             _remove(old)
         else:
             os.rename(tmp, final)
-    except BaseException:
+    except BaseException as exc:
         _remove(tmp)
-        raise
+        full = _disk_full(exc, final, f"{final} is left as it was" if final.exists() else f"{final} was not created", tmp)
+        if full is None:
+            raise
+        raise full from exc
 
 
 def clean_stale_temps(parent: str | os.PathLike, min_age_s: float = 0.0) -> list[Path]:

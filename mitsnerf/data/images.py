@@ -99,7 +99,23 @@ def write_exr(path: str | os.PathLike, image) -> None:
     header = {"compression": OpenEXR.ZIP_COMPRESSION, "type": OpenEXR.scanlineimage}
     with atomic_path(path) as tmp:
         with OpenEXR.File(header, channels) as f:
-            f.write(str(tmp))
+            try:
+                f.write(str(tmp))
+            except RuntimeError as exc:  # OpenEXR's own error, even for a full disk: that one as the OSError it is
+                full = _disk_full(exc, tmp)
+                if full is None:
+                    raise
+                raise full from exc
+
+
+def _disk_full(exc: RuntimeError, path: Path) -> OSError | None:
+    """The OSError (ENOSPC, EDQUOT) an OpenEXR write error reports in its text, else None."""
+    import errno
+
+    for code in (errno.ENOSPC, errno.EDQUOT):
+        if os.strerror(code) in str(exc):
+            return OSError(code, os.strerror(code), str(path))
+    return None
 
 
 def read_exr(path: str | os.PathLike) -> np.ndarray:

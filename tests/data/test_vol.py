@@ -9,7 +9,7 @@ import pytest
 
 import mitsnerf  # noqa: F401  (sets up LLVM before drjit/mitsuba load)
 from mitsnerf.data.vol import HEADER_SIZE, read_vol, write_vol
-from mitsnerf.errors import DatasetError
+from mitsnerf.errors import DatasetError, DiskFullError
 
 
 @pytest.fixture
@@ -134,7 +134,7 @@ def test_write_is_atomic_and_leaves_no_temporaries(tmp_path, grid, monkeypatch):
         raise OSError(28, "No space left on device")
 
     monkeypatch.setattr("mitsnerf.data.vol.os.fsync", disk_full)
-    with pytest.raises(OSError, match="No space"):
+    with pytest.raises(DiskFullError, match="g.vol: disk full .No space left on device.; the previous file is kept"):
         write_vol(path, grid)  # fails after the temporary was written
     assert sorted(p.name for p in tmp_path.iterdir()) == ["g.vol"]
     assert read_vol(path)[0].shape == (2, 6, 7, 3)  # failed writes kept the old file
