@@ -57,10 +57,12 @@ import numpy as np
 
 from mitsnerf.data.arrays import read_npz
 from mitsnerf.data.atomic import atomic_write_bytes
-from mitsnerf.errors import DatasetError
+from mitsnerf.errors import DatasetError, DiskFullError
 
 CHECKPOINT_FILE = "checkpoint.npz"
 FORMAT_VERSION = 2
+#: The largest step a checkpoint may hold: :class:`mitsnerf.train.TrainConfig`'s largest ``steps``.
+MAX_STEP = 10**8
 _ADAM_HYPER = ("beta_1", "beta_2", "epsilon", "mask_updates", "promote_fp16", "uniform", "amsgrad")
 
 
@@ -194,6 +196,7 @@ def load_checkpoint(path: str | os.PathLike) -> Checkpoint:
     missing = [k for k in ("step", "elapsed", "optimizer") if k not in meta]
     if missing:
         raise DatasetError(path, "meta.json", f"missing {', '.join(missing)}: not a complete mitsnerf checkpoint")
+    _check_counts(meta, path)
     params, extra, moments = {}, {}, {}
     for name, value in files.items():
         kind, _, rest = name.partition("/")
@@ -215,6 +218,16 @@ def load_checkpoint(path: str | os.PathLike) -> Checkpoint:
         extra_state=extra,
         moments=moments,
     )
+
+
+def _check_counts(meta: Mapping[str, Any], path: Path) -> None:
+    """Refuse a ``step`` that is not a whole number in ``[0, MAX_STEP]`` or an ``elapsed`` that is not a
+    finite number of seconds >= 0 (a checkpoint edited by hand or written by something else)."""
+    step, elapsed = meta["step"], meta["elapsed"]
+    if isinstance(step, bool) or not isinstance(step, int) or not 0 <= step <= MAX_STEP:
+        raise DatasetError(path, "step", f"must be a whole number of steps in [0, {MAX_STEP}], got {step!r}")
+    if isinstance(elapsed, bool) or not isinstance(elapsed, (int, float)) or not 0 <= elapsed < float("inf"):
+        raise DatasetError(path, "elapsed", f"must be a finite number of seconds >= 0, got {elapsed!r}")
 
 
 def _like(reference, values: np.ndarray):
@@ -241,6 +254,10 @@ def restore_optimizer(opt, ckpt: Checkpoint, where: str | os.PathLike | None = N
     saved, current = set(info["params"]), set(opt.keys())
     if saved != current:
         raise DatasetError(where, "params", f"checkpoint holds {sorted(saved)}, the model has {sorted(current)}")
+    lost = sorted(k for k in saved if k not in ckpt.params or not {"m", "v"} <= set(ckpt.moments.get(k, {})))
+    if lost:
+        raise DatasetError(where, "param/" + lost[0], "missing from the checkpoint (its parameter or Adam moments): "
+                                                      f"{len(lost)} of {len(saved)} parameters incomplete")
     if info.get("lr") is not None:
         opt.set_learning_rate(float(info["lr"]))
     for key, entry in info["params"].items():
@@ -269,12 +286,24 @@ class Checkpointer:
         self.last_step: int | None = None
 
     def save(self, state) -> None:
-        """Write a :class:`mitsnerf.train.TrainState` (its optimiser may be a snapshot)."""
+        """Write a :class:`mitsnerf.train.TrainState` (its optimiser may be a snapshot). A full disk is a
+        :class:`~mitsnerf.errors.DiskFullError` saying which checkpoint is kept and how to continue."""
         history = [h for h in state.history if h.get("step", 0) <= state.step]
         ckpt = capture(state.step, state.opt, config=self.config, elapsed=state.elapsed, history=history,
                        monitor=state.monitor, extra_state=state.extra)
-        save_checkpoint(self.path, ckpt)
+        try:
+            save_checkpoint(self.path, ckpt)
+        except DiskFullError as exc:
+            raise DiskFullError(self.path, exc.reason, f"step {state.step} was not saved; {self.kept()}") from exc
         self.last_step = int(state.step)
+
+    def kept(self) -> str:
+        """What a failed write leaves, and how to go on: ``the last checkpoint, step k, is kept; ...``."""
+        if self.last_step is None and not self.path.is_file():
+            return "no checkpoint was written; free space and train again"
+        which = f"step {self.last_step}" if self.last_step is not None else "from before this session"
+        return (f"the last checkpoint, {which}, is kept; free space, then continue with "
+                f"mitsnerf train --resume --out {self.path.parent}")
 
     def describe(self) -> str:
         """``"last good checkpoint: PATH (step k)"`` for messages, or what exists on disk."""

@@ -29,10 +29,10 @@ from mitsnerf.data.atomic import atomic_dir, atomic_write_json
 from mitsnerf.data.dataset import Dataset, load_dataset
 from mitsnerf.data.verify import verify_dataset
 from mitsnerf.data.images import write_exr, write_png
-from mitsnerf.errors import DatasetError, OutputError
+from mitsnerf.errors import DatasetError, DiskFullError, OutputError, UsageError
 from mitsnerf.evaluate import EvalConfig, render_views, stack_rgb
 from mitsnerf.math.box import Box
-from mitsnerf.methods import get_method
+from mitsnerf.methods import METHODS, get_method
 from mitsnerf.methods.base import Model, ParameterShapeError, SceneInfo, num_parameters
 from mitsnerf.render.background import make_background
 from mitsnerf.render.camera import Rendered
@@ -84,9 +84,11 @@ def scene_info(dataset: Dataset, train_images: np.ndarray) -> SceneInfo:
 
 
 def dataset_config(dataset: Dataset) -> dict:
-    """How to open ``dataset`` again (path, box and load options), for run configs and checkpoints."""
+    """How to open ``dataset`` again (path, box and load options), and which it is (its manifest's
+    ``hash``, None for foreign data), for run configs and checkpoints."""
     return {
         "dataset": str(Path(dataset.root).resolve()),
+        "dataset_hash": (dataset.manifest or {}).get("hash"),
         "dataset_options": {
             "pixel_center": dataset.pixel_center,
             "background": list(dataset.png_background),
@@ -126,10 +128,51 @@ def _check_resumable(saved: Mapping[str, Any], current: Mapping[str, Any], where
                                                       f"only {', '.join(RESUMABLE_CHANGES)} may change on resume")
 
 
-def build_model(method: str, overrides: Mapping[str, Any] | None, info: SceneInfo, seed: int) -> tuple[Model, Any]:
-    entry = get_method(method)
-    config = from_dict(entry.config_type, overrides or {})
-    return entry.model_type(config, info, seed), config
+def _check_same_dataset(saved: Mapping[str, Any], dataset: Dataset, run_dir: Path) -> None:
+    """Refuse to resume the run in ``run_dir`` (config ``saved``) on another dataset than it trained on:
+    the same manifest ``hash`` where both have one (a moved dataset is the same), else the same path."""
+    was, was_hash = saved.get("dataset"), saved.get("dataset_hash")
+    now, now_hash = str(Path(dataset.root).resolve()), (dataset.manifest or {}).get("hash")
+    same = was_hash == now_hash if (was_hash and now_hash) else was == now
+    if not same:
+        tag = lambda h: f" (manifest hash {h[:12]})" if h else ""
+        raise UsageError("--resume", f"the run in {run_dir} trained on {was}{tag(was_hash)}, not on {now}{tag(now_hash)}; "
+                                     "resume it on its own dataset (leave DATASET out), or train a new run elsewhere")
+
+
+def run_method(config: Mapping[str, Any], where: Path) -> str:
+    """The known method a run config (of ``config.json`` or a checkpoint at ``where``) names."""
+    if not isinstance(config, Mapping):
+        raise DatasetError(where, None, f"the run config must be a JSON object, got {type(config).__name__}")
+    method = config.get("method")
+    if method is None:
+        raise DatasetError(where, "method", "missing: the run does not say which method trained it")
+    if method not in METHODS:
+        raise DatasetError(where, "method", f"unknown method {method!r} (known: {', '.join(sorted(METHODS))})")
+    return method
+
+
+def method_config(method: str, overrides: Mapping[str, Any] | None, source: Path | None = None):
+    """The method's config with ``overrides``; a bad one is a SpecError at ``source`` (a run's file),
+    ``method_config.FIELD`` there."""
+    return from_dict(get_method(method).config_type, overrides or {}, source=source,
+                     prefix="method_config." if source else "")
+
+
+def build_model(method: str, overrides: Mapping[str, Any] | None, info: SceneInfo, seed: int,
+                source: Path | None = None) -> tuple[Model, Any]:
+    config = method_config(method, overrides, source)
+    return get_method(method).model_type(config, info, seed), config
+
+
+def set_checked(model: Model, values: Mapping[str, Any], where: Path, method: str, run_dir: Path) -> None:
+    """``model.set_parameters(values)``; a value shaped unlike the model's config builds is a DatasetError
+    naming ``where`` and the parameter."""
+    try:
+        model.set_parameters(values)
+    except ParameterShapeError as e:
+        raise DatasetError(where, e.key, f"{e} from the run's config: the run was written by another version of "
+                           f"method {method!r}{_written_by(run_dir)}; retrain it") from None
 
 
 def _start(out_dir: Path | None, run_config: dict, model: Model, lr: float, resume: bool):
@@ -148,6 +191,7 @@ def _start(out_dir: Path | None, run_config: dict, model: Model, lr: float, resu
     opt = make_optimizer(model, lr)
     restore_optimizer(opt, ckpt, path)
     model.load_extra_state(ckpt.extra_state)
+    set_checked(model, opt, path, run_config["method"], Path(out_dir))
     return checkpointer, TrainState(opt, ckpt.step, ckpt.elapsed, ckpt.history, ckpt.monitor)
 
 
@@ -200,6 +244,10 @@ def fit(
         if checkpointer is None:
             raise
         raise interrupted_message(exc, checkpointer.path, result.steps, " while evaluating") from None
+    except DiskFullError as exc:  # the run directory is as it was, with the final checkpoint: a resume only evaluates
+        if checkpointer is None:
+            raise
+        raise DiskFullError(exc.path, exc.reason, f"{exc.kept}; {checkpointer.kept()}", exc.writing) from exc
     return run
 
 
@@ -249,7 +297,7 @@ def write_run(run: RunResult, dataset: Dataset, out_dir: Path, test_names) -> No
     out_dir = Path(out_dir)
     out_dir.parent.mkdir(parents=True, exist_ok=True)
     with atomic_dir(out_dir, overwrite=True) as tmp:
-        atomic_write_json(tmp / "config.json", {**run.config, "dataset": str(dataset.root), "provenance": env.provenance()})
+        atomic_write_json(tmp / "config.json", {**run.config, "provenance": env.provenance()})  # the dataset's absolute path
         if (out_dir / CHECKPOINT_FILE).is_file():  # the final checkpoint fit() wrote there
             shutil.copy2(out_dir / CHECKPOINT_FILE, tmp / CHECKPOINT_FILE)
         save_parameters(tmp / "params.npz", run.model.parameters())
@@ -301,10 +349,13 @@ def resume_run(run_dir: Path, train_overrides: Mapping[str, Any] | None = None, 
         raise OutputError(run_dir, None, f"the run finished at step {ckpt.step} (metrics.json); nothing to resume: "
                                          f"pass --steps N (N > {ckpt.step}) to train it on")
     eval_config = from_dict(EvalConfig, ckpt.config.get("eval") or {})
+    method = run_method(ckpt.config, path)
+    method_config(method, ckpt.config.get("method_config"), path)  # its settings checked before the data loads
     if dataset is None:
         dataset = open_dataset(ckpt.config, path)
         verify_dataset(dataset, hashes=verify_hashes)
-    return fit(dataset, ckpt.config["method"], ckpt.config.get("method_config"), train_config, run_dir,
+    _check_same_dataset(ckpt.config, dataset, run_dir)
+    return fit(dataset, method, ckpt.config.get("method_config"), train_config, run_dir,
                eval_config=eval_config, progress=progress, resume=True,
                deterministic=bool(ckpt.config.get("deterministic")))
 
@@ -331,27 +382,27 @@ def load_run(run_dir: Path) -> tuple[Model, Dataset, dict]:
     if ckpt_path.is_file():
         ckpt = load_checkpoint(ckpt_path)
         config, params, extra, where = ckpt.config, ckpt.params, ckpt.extra_state, ckpt_path
+        config_where = ckpt_path
     else:
         from mitsnerf.data.transforms import read_json
 
         where = run_dir / "params.npz"
         if not (run_dir / "config.json").is_file() or not where.is_file():
             raise DatasetError(run_dir, None, "neither checkpoint.npz nor config.json + params.npz: not a run directory")
-        config = read_json(run_dir / "config.json")
+        config_where = run_dir / "config.json"
+        config = read_json(config_where)
         params = read_npz(where, "parameter file")
         extra = {}
-    dataset = open_dataset(config, where)
+    method = run_method(config, config_where)
+    method_config(method, config.get("method_config"), config_where)  # checked before the data loads
+    dataset = open_dataset(config, config_where)
     info = scene_info(dataset, dataset.views("train").images)
     seed = int((config.get("train") or {}).get("seed", 0))
-    model, _ = build_model(config["method"], config.get("method_config"), info, seed)
+    model, _ = build_model(method, config.get("method_config"), info, seed, config_where)
     current = model.parameters()
     missing = sorted(set(current) - set(params))
     if missing:
-        raise DatasetError(where, None, f"missing parameters {', '.join(missing)} of method {config['method']!r}")
-    try:
-        model.set_parameters({k: type(current[k])(np.ascontiguousarray(params[k])) for k in current})
-    except ParameterShapeError as e:
-        raise DatasetError(where, e.key, f"{e} from the run's config: the run was written by another version of "
-                           f"method {config['method']!r}{_written_by(run_dir)}; retrain it") from None
+        raise DatasetError(where, None, f"missing parameters {', '.join(missing)} of method {method!r}")
+    set_checked(model, {k: type(current[k])(np.ascontiguousarray(params[k])) for k in current}, where, method, run_dir)
     model.load_extra_state(extra)
     return model, dataset, config

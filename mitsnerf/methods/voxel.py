@@ -28,7 +28,7 @@ import mitsuba as mi
 from mitsnerf.config import check_fields, param
 from mitsnerf.fields.occupancy import OccupancyConfig
 from mitsnerf.fields.voxel import VoxelField, VoxelFieldConfig, total_variation, upsample
-from mitsnerf.methods.base import RenderOutput, SceneInfo, cover_radiance
+from mitsnerf.methods.base import ParameterShapeError, RenderOutput, SceneInfo, cover_radiance
 from mitsnerf.methods.occupancy import OccupancyModel
 
 SIGMA_KEY = "sigma_raw"
@@ -91,6 +91,14 @@ class VoxelMethodConfig:
         return self.initial_resolution * 2 ** sum(1 for s in self.upsample_steps if step > s)
 
 
+def _check_grids(sigma, sh, channels: int) -> None:
+    """Both grids cubes of one resolution ``R``: sigma ``(R, R, R, 1)``, sh ``(R, R, R, channels)``."""
+    r = int(sigma.shape[0]) if len(sigma.shape) else 0
+    for key, grid, c in ((SIGMA_KEY, sigma, 1), (SH_KEY, sh, channels)):
+        if r < 1 or tuple(grid.shape) != (r, r, r, c):
+            raise ParameterShapeError(key, tuple(grid.shape), (max(r, 1),) * 3 + (c,))
+
+
 class VoxelModel(OccupancyModel):
     name = "voxel"
 
@@ -103,10 +111,13 @@ class VoxelModel(OccupancyModel):
         return {SIGMA_KEY: self.base_field.sigma_raw, SH_KEY: self.base_field.sh}
 
     def set_parameters(self, values: Mapping[str, Any]) -> None:
-        """Take new grids (any resolution: a resumed run may hold upsampled ones)."""
+        """Take new grids (any resolution: a resumed run may hold upsampled ones), both shaped
+        ``(R, R, R, C)`` with the same ``R`` and the channels of the config (else a ParameterShapeError)."""
         sigma = values[SIGMA_KEY] if SIGMA_KEY in values else None
         sh = values[SH_KEY] if SH_KEY in values else None
         if sigma is not None or sh is not None:
+            field = self.base_field
+            _check_grids(field.sigma_raw if sigma is None else sigma, field.sh if sh is None else sh, field.sh.shape[-1])
             self.base_field = self.base_field.with_grids(sigma, sh)
 
     @property

@@ -82,6 +82,20 @@ def test_a_resumed_model_takes_upsampled_grids():
     assert config.resolution_at(3) == 4 and config.resolution_at(4) == 8
 
 
+def test_grids_of_another_shape_are_refused_naming_the_parameter():
+    from mitsnerf.methods.base import ParameterShapeError, SceneInfo
+    from mitsnerf.render.background import ConstantBackground
+
+    config = VoxelMethodConfig(resolution=8, initial_resolution=4, upsample_steps=(3,), n_samples=8)
+    model = VoxelModel(config, SceneInfo(UNIT_BOX, ConstantBackground((0, 0, 0)), 1.0))
+    with pytest.raises(ParameterShapeError, match=r"\(3, 5\)") as bad_sh:
+        model.set_parameters({SH_KEY: mi.TensorXf(np.zeros((3, 5), np.float32))})
+    with pytest.raises(ParameterShapeError) as mixed:  # an 8^3 density with the current 4^3 colours
+        model.set_parameters({SIGMA_KEY: mi.TensorXf(np.zeros((8, 8, 8, 1), np.float32))})
+    assert (bad_sh.value.key, mixed.value.key) == (SH_KEY, SH_KEY) and mixed.value.want == (8, 8, 8, 12)
+    assert model.resolution == 4
+
+
 def test_config_is_validated():
     assert get_method("voxel").config_type is VoxelMethodConfig
     with pytest.raises(ValueError, match="upsample_steps"):
