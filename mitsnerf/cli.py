@@ -193,7 +193,7 @@ def _fresh_settings(args) -> tuple[str, dict, object]:
 
     if not args.dataset:
         raise UsageError("train", "name a DATASET directory (or pass --resume to continue the run in --out)")
-    method = args.method or DEFAULT_METHOD
+    method = DEFAULT_METHOD if args.method is None else args.method
     if method not in METHODS:
         raise UsageError("--method", f"unknown method {method!r} (known: {', '.join(sorted(METHODS))})")
     overrides = apply_overrides({}, _overrides(args.set), "--set")
@@ -210,12 +210,22 @@ def _check_resume_flags(args) -> None:
     fixed = [flag for flag, value in (("--method", args.method), ("--set", args.set), ("--batch-rays", args.batch_rays),
                                        ("--lr", args.lr), ("--seed", args.seed), ("--box", args.box),
                                        ("--footprint", args.footprint), ("--no-pixel-jitter", args.no_pixel_jitter),
-                                       ("--deterministic", args.deterministic)) if value]
+                                       ("--deterministic", args.deterministic)) if value not in (None, False)]
     if args.force:
         raise UsageError("--force", "starts the run over; --resume continues it: pass one of them")
     if fixed:
         raise UsageError("train --resume", f"{', '.join(fixed)} come from the checkpoint; "
                                            "only --steps, --seconds and --checkpoint-every may change")
+
+
+def _check_outside_dataset(out: Path, dataset: Path) -> None:
+    """Refuse a run directory inside (or at) the dataset directory: its files would change a hashed dataset."""
+    from mitsnerf.errors import UsageError
+
+    ds = dataset.resolve()
+    if out.resolve().is_relative_to(ds):
+        raise UsageError("--out", f"{out} is inside the dataset {dataset}: a run there would change the dataset's "
+                                  "files; put the run outside it, e.g. --out runs/NAME")
 
 
 def cmd_train(args) -> int:
@@ -229,6 +239,8 @@ def cmd_train(args) -> int:
     else:
         method, overrides, eval_config = _fresh_settings(args)
     out = Path(args.out)
+    if args.dataset:
+        _check_outside_dataset(out, Path(args.dataset))
     with claim_run_dir(out, resume=args.resume, force=args.force):
         if args.resume:
             run = resume_run(out, train_values, dataset=_load(args, args.dataset) if args.dataset else None,
@@ -313,10 +325,11 @@ def cmd_render(args) -> int:
 
 
 def cmd_export(args) -> int:
-    from mitsnerf.export import export_run
+    from mitsnerf.export import MAX_RESOLUTION, export_run
     from mitsnerf.outputs import check_output_dir
 
-    _check_numbers([("--resolution", args.resolution, lambda v: v >= 1, ">= 1"),
+    _check_numbers([("--resolution", args.resolution, lambda v: 1 <= v <= MAX_RESOLUTION,
+                     f"in [1, {MAX_RESOLUTION}] (an R^3 grid: R = {MAX_RESOLUTION} already writes 32 GiB)"),
                     ("--directions", args.directions, lambda v: v >= 1, ">= 1"),
                     ("--direction", args.direction, lambda v: True, "finite")])
     if args.direction is not None and not any(args.direction):
@@ -643,10 +656,12 @@ def user_error_line(exc: BaseException) -> str | None:
     """
     from mitsnerf._llvm import LLVMError
     from mitsnerf.env import EnvironmentError_
-    from mitsnerf.errors import MitsnerfError
+    from mitsnerf.errors import DiskFullError, MitsnerfError
 
     if isinstance(exc, (MitsnerfError, LLVMError, EnvironmentError_)):
         return str(exc)
+    if DiskFullError.of(exc) is not None:  # a full disk the atomic writers did not see (a lock file, a cache)
+        return str(DiskFullError.of(exc))
     if isinstance(exc, OSError) and exc.errno in ENVIRONMENT_ERRNOS and exc.filename is not None:
         return f"{exc.filename}: {exc.strerror}"
     return None

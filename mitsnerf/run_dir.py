@@ -91,6 +91,15 @@ def check_run_dir(path: str | os.PathLike, *, resume: bool, force: bool, option:
     return state
 
 
+def check_renamable(path: Path, option: str = "--out") -> None:
+    """Refuse a run directory that cannot be renamed into place: ``.``, ``..``, ``""``, the current
+    directory or one above it, or ``/`` (a run is built beside its directory and renamed onto it)."""
+    here, full = Path.cwd().resolve(), path.resolve()
+    if path.name in ("", ".", "..") or full == here or full in here.parents:
+        raise OutputError(None, option, f"{str(path)!r} is the current directory or one above it: a run is written "
+                                        "beside its directory and renamed into place; name a new one, e.g. --out run")
+
+
 def lock_path(path: str | os.PathLike) -> Path:
     """The lock file of run directory ``path``: ``.NAME.lock`` beside it (the directory itself is
     renamed into place when the run finishes, so its lock cannot live inside it)."""
@@ -118,6 +127,7 @@ def claim_run_dir(path: str | os.PathLike, *, resume: bool = False, force: bool 
     state. A run started over (``--force``) removes the old one's files only when training starts
     (:func:`mitsnerf.run.fit`), so a refusal on the way (a bad dataset) loses nothing."""
     path = Path(path)
+    check_renamable(path, option)
     check_output_dir(path, option, replaced=True)
     with exclusive_lock(lock_path(path), wait=False, what=path):
         yield check_run_dir(path, resume=resume, force=force, option=option)

@@ -10,6 +10,7 @@ tiny dataset and run they share are ``conftest.py``'s ``world``.
 
 from __future__ import annotations
 
+import errno
 import json
 import os
 import shutil
@@ -147,6 +148,67 @@ def deleted_cached_image(ctx) -> None:
     (ctx.ds / "train" / "r_001.exr").unlink()
 
 
+def edited_checkpoint(change: Callable) -> Callable:
+    """A copy of the run whose checkpoint ``change(ckpt, ctx)`` edited (as another version or a hand would)."""
+    def setup(ctx) -> None:
+        from mitsnerf.checkpoint import load_checkpoint, save_checkpoint
+
+        path = copy_run(ctx) / "checkpoint.npz"
+        ckpt = load_checkpoint(path)
+        ctx.key = sorted(ckpt.params)[0]
+        change(ckpt, ctx)
+        save_checkpoint(path, ckpt)
+    return setup
+
+
+def edited_config(change: Callable) -> Callable:
+    """A copy of the run without its checkpoint (render and export read config.json + params.npz), whose
+    ``config.json`` ``change(config)`` edited."""
+    def setup(ctx) -> None:
+        (copy_run(ctx) / "checkpoint.npz").unlink()
+        config = json.loads((ctx.rn / "config.json").read_text())
+        change(config)
+        (ctx.rn / "config.json").write_text(json.dumps(config))
+    return setup
+
+
+def misshaped_params(ctx) -> None:
+    (copy_run(ctx) / "checkpoint.npz").unlink()
+    params = dict(np.load(ctx.rn / "params.npz"))
+    ctx.key = sorted(params)[0]
+    params[ctx.key] = np.zeros((3, 5), np.float32)
+    np.savez(ctx.rn / "params.npz", **params)
+
+
+def run_and_another_dataset(ctx) -> None:
+    """The finished run, and a second tiny dataset (another volume seed: another manifest hash)."""
+    copy_run(ctx)
+    assert main(["generate", str(ctx.world.spec), "--set", "volume.seed=2", "--out", str(ctx.tmp / "d2")]) == 0
+    (ctx.ds2,) = (ctx.tmp / "d2").iterdir()
+
+
+def disk_full(name: str, nth: int = 1) -> Callable:
+    """A full disk reported when the ``nth`` file called ``name`` is synced (its temporary, by the atomic
+    writers): ``fsync`` is where a filesystem with delayed allocation (ext4, XFS, NFS) reports ENOSPC, the
+    bytes written before never reaching the disk. Other files are written as usual."""
+    def fault(ctx, monkeypatch) -> None:
+        real, seen = os.fsync, []
+
+        def fsync(fd) -> None:
+            if f"{name}.tmp-" in Path(os.readlink(f"/proc/self/fd/{fd}")).name:
+                seen.append(fd)
+                if len(seen) == nth:
+                    raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))
+            real(fd)
+
+        monkeypatch.setattr(os, "fsync", fsync)
+    return fault
+
+
+def in_tmp(ctx, monkeypatch) -> None:
+    monkeypatch.chdir(ctx.tmp)
+
+
 # --------------------------------------------------------------------------- what must be left
 
 
@@ -161,6 +223,16 @@ def unchanged(name: str) -> Callable:
 def absent(pattern: str) -> Callable:
     def check(ctx, before) -> None:
         assert not list(ctx.tmp.glob(pattern)), sorted(p.name for p in ctx.tmp.glob(pattern))
+    return check
+
+
+def only_checkpoint(name: str, step: int) -> Callable:
+    """``ctx.tmp / name`` holds the checkpoint of ``step`` and nothing else (no temporary, no half a run)."""
+    def check(ctx, before) -> None:
+        from mitsnerf.checkpoint import load_checkpoint
+
+        assert sorted(p.name for p in (ctx.tmp / name).iterdir()) == ["checkpoint.npz"]
+        assert load_checkpoint(ctx.tmp / name / "checkpoint.npz").step == step
     return check
 
 
@@ -182,6 +254,8 @@ class Case:
     setup: Callable | None = None
     left: tuple[Callable, ...] = ()
     env: dict = field(default_factory=dict)
+    fault: Callable | None = None
+    """``fault(ctx, monkeypatch)`` before the command: a fault to inject, or a directory to run in."""
 
 
 def train_on(dataset: str) -> list[str]:
@@ -310,6 +384,58 @@ CASES = [
          ("render.spp_test", "[1, 1048576]"), None, (absent("d"),)),
     Case("--resume of a finished run", 7, ["train", "--resume", "--out", "{rn}"], 2,
          ("{rn}", "finished at step 2", "--steps"), copy_run, (unchanged("rn"),)),
+    # runs, checkpoints, outputs and full disks: tracebacks that must be one line
+    *[Case(f"checkpoint of an unknown method {cmd[0]}", 5, cmd, 2,
+           ("{rn}/checkpoint.npz", "method", "'bogus'", "known: "),
+           edited_checkpoint(lambda c, ctx: c.config.update(method="bogus")), (unchanged("rn"), absent("img"), absent("x")))
+      for cmd in (["train", "--resume", "--out", "{rn}", "--steps", "4"], ["render", "{rn}", "--out", "{tmp}/img"],
+                  ["export", "{rn}", "--out", "{tmp}/x"])],
+    Case("checkpoint without method --resume", 5, ["train", "--resume", "--out", "{rn}", "--steps", "4"], 2,
+         ("{rn}/checkpoint.npz", "method", "missing"), edited_checkpoint(lambda c, ctx: c.config.pop("method")),
+         (unchanged("rn"),)),
+    Case("config.json of an unknown method render", 5, ["render", "{rn}", "--out", "{tmp}/img"], 2,
+         ("{rn}/config.json", "method", "'bogus'", "known: "), edited_config(lambda c: c.update(method="bogus")),
+         (unchanged("rn"), absent("img"))),
+    Case("config.json without method export", 5, ["export", "{rn}", "--out", "{tmp}/x"], 2,
+         ("{rn}/config.json", "method", "missing"), edited_config(lambda c: c.pop("method")),
+         (unchanged("rn"), absent("x"))),
+    Case("config.json bad method_config export", 5, ["export", "{rn}", "--out", "{tmp}/x"], 2,
+         ("{rn}/config.json", "method_config.bogus", "unknown"),
+         edited_config(lambda c: c["method_config"].update(bogus=1)), (unchanged("rn"), absent("x"))),
+    Case("checkpoint lacking a parameter --resume", 5, ["train", "--resume", "--out", "{rn}", "--steps", "4"], 2,
+         ("{rn}/checkpoint.npz", "param/{key}", "missing"), edited_checkpoint(lambda c, ctx: c.params.pop(ctx.key)),
+         (unchanged("rn"),)),
+    Case("checkpoint misshaped parameter --resume", 5, ["train", "--resume", "--out", "{rn}", "--steps", "4"], 2,
+         ("{rn}/checkpoint.npz", "{key}", "(3, 5)"),
+         edited_checkpoint(lambda c, ctx: c.params.update({ctx.key: np.zeros((3, 5), np.float32)})), (unchanged("rn"),)),
+    Case("params.npz misshaped parameter export", 5, ["export", "{rn}", "--out", "{tmp}/x"], 2,
+         ("{rn}/params.npz", "{key}", "(3, 5)"), misshaped_params, (unchanged("rn"), absent("x"))),
+    Case("export --resolution 100000", 5, ["export", "{world.run}", "--out", "{tmp}/x", "--resolution", "100000"], 2,
+         ("--resolution", "[1, 1024]", "100000"), None, (absent("x"),)),
+    Case("train --out ''", 5, [*TRAIN, "--out", ""], 2, ("--out", "current directory"), None, (absent("*"), absent(".*")),
+         fault=in_tmp),
+    Case("train --out .", 5, [*TRAIN, "--out", "."], 2, ("--out", "'.'", "current directory"), None,
+         (absent("*"), absent(".*")), fault=in_tmp),
+    Case("disk full during generate", 5, ["generate", "{world.spec}", "--out", "{tmp}/d"], 2,
+         ("{tmp}/d/tiny-", "disk full", "writing train/r_001.png", "was not created"), None,
+         (absent("d/*"), absent("d/.*")), fault=disk_full("r_001.png")),
+    Case("disk full at the second checkpoint", 5, ["train", "{world.dataset}", "--steps", "12", "--checkpoint-every", "5",
+                                                   "NERF", "--out", "{tmp}/r"], 2,
+         ("{tmp}/r/checkpoint.npz", "disk full", "step 10 was not saved", "step 5, is kept", "train --resume --out"),
+         None, (only_checkpoint("r", 5), absent(".r*")), fault=disk_full("checkpoint.npz", 2)),
+    Case("disk full during export", 5, ["export", "{world.run}", "--out", "{tmp}/x"], 2,
+         ("{tmp}/x", "disk full", "writing sigma_t.npy", "none of sigma_t.vol"), None, (absent("x"), absent(".x*")),
+         fault=disk_full("sigma_t.npy")),
+    # runs, checkpoints and outputs: silently accepted, now refused
+    Case("--resume on another dataset", 4, ["train", "{ds2}", "--resume", "--out", "{rn}", "--steps", "4"], 2,
+         ("--resume", "{world.dataset}", "{ds2}"), run_and_another_dataset, (unchanged("rn"),)),
+    Case("--method ''", 6, ["train", "{world.dataset}", "--out", "{tmp}/r", "--method", ""], 2,
+         ("--method", "''", "known: ", "ngp"), None, (absent("r"),)),
+    Case("checkpoint step -5", 3, ["train", "--resume", "--out", "{rn}", "--steps", "4"], 2,
+         ("{rn}/checkpoint.npz", "step", "-5"), edited_checkpoint(lambda c, ctx: setattr(c, "step", -5)),
+         (unchanged("rn"),)),
+    Case("--out inside the dataset", 1, [*train_on("{ds}"), "--out", "{ds}/run"], 2, ("--out", "{ds}/run", "inside the dataset"),
+         copy_dataset, (unchanged("ds"),)),
 ]
 
 
@@ -329,6 +455,8 @@ def test_battery(case: Case, world, tmp_path, capsys, monkeypatch):
     for key, value in case.env.items():
         monkeypatch.setenv(key, _fill(value, ctx))
     before = {name: _snapshot(getattr(ctx, name)) for check in case.left for name in getattr(check, "snapshots", ())}
+    if case.fault is not None:
+        case.fault(ctx, monkeypatch)
     capsys.readouterr()
     try:
         code = main(cli_args(case.argv, ctx))
@@ -366,6 +494,24 @@ def test_force_replaces_a_finished_run_and_keeps_what_it_did_not_write(world, tm
     assert json.loads((run / "metrics.json").read_text())["steps"] == 3
     assert (run / "notes.txt").read_text() == "mine" and (run / "renders" / "a.png").read_bytes() == b"png"
     assert not list(tmp_path.glob(".rn*")), "no lock file or temporary left beside the run"
+
+
+def test_resume_on_a_moved_copy_of_its_dataset_continues(world, tmp_path):
+    """The run records its dataset's manifest hash: the same data elsewhere is the same dataset."""
+    ctx = SimpleNamespace(world=world, tmp=tmp_path)
+    run, moved = copy_run(ctx), tmp_path / "moved"
+    shutil.copytree(world.dataset, moved)
+    assert main(["train", str(moved), "--resume", "--out", str(run), "--steps", "3"]) == 0
+    assert json.loads((run / "metrics.json").read_text())["steps"] == 3
+
+
+def test_a_full_disk_is_one_line_and_other_os_errors_are_bugs():
+    from mitsnerf.cli import user_error_line
+
+    line = user_error_line(OSError(errno.ENOSPC, os.strerror(errno.ENOSPC)))  # a write that names no file
+    assert line is not None and "disk full" in line
+    assert user_error_line(OSError(errno.EDQUOT, os.strerror(errno.EDQUOT))) is not None
+    assert user_error_line(OSError(errno.EBADF, os.strerror(errno.EBADF))) is None
 
 
 def test_a_locked_run_directory_is_refused_naming_the_holder(world, tmp_path, capsys):
