@@ -584,7 +584,7 @@ def _export_parser(sub) -> None:
                        epilog=EXPORT_EPILOG, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("run", help="run directory (mitsnerf train --out)")
     p.add_argument("--out", help="output directory (default: RUN/export)")
-    p.add_argument("--resolution", type=int, default=64, metavar="R", help="grid resolution R (default 64)")
+    p.add_argument("--resolution", type=int, default=64, metavar="R", help="grid resolution R, 1..1024 (default 64)")
     p.add_argument("--direction", type=float, nargs=3, metavar=("X", "Y", "Z"),
                    help="colour seen looking along this direction (default: averaged over directions)")
     p.add_argument("--directions", type=int, default=16, metavar="M",

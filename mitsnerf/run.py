@@ -46,7 +46,8 @@ from mitsnerf.train.threads import one_thread
 class RunResult:
     method: str
     config: dict
-    """The run config: method, method_config, train, eval, dataset (what ``config.json`` holds)."""
+    """The run config: method, method_config, train, eval, dataset (its path and manifest hash, ``dataset_hash``)
+    (what ``config.json`` holds)."""
     train: TrainResult
     scores: dict
     """:func:`mitsnerf.scoring.score_views` of the test views, plus ``psnr_train``."""
