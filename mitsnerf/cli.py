@@ -179,10 +179,23 @@ def _load(args, path):
             raise UsageError("--box", str(exc).removeprefix("box: ")) from None
     dataset = load_dataset(Path(path), box=box, pixel_center=args.pixel_center, background=args.background)
     print(f"mitsnerf: scene box {dataset.box.to_list()} ({dataset.box_source})", flush=True)
+    if not dataset.manifest:  # foreign data, whose own readers may use a fixed near/far
+        print(f"mitsnerf: near/far: {_near_far(dataset)}", flush=True)
     v = verify_dataset(dataset, hashes=not args.no_verify)
     hashed = f"{v.hashed_files} files hashed ({v.hashed_bytes / 1e6:.1f} MB), " if v.hashed_files else ""
     print(f"mitsnerf: dataset verified: {hashed}{v.views} views checked in {v.seconds:.2f} s", flush=True)
     return dataset
+
+
+def _near_far(dataset) -> str:
+    """The near/far rule and the range it gives over the training views, in words."""
+    from mitsnerf.data.box import NEAR_FAR_RULE, near_far_range
+
+    views = dataset.views("train")
+    n_lo, n_hi, f_lo, f_hi, misses, rays = near_far_range(dataset.box, views.cameras, views.pixel_center)
+    missed = f"; {misses} of {rays} sampled rays miss the box" if misses else ""
+    return (f"{NEAR_FAR_RULE}, no fixed near/far; over the train views t_n {n_lo:.3g}..{n_hi:.3g}, "
+            f"t_f {f_lo:.3g}..{f_hi:.3g}{missed}")
 
 
 def _fresh_settings(args) -> tuple[str, dict, object]:
