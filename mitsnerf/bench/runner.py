@@ -363,11 +363,19 @@ def run_benchmark(config: BenchConfig, options: BenchOptions, log: Callable[[str
                       workers=options.workers, threads=options.cpus_per_cell, address=options.address,
                       on_start=on_start)
         except KeyboardInterrupt as exc:  # Ctrl-C, SIGTERM, SIGHUP: the same exit status, the cells kept
-            from mitsnerf.errors import Interrupted
-            from mitsnerf.train.checkpointing import signal_number
+            raise _stopped(exc, f"{len(result.computed)} cells finished in this run are saved under {out_root}; run "
+                                "the same command again to resume (the cell in flight continues from its "
+                                "checkpoint, if it reached one)") from None
+    try:
+        return write_outputs(config, options, cells, result)
+    except KeyboardInterrupt as exc:  # after the last cell: only the tables and the report are missing
+        raise _stopped(exc, f"every cell is saved under {out_root}; run the same command again to write the tables "
+                            "and the report") from None
 
-            raise Interrupted(signal_number(exc), (f"{exc}; " if str(exc) else "") +
-                              f"{len(result.computed)} cells finished in this run are saved under {out_root}; run the "
-                              "same command again to resume (the cell in flight continues from its checkpoint, "
-                              "if it reached one)") from None
-    return write_outputs(config, options, cells, result)
+
+def _stopped(exc: KeyboardInterrupt, saved: str):
+    """The :class:`~mitsnerf.errors.Interrupted` of a stopped sweep: the signal, then what is saved and what to do."""
+    from mitsnerf.errors import Interrupted
+    from mitsnerf.train.checkpointing import signal_number
+
+    return Interrupted(signal_number(exc), (f"{exc}; " if str(exc) else "") + saved)

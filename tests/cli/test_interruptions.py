@@ -296,3 +296,29 @@ def test_a_signal_handled_inside_a_finalizer_still_stops_the_training(world, tmp
     assert err.strip().splitlines()[-1] == (
         f"mitsnerf: interrupted; stopped by {signal.Signals(signum).name}; checkpoint of step 3 saved to "
         f"{run / 'checkpoint.npz'}; continue with mitsnerf train --resume --out {run}")
+
+
+def test_a_sweep_stopped_after_its_last_cell_says_how_to_write_the_tables(world, tmp_path, monkeypatch, capsys):
+    """The signal may land after the last cell, while the tables are written (a sweep whose signal came
+    late): the line still says what is saved and what to run, and the next run only writes the tables."""
+    import mitsnerf.bench.runner
+    from mitsnerf.errors import Interrupted
+
+    config = tmp_path / "b.toml"
+    config.write_text(BENCH.replace("SPEC", str(world.spec)).replace("steps = 80", "steps = 8"))
+    data = tmp_path / "data"
+    shutil.copytree(world.dataset.parent, data)
+    argv = ["bench", str(config), "--results", str(tmp_path / "res"), "--data", str(data), "--no-progress"]
+    write_outputs = mitsnerf.bench.runner.write_outputs
+
+    def stopped(*args, **kwargs):
+        raise Interrupted(15, "stopped by SIGTERM")  # as the handler raises it there
+
+    monkeypatch.setattr(mitsnerf.bench.runner, "write_outputs", stopped)
+    assert main(argv) == 143
+    assert capsys.readouterr().err.strip().splitlines()[-1] == (
+        f"mitsnerf: interrupted; stopped by SIGTERM; every cell is saved under {tmp_path / 'res' / 'b'}; run the "
+        "same command again to write the tables and the report")
+    monkeypatch.setattr(mitsnerf.bench.runner, "write_outputs", write_outputs)
+    assert main(argv) == 0
+    assert "0 cells run, 1 already done" in capsys.readouterr().out
