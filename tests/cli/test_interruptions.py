@@ -322,3 +322,28 @@ def test_a_sweep_stopped_after_its_last_cell_says_how_to_write_the_tables(world,
     monkeypatch.setattr(mitsnerf.bench.runner, "write_outputs", write_outputs)
     assert main(argv) == 0
     assert "0 cells run, 1 already done" in capsys.readouterr().out
+
+
+def test_a_signal_while_the_last_checkpoint_is_written_writes_it_again_and_says_so(world, tmp_path, monkeypatch):
+    """Without --checkpoint-every the checkpoint at the end is the only one: a signal while it is written
+    (or while the bar closes) is inside the trainer's watch, so the step is saved and the line says so."""
+    from mitsnerf.checkpoint import Checkpointer, load_checkpoint
+    from mitsnerf.data.dataset import load_dataset
+    from mitsnerf.errors import Interrupted
+    from mitsnerf.run import fit
+    from mitsnerf.train import TrainConfig
+
+    save, calls = Checkpointer.save, []
+
+    def stopped_while_writing_the_first(self, state):
+        calls.append(state.step)
+        if len(calls) == 1:
+            raise Interrupted(15, "stopped by SIGTERM")  # as the handler raises it inside the write
+        save(self, state)
+
+    monkeypatch.setattr(Checkpointer, "save", stopped_while_writing_the_first)
+    overrides = {"network": {"width": 8, "depth": 1, "head_width": 8, "features": 4}, "n_samples": 8}
+    run = tmp_path / "run"
+    with pytest.raises(Interrupted, match=r"stopped by SIGTERM; checkpoint of step 4 saved"):
+        fit(load_dataset(world.dataset), "nerf", overrides, TrainConfig(steps=4, batch_rays=64), run, progress=False)
+    assert calls == [4, 4] and load_checkpoint(run / "checkpoint.npz").step == 4
