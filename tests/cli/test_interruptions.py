@@ -271,8 +271,31 @@ class _SignalsInItsFinalizer:
         self.signum = 0  # an instruction after the signal: its handler runs here, inside the finalizer
 
 
+def _a_weakref_callback_signals(signum: int) -> None:
+    """As the sweep that printed ``Exception ignored in: <function WeakKeyDictionary.__init__.<locals>.remove>``:
+    a weakref's callback, run when its referent goes, is where the signal is handled."""
+    import weakref
+
+    class Referent:
+        pass
+
+    def callback(ref) -> None:
+        signal.raise_signal(signum)
+        ref.signum = signum  # its handler runs here, inside the callback
+
+    referent = Referent()
+    ref = weakref.ref(referent, callback)
+    del referent  # the callback runs now
+    assert ref() is None
+
+
+FINALIZERS = {"__del__": _SignalsInItsFinalizer, "weakref callback": _a_weakref_callback_signals}
+
+
+@pytest.mark.parametrize("finalizer", FINALIZERS)
 @pytest.mark.parametrize("signum", [signal.SIGTERM, signal.SIGINT])
-def test_a_signal_handled_inside_a_finalizer_still_stops_the_training(world, tmp_path, monkeypatch, capsys, signum):
+def test_a_signal_handled_inside_a_finalizer_still_stops_the_training(world, tmp_path, monkeypatch, capsys, signum,
+                                                                      finalizer):
     """The window of a sweep that printed ``Exception ignored in: ... WeakKeyDictionary ... remove``
     and ran on: a stop signal landing in a finalizer was printed and lost. It must stop the command
     as anywhere else: the checkpoint of the step, the line that says how to continue, 128 + signum."""
@@ -284,7 +307,7 @@ def test_a_signal_handled_inside_a_finalizer_still_stops_the_training(world, tmp
     def one_step_then_a_finalizer_at_3(loop):
         step(loop)
         if loop.step == 3:
-            _SignalsInItsFinalizer(signum)  # dropped at once: its finalizer runs now
+            FINALIZERS[finalizer](signum)  # its finalizer runs at once
             end = time.monotonic() + 10
             while time.monotonic() < end:  # the stop comes back from the finalizer at an instruction here
                 time.sleep(0.01)
