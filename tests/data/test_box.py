@@ -128,8 +128,6 @@ def test_train_on_foreign_data_says_its_near_far_rule_beside_the_box(tmp_path, c
 
 def test_mitsnerf_data_prints_no_near_far_line(tmp_path, capsys):
     """mitsnerf's own datasets are not foreign: the box line alone (their readers follow the manifest)."""
-    import shutil
-
     from tests.cli.conftest import SPEC
 
     spec = tmp_path / "tiny.toml"
@@ -141,4 +139,3 @@ def test_mitsnerf_data_prints_no_near_far_line(tmp_path, capsys):
                  "--batch-rays", "16", "--set", "network.width=8", "--set", "network.depth=1"]) == 0
     out = capsys.readouterr().out
     assert "mitsnerf: scene box" in out and "near/far" not in out
-    shutil.rmtree(tmp_path / "data")
