@@ -61,8 +61,14 @@ def wait_for_step(checkpoint: Path, proc: subprocess.Popen, step: int, timeout: 
 
 
 def stop(proc: subprocess.Popen, signum: int) -> tuple[int, str]:
+    """Send ``signum``; the exit status and stderr (a child still running a minute later is killed)."""
     proc.send_signal(signum)
-    _, err = proc.communicate(timeout=60)
+    try:
+        _, err = proc.communicate(timeout=60)
+    except subprocess.TimeoutExpired:
+        proc.kill()
+        proc.communicate()
+        raise
     return proc.returncode, err
 
 
@@ -370,3 +376,23 @@ def test_a_signal_while_the_last_checkpoint_is_written_writes_it_again_and_says_
     with pytest.raises(Interrupted, match=r"stopped by SIGTERM; checkpoint of step 4 saved"):
         fit(load_dataset(world.dataset), "nerf", overrides, TrainConfig(steps=4, batch_rays=64), run, progress=False)
     assert calls == [4, 4] and load_checkpoint(run / "checkpoint.npz").step == 4
+
+
+def test_a_pool_sweep_stopped_by_sigterm_stops_its_cells_in_flight_at_their_checkpoint(world, tmp_path):
+    """SIGTERM reaches the driver alone (``timeout``, ``kill``): the cells training in pool workers get it
+    too, save their checkpoint and stop; before, the stopped driver waited for each to train to its end."""
+    from mitsnerf.checkpoint import load_checkpoint
+
+    config = tmp_path / "b.toml"
+    config.write_text(BENCH.replace("SPEC", str(world.spec)).replace("steps = 80", "steps = 4000"))
+    data = tmp_path / "data"
+    shutil.copytree(world.dataset.parent, data)
+    cell = tmp_path / "res" / "b" / "cells" / "tiny" / "nerf-seed0"
+    proc = spawn(["bench", str(config), "--results", str(tmp_path / "res"), "--data", str(data), "--no-progress",
+                  "--executor", "pool", "--workers", "1"])
+    wait_for_step(cell / "run" / "checkpoint.npz", proc, 2)
+    code, err = stop(proc, signal.SIGTERM)
+    assert code == 143 and "Traceback" not in err, err
+    assert "run the same command again to resume" in err.strip().splitlines()[-1]
+    assert load_checkpoint(cell / "run" / "checkpoint.npz").step < 4000
+    assert not (cell / "run" / "metrics.json").exists() and (cell / "in_flight.json").is_file()
