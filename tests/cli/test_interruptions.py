@@ -327,7 +327,9 @@ def test_a_signal_handled_inside_a_finalizer_still_stops_the_training(world, tmp
         f"{run / 'checkpoint.npz'}; continue with mitsnerf train --resume --out {run}")
 
 
-def test_a_sweep_stopped_after_its_last_cell_says_how_to_write_the_tables(world, tmp_path, monkeypatch, capsys):
+@pytest.mark.parametrize("wrapped", [False, True], ids=["signal", "signal-inside-an-import"])
+def test_a_sweep_stopped_after_its_last_cell_says_how_to_write_the_tables(world, tmp_path, monkeypatch, capsys,
+                                                                          wrapped):
     """The signal may land after the last cell, while the tables are written (a sweep whose signal came
     late): the line still says what is saved and what to run, and the next run only writes the tables."""
     import mitsnerf.bench.runner
@@ -341,6 +343,11 @@ def test_a_sweep_stopped_after_its_last_cell_says_how_to_write_the_tables(world,
     write_outputs = mitsnerf.bench.runner.write_outputs
 
     def stopped(*args, **kwargs):
+        if wrapped:
+            try:
+                raise Interrupted(15, "stopped by SIGTERM")
+            except Interrupted as exc:  # in the import of a C extension (matplotlib's, for the plots)
+                raise ImportError("initialization failed") from exc
         raise Interrupted(15, "stopped by SIGTERM")  # as the handler raises it there
 
     monkeypatch.setattr(mitsnerf.bench.runner, "write_outputs", stopped)
