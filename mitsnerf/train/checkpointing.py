@@ -11,7 +11,8 @@
 The next Python instruction may be inside a finalizer (``__del__``, a weakref callback, a
 generator the garbage collector closes), which cannot propagate an exception: Python would print
 the stop as "Exception ignored in ..." and run on. Inside :func:`stop_signals` such a stop is
-signalled again, and raised at the next instruction outside the finalizer.
+signalled again, and raised at the next instruction outside the finalizer; one that arrives while
+a module is imported is raised once the import is over.
 """
 
 from __future__ import annotations
@@ -27,6 +28,11 @@ from typing import Iterator
 from mitsnerf.errors import Interrupted
 
 STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)
+#: The frames of an import in progress: a stop raised there can leave a C extension half initialised (matplotlib's
+#: ft2font then aborts the interpreter's teardown: exit status 134, not 143), so it waits for the import to end.
+IMPORT_MACHINERY = frozenset({"<frozen importlib._bootstrap>", "<frozen importlib._bootstrap_external>"})
+#: How soon a stop handed back is signalled again.
+HAND_BACK_SECONDS = 0.01
 
 
 class _Stops:
@@ -36,7 +42,8 @@ class _Stops:
     raised in a finalizer reaches :meth:`hook` instead of the code that was running; it is handed
     back: signalled again from a timer thread (``_thread.interrupt_main``), so the handler raises it
     in the main thread's next instruction, outside the finalizer (handed back again if that is in
-    one too). The block waits for its hand-backs before it ends.
+    one too). A stop arriving during an import is handed back until the import is over. The block
+    waits for its hand-backs before it ends.
     """
 
     def __init__(self, previous_hook) -> None:
@@ -44,9 +51,9 @@ class _Stops:
         self.pending: list[threading.Timer] = []
 
     def handler(self, signum, frame) -> None:
-        while frame is not None:  # arriving while the hook runs: raised here it would be lost too
-            if frame.f_code is _Stops.hook.__code__:
-                self.hand_back(signum)
+        while frame is not None:
+            if frame.f_code is _Stops.hook.__code__ or frame.f_code.co_filename in IMPORT_MACHINERY:
+                self.hand_back(signum)  # raised in the hook it would be lost too; in an import it breaks the module
                 return
             frame = frame.f_back
         if signum == signal.SIGINT:
@@ -61,7 +68,7 @@ class _Stops:
         self.previous_hook(unraisable)
 
     def hand_back(self, signum: int) -> None:
-        timer = threading.Timer(0.001, _thread.interrupt_main, (signum,))
+        timer = threading.Timer(HAND_BACK_SECONDS, _thread.interrupt_main, (signum,))
         timer.daemon = True
         self.pending.append(timer)
         timer.start()

@@ -403,3 +403,41 @@ def test_a_pool_sweep_stopped_by_sigterm_stops_its_cells_in_flight_at_their_chec
     assert "run the same command again to resume" in err.strip().splitlines()[-1]
     assert load_checkpoint(cell / "run" / "checkpoint.npz").step < 4000
     assert not (cell / "run" / "metrics.json").exists() and (cell / "in_flight.json").is_file()
+
+
+#: Run in a child before ``python -m mitsnerf``: SIGTERM at the first Python code that matplotlib's ft2font (a
+#: pybind11 extension) runs while it initialises (its enums), the moment a fuzzed sweep hit. Raised there, the
+#: import failed and the interpreter's teardown then aborted (exit status 134, "Fatal Python error"); the stop
+#: must wait for the import to end.
+SIGNAL_IN_FT2FONT = """
+import runpy, signal, sys
+
+def profile(frame, event, arg):
+    if event == "call" and frame.f_code.co_filename.endswith("enum.py") and "_bootstrap" in frame.f_back.f_code.co_filename:
+        names, f = [], frame
+        while f is not None:
+            names.append(f.f_code.co_filename)
+            f = f.f_back
+        if any("matplotlib" in name for name in names):
+            sys.setprofile(None)
+            signal.raise_signal(signal.SIGTERM)
+
+sys.setprofile(profile)
+sys.argv = ["mitsnerf", *sys.argv[1:]]
+runpy.run_module("mitsnerf", run_name="__main__")
+"""
+
+
+def test_a_signal_during_an_extensions_import_waits_for_it_and_exits_with_its_status(world, tmp_path):
+    config = tmp_path / "b.toml"
+    config.write_text(BENCH.replace("SPEC", str(world.spec)).replace("steps = 80", "steps = 4"))
+    data = tmp_path / "data"
+    shutil.copytree(world.dataset.parent, data)
+    env = {**os.environ, "PYTHONPATH": child_pythonpath(REPO)}
+    proc = subprocess.run([sys.executable, "-c", SIGNAL_IN_FT2FONT, "bench", str(config), "--results",
+                           str(tmp_path / "res"), "--data", str(data), "--no-progress"], env=env, capture_output=True,
+                          text=True, timeout=300)
+    assert proc.returncode == 143, proc.stderr
+    assert proc.stderr.strip().splitlines()[-1] == (
+        f"mitsnerf: interrupted; stopped by SIGTERM; every cell is saved under {tmp_path / 'res' / 'b'}; run the "
+        "same command again to write the tables and the report")
