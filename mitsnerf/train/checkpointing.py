@@ -82,8 +82,8 @@ class _Stops:
 @contextmanager
 def stop_signals() -> Iterator[None]:
     """Inside the block, SIGTERM and SIGHUP raise :class:`Interrupted` as Ctrl-C raises
-    KeyboardInterrupt, also when the signal lands in a finalizer (only in the main thread, where
-    Python delivers signals)."""
+    KeyboardInterrupt, also when the signal lands in a finalizer, and after the import in progress
+    (only in the main thread, where Python delivers signals; see :class:`_Stops`)."""
     if threading.current_thread() is not threading.main_thread():
         yield
         return
