@@ -124,13 +124,14 @@ def cmd_generate(args) -> int:
     overrides = _scene_overrides(args)
     if args.all:
         for path in generate_all(Path(args.out), overrides=overrides, force=args.force,
-                                 verify_hashes=not args.no_verify):
+                                 verify_hashes=not args.no_verify, progress=not args.no_progress):
             print(path)
         return 0
     spec = load_scene(args.scene)
     if overrides:
         spec = spec.with_overrides(overrides)
-    print(generate_dataset(spec, Path(args.out), force=args.force, verify_hashes=not args.no_verify))
+    print(generate_dataset(spec, Path(args.out), force=args.force, verify_hashes=not args.no_verify,
+                           progress=not args.no_progress))
     return 0
 
 
@@ -178,10 +179,23 @@ def _load(args, path):
             raise UsageError("--box", str(exc).removeprefix("box: ")) from None
     dataset = load_dataset(Path(path), box=box, pixel_center=args.pixel_center, background=args.background)
     print(f"mitsnerf: scene box {dataset.box.to_list()} ({dataset.box_source})", flush=True)
+    if not dataset.manifest:  # foreign data, whose own readers may use a fixed near/far
+        print(f"mitsnerf: near/far: {_near_far(dataset)}", flush=True)
     v = verify_dataset(dataset, hashes=not args.no_verify)
     hashed = f"{v.hashed_files} files hashed ({v.hashed_bytes / 1e6:.1f} MB), " if v.hashed_files else ""
     print(f"mitsnerf: dataset verified: {hashed}{v.views} views checked in {v.seconds:.2f} s", flush=True)
     return dataset
+
+
+def _near_far(dataset) -> str:
+    """The near/far rule and the range it gives over the training views, in words."""
+    from mitsnerf.data.box import NEAR_FAR_RULE, near_far_range
+
+    views = dataset.views("train")
+    n_lo, n_hi, f_lo, f_hi, misses, rays = near_far_range(dataset.box, views.cameras, views.pixel_center)
+    missed = f"; {misses} of {rays} sampled rays miss the box" if misses else ""
+    return (f"{NEAR_FAR_RULE}, no fixed near/far; over the train views t_n {n_lo:.3g}..{n_hi:.3g}, "
+            f"t_f {f_lo:.3g}..{f_hi:.3g}{missed}")
 
 
 def _fresh_settings(args) -> tuple[str, dict, object]:
@@ -244,11 +258,11 @@ def cmd_train(args) -> int:
     with claim_run_dir(out, resume=args.resume, force=args.force):
         if args.resume:
             run = resume_run(out, train_values, dataset=_load(args, args.dataset) if args.dataset else None,
-                             verify_hashes=not args.no_verify)
+                             verify_hashes=not args.no_verify, progress=not args.no_progress)
         else:
             dataset = _load(args, args.dataset)
             run = fit(dataset, method, overrides, train_config, out, eval_config=eval_config,
-                      deterministic=args.deterministic)
+                      deterministic=args.deterministic, progress=not args.no_progress)
     m = run.metrics()
     medium = "" if m.get("psnr_test_medium") is None else f" ({m['psnr_test_medium']:.2f} dB on medium pixels)"
     rate = "no steps run" if m["rays_per_s"] is None else f"{m['rays_per_s']:.0f} rays/s"
@@ -319,7 +333,7 @@ def cmd_render(args) -> int:
                           elevation=args.elevation, radius=args.radius, fps=args.fps)
     out = Path(args.out) if args.out else Path(args.run) / "renders"
     check_output_dir(out, "--out")
-    files = render_run(Path(args.run), out, request)
+    files = render_run(Path(args.run), out, request, progress=not args.no_progress)
     print(f"{len(files)} files -> {out}")
     return 0
 
@@ -432,6 +446,8 @@ def cmd_check(args) -> int:
     return 0
 
 
+NO_PROGRESS_HELP = "no progress bars (they are off anyway when stderr is not a terminal)"
+
 SCENES_HELP = ("a directory of your own scene specs (NAME.toml), searched before the library "
                "(repeatable; also $MITSNERF_SCENES)")
 
@@ -488,6 +504,7 @@ def _generate_parser(sub) -> None:
     p.add_argument("--nerf-synthetic", action="store_true",
                    help="write the scene at the NeRF-synthetic scale: box [-1.5, 1.5]^3 (world.scale=3, sigma_t / 3), "
                         "cameras at radius 4, where those readers' near/far 2..6 work; --set wins over it")
+    p.add_argument("--no-progress", action="store_true", help=NO_PROGRESS_HELP)
     p.set_defaults(func=cmd_generate)
 
 
@@ -524,6 +541,7 @@ def _train_parser(sub) -> None:
     p.add_argument("--set", action="append", metavar="KEY=VALUE", help="method config override, e.g. network.width=128")
     p.add_argument("--pixel-center", type=float, help="0.5 (Mitsuba, mitsnerf) or 0 (original NeRF loader); default from the data")
     p.add_argument("--background", type=float, nargs=3, metavar=("R", "G", "B"), help="background for foreign PNG data (default white)")
+    p.add_argument("--no-progress", action="store_true", help=NO_PROGRESS_HELP)
     p.set_defaults(func=cmd_train)
 
 
@@ -576,6 +594,7 @@ def _render_parser(sub) -> None:
     p.add_argument("--elevation", type=float, help="orbit elevation, degrees (default: the reference view's)")
     p.add_argument("--radius", type=float, help="orbit radius (default: the reference view's distance)")
     p.add_argument("--fps", type=float, default=12.0, help="orbit animation frame rate (default 12)")
+    p.add_argument("--no-progress", action="store_true", help=NO_PROGRESS_HELP)
     p.set_defaults(func=cmd_render)
 
 
@@ -604,7 +623,8 @@ def _bench_parser(sub) -> None:
     p.add_argument("--quick", action="store_true", help="the config's quick profile (tiny scenes, few steps)")
     p.add_argument("--data", help="dataset cache root (default: $MITSNERF_DATA or ./data)")
     p.add_argument("--results", default="results", help="results root (default: results)")
-    p.add_argument("--no-progress", action="store_true")
+    p.add_argument("--no-progress", action="store_true",
+                   help="no progress lines or bars on stderr (bars are off anyway when stderr is not a terminal)")
     p.add_argument("--executor", choices=("sequential", "pool", "ray"), default="sequential",
                    help="where cells run: this process one after another (default; the only one whose timings "
                         "are comparable), a local process pool, or Ray (pip install 'mitsnerf[ray]')")
@@ -632,7 +652,7 @@ def _check_parser(sub) -> None:
     p.add_argument("--mutations", action="store_true",
                    help="also run every case under each built-in mutation (bugs planted in the package's functions) "
                         "and print which cases catch each; exit status 1 if one is caught by none")
-    p.add_argument("--no-progress", action="store_true")
+    p.add_argument("--no-progress", action="store_true", help="no per-case progress lines on stderr")
     p.set_defaults(func=cmd_check)
 
 

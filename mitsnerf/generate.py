@@ -252,7 +252,7 @@ def generate_all(out_root: str | os.PathLike, *, names: Sequence[str] | None = N
     if overrides:
         specs = [spec.with_overrides(overrides) for spec in specs]
     out: list[Path] = []
-    with tqdm(specs, desc="scenes", unit="scene", disable=not progress) as bar:
+    with tqdm(specs, desc="scenes", unit="scene", disable=None if progress else True) as bar:
         for spec in bar:
             bar.set_postfix_str(spec.name)
             out.append(generate_dataset(spec, out_root, force=force, progress=progress, verify_hashes=verify_hashes))

@@ -236,7 +236,7 @@ def render_run(run_dir: Path, out_dir: Path, request: ViewRequest = ViewRequest(
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     written, frames = [], []
-    for cam, stem in tqdm(list(zip(cams, stems)), desc="render", unit="view", disable=not progress or len(cams) < 2, leave=False):
+    for cam, stem in tqdm(list(zip(cams, stems)), desc="render", unit="view", disable=True if not progress or len(cams) < 2 else None, leave=False):
         rendered = model.render_view(cam, pixel_center=pixel_center, footprint=footprint)
         written += write_views(out_dir, stem, rendered)
         frames.append(linear_to_srgb(np.clip(rendered.rgb, 0.0, 1.0)))

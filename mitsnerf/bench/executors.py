@@ -21,6 +21,7 @@ cells side by side; each cell then gets ``cpus_per_cell`` Dr.Jit threads.
 from __future__ import annotations
 
 import os
+import signal
 import sys
 import traceback
 from typing import Callable, Sequence
@@ -82,10 +83,27 @@ def run_pool(cells: Sequence[Cell], on_done: OnDone, on_error: OnError, *, worke
                 on_error(cell, _message(exc), "".join(traceback.format_exception(exc)))
                 continue
             on_done(cell, record, artefacts)
-    except BaseException:
+    except BaseException as exc:
+        workers = list((pool._processes or {}).values())  # (no public handle before Python 3.14)
         pool.shutdown(wait=False, cancel_futures=True)  # Ctrl-C: do not wait for queued cells
+        if isinstance(exc, KeyboardInterrupt):
+            _stop_cells_in_flight(workers, exc)
         raise
     pool.shutdown(wait=True)
+
+
+def _stop_cells_in_flight(workers, exc: KeyboardInterrupt) -> None:
+    """Pass a SIGTERM or SIGHUP that stopped the sweep on to the pool's workers, so each cell in training saves
+    its checkpoint and stops (the next run continues it) rather than running to its end while the driver, stopped,
+    waits to exit. Ctrl-C at a terminal reaches the workers by itself (one process group): not sent twice."""
+    from mitsnerf.train.checkpointing import signal_number
+
+    signum = signal_number(exc)
+    if signum == signal.SIGINT:
+        return
+    for process in workers:
+        if process.is_alive():
+            os.kill(process.pid, signum)
 
 
 def _ray_task(cell: Cell, threads: int) -> tuple[dict, bytes]:

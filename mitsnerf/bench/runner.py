@@ -38,7 +38,7 @@ from mitsnerf.bench.tables import (ORACLE, average_rows, best_rules, cell_row, c
                                    oracle_row, scene_rows, with_oracle_rows)
 from mitsnerf.config import from_dict, to_dict
 from mitsnerf.data.atomic import atomic_write_json, atomic_write_text
-from mitsnerf.errors import SpecError
+from mitsnerf.errors import SpecError, signal_cause
 
 DATA_ENV = "MITSNERF_DATA"
 
@@ -362,12 +362,26 @@ def run_benchmark(config: BenchConfig, options: BenchOptions, log: Callable[[str
             run_cells(options.executor, pending, on_done, on_error, progress=options.progress,
                       workers=options.workers, threads=options.cpus_per_cell, address=options.address,
                       on_start=on_start)
-        except KeyboardInterrupt as exc:  # Ctrl-C, SIGTERM, SIGHUP: the same exit status, the cells kept
-            from mitsnerf.errors import Interrupted
-            from mitsnerf.train.checkpointing import signal_number
+        except BaseException as exc:  # Ctrl-C, SIGTERM, SIGHUP: the same exit status, the cells kept
+            if signal_cause(exc) is None:
+                raise
+            raise _stopped(exc, f"{len(result.computed)} cells finished in this run are saved under {out_root}; run "
+                                "the same command again to resume (the cell in flight continues from its "
+                                "checkpoint, if it reached one)") from None
+    try:
+        return write_outputs(config, options, cells, result)
+    except BaseException as exc:  # after the last cell: only the tables and the report are missing
+        if signal_cause(exc) is None:
+            raise
+        raise _stopped(exc, f"every cell is saved under {out_root}; run the same command again to write the tables "
+                            "and the report") from None
 
-            raise Interrupted(signal_number(exc), (f"{exc}; " if str(exc) else "") +
-                              f"{len(result.computed)} cells finished in this run are saved under {out_root}; run the "
-                              "same command again to resume (the cell in flight continues from its checkpoint, "
-                              "if it reached one)") from None
-    return write_outputs(config, options, cells, result)
+
+def _stopped(exc: BaseException, saved: str):
+    """The :class:`~mitsnerf.errors.Interrupted` of a sweep stopped by the signal in ``exc`` (also one that an
+    import or a library turned into another error, :func:`mitsnerf.errors.signal_cause`): what is saved, what to do."""
+    from mitsnerf.errors import Interrupted
+    from mitsnerf.train.checkpointing import signal_number
+
+    stop = signal_cause(exc)
+    return Interrupted(signal_number(stop), (f"{stop}; " if str(stop) else "") + saved)

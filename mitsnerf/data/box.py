@@ -17,6 +17,7 @@ from outside.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Mapping, Sequence
@@ -90,3 +91,32 @@ def check_cameras_outside(box: Box, origins: Sequence[np.ndarray], where: Path |
         raise DatasetError(where, "frames[*].transform_matrix",
                            f"every camera lies inside the scene box {box.to_list()} ({source}); "
                            "give a smaller box (--box or an 'aabb' key) or check the camera poses")
+
+
+#: What ``mitsnerf train`` says of near and far: no fixed pair (NeRF-synthetic readers use 2 and 6), each ray's own.
+NEAR_FAR_RULE = "each ray's t_n, t_f where it enters and leaves the box (slab test, t_n >= 0)"
+
+
+def near_far_range(box: Box, cameras: Sequence, pixel_center: float = 0.5,
+                   n: int = 9) -> tuple[float, float, float, float, int, int]:
+    """``(t_n min, t_n max, t_f min, t_f max, misses, rays)`` of the rule :data:`NEAR_FAR_RULE` (the
+    interval every method samples, :meth:`mitsnerf.math.box.Box.intersect`) over an ``n x n`` grid of
+    each camera's pixels, corners included; the ranges are over the rays that hit the box (NaN if none).
+
+    >>> from mitsnerf.math.camera import Camera, look_at
+    >>> cam = Camera.from_fov(look_at((0.0, 0.0, 4.0)), 8, 8, 20.0)
+    >>> [round(v, 3) for v in near_far_range(Box.cube(1.5), [cam])[:4]]  # faces z = 1.5, -1.5; corner rays x 1.031
+    [2.5, 2.577, 5.5, 5.668]
+    """
+    o, d = [], []
+    for cam in cameras:
+        cols = np.linspace(0.0, cam.width, n)
+        rows = np.linspace(0.0, cam.height, n)
+        grid_c, grid_r = np.meshgrid(cols, rows)
+        d.append(cam.pixel_directions(grid_c.ravel(), grid_r.ravel(), 0.0))
+        o.append(np.broadcast_to(cam.origin, d[-1].shape))
+    t_n, t_f, hit = box.intersect_numpy(np.concatenate(o), np.concatenate(d))
+    if not hit.any():
+        return (math.nan,) * 4 + (int(hit.size), int(hit.size))
+    return (float(t_n[hit].min()), float(t_n[hit].max()), float(t_f[hit].min()), float(t_f[hit].max()),
+            int((~hit).sum()), int(hit.size))

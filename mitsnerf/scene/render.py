@@ -82,7 +82,7 @@ def render_split(scene, spec: SceneSpec, split: str, cameras: list[Camera], prog
     integrator = medium_alone_integrator(spec) if medium_alone else None
     seed_split = f"{split}_medium" if medium_alone else split
     images, seconds = [], []
-    with tqdm(total=len(cameras), desc=f"{spec.name} {seed_split}", unit="view", disable=not progress,
+    with tqdm(total=len(cameras), desc=f"{spec.name} {seed_split}", unit="view", disable=None if progress else True,
               leave=False) as bar:
         for i, cam in enumerate(cameras):
             bar.set_postfix_str(f"r_{i:03d} ({spp} spp)")

@@ -7,11 +7,19 @@
   Ray send) all stop training at the next Python instruction; the state after the last
   *completed* step is written and :class:`mitsnerf.errors.Interrupted` is raised with a message
   that says how to continue.
+
+The next Python instruction may be inside a finalizer (``__del__``, a weakref callback, a
+generator the garbage collector closes), which cannot propagate an exception: Python would print
+the stop as "Exception ignored in ..." and run on. Inside :func:`stop_signals` such a stop is
+signalled again, and raised at the next instruction outside the finalizer; one that arrives while
+a module is imported is raised once the import is over.
 """
 
 from __future__ import annotations
 
+import _thread
 import signal
+import sys
 import threading
 from contextlib import contextmanager
 from pathlib import Path
@@ -19,24 +27,76 @@ from typing import Iterator
 
 from mitsnerf.errors import Interrupted
 
-STOP_SIGNALS = (signal.SIGTERM, signal.SIGHUP)
+STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)
+#: The frames of an import in progress: a stop raised there can leave a C extension half initialised (matplotlib's
+#: ft2font then aborts the interpreter's teardown: exit status 134, not 143), so it waits for the import to end.
+IMPORT_MACHINERY = frozenset({"<frozen importlib._bootstrap>", "<frozen importlib._bootstrap_external>"})
+#: How soon a stop handed back is signalled again.
+HAND_BACK_SECONDS = 0.01
 
 
-def _raise_interrupted(signum, frame) -> None:
-    raise Interrupted(signum, f"stopped by {signal.Signals(signum).name}")
+class _Stops:
+    """The handler and ``sys.unraisablehook`` of one :func:`stop_signals` block.
+
+    The handler raises KeyboardInterrupt for SIGINT and :class:`Interrupted` for the others. A stop
+    raised in a finalizer reaches :meth:`hook` instead of the code that was running; it is handed
+    back: signalled again from a timer thread (``_thread.interrupt_main``), so the handler raises it
+    in the main thread's next instruction, outside the finalizer (handed back again if that is in
+    one too). A stop arriving during an import is handed back until the import is over. The block
+    waits for its hand-backs before it ends.
+    """
+
+    def __init__(self, previous_hook) -> None:
+        self.previous_hook = previous_hook
+        self.pending: list[threading.Timer] = []
+
+    def handler(self, signum, frame) -> None:
+        while frame is not None:
+            if frame.f_code is _Stops.hook.__code__ or frame.f_code.co_filename in IMPORT_MACHINERY:
+                self.hand_back(signum)  # raised in the hook it would be lost too; in an import it breaks the module
+                return
+            frame = frame.f_back
+        if signum == signal.SIGINT:
+            raise KeyboardInterrupt
+        raise Interrupted(signum, f"stopped by {signal.Signals(signum).name}")
+
+    def hook(self, unraisable) -> None:
+        stop = unraisable.exc_value
+        if isinstance(stop, KeyboardInterrupt) and threading.current_thread() is threading.main_thread():
+            self.hand_back(signal_number(stop))
+            return
+        self.previous_hook(unraisable)
+
+    def hand_back(self, signum: int) -> None:
+        timer = threading.Timer(HAND_BACK_SECONDS, _thread.interrupt_main, (signum,))
+        timer.daemon = True
+        self.pending.append(timer)
+        timer.start()
+
+    def settle(self) -> None:
+        """Wait for the hand-backs (the last one's stop is raised here, while the handler is still set)."""
+        while self.pending:
+            self.pending.pop(0).join()
 
 
 @contextmanager
 def stop_signals() -> Iterator[None]:
     """Inside the block, SIGTERM and SIGHUP raise :class:`Interrupted` as Ctrl-C raises
-    KeyboardInterrupt (only in the main thread, where Python delivers signals)."""
+    KeyboardInterrupt, also when the signal lands in a finalizer, and after the import in progress
+    (only in the main thread, where Python delivers signals; see :class:`_Stops`)."""
     if threading.current_thread() is not threading.main_thread():
         yield
         return
-    previous = {s: signal.signal(s, _raise_interrupted) for s in STOP_SIGNALS}
+    stops = _Stops(sys.unraisablehook)
+    previous = {s: signal.signal(s, stops.handler) for s in STOP_SIGNALS}
+    sys.unraisablehook = stops.hook
     try:
-        yield
+        try:
+            yield
+        finally:
+            stops.settle()
     finally:
+        sys.unraisablehook = stops.previous_hook
         for s, handler in previous.items():
             signal.signal(s, handler)
 

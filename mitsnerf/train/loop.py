@@ -165,20 +165,21 @@ def train(model: Model, data: PixelData, config: TrainConfig, base_lr: float, *,
     bar = Progress(model.name, config.steps, loop.step, progress)
     t0 = loop.clock.seconds()
     try:
-        with stop_signals():
-            while loop.step < config.steps and not loop.out_of_time():
-                loop.one_step()
-                bar.step()
-                if loop.history and loop.history[-1]["step"] == loop.step:
-                    bar.show(loop.history[-1])
+        with stop_signals():  # up to the last checkpoint: a signal while the bar closes or the file is written too
+            try:
+                while loop.step < config.steps and not loop.out_of_time():
+                    loop.one_step()
+                    bar.step()
+                    if loop.history and loop.history[-1]["step"] == loop.step:
+                        bar.show(loop.history[-1])
+            finally:
+                bar.close()
+            result = loop.result(loop.clock.seconds() - t0)
+            if checkpointer is not None:
+                loop.save(loop.state())
     except BaseException as exc:  # a signal, also one a library turned into another error
         stop = signal_cause(exc)
         if stop is None:
             raise
         raise loop.policy.interrupted(stop, lambda: loop.save(loop.snapshot)) from None
-    finally:
-        bar.close()
-    result = loop.result(loop.clock.seconds() - t0)
-    if checkpointer is not None:
-        loop.save(loop.state())
     return result, loop.opt

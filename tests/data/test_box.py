@@ -81,15 +81,61 @@ def test_cameras_inside_the_box_fail_when_the_split_loads(tmp_path):
     assert json.loads((tmp_path / "d" / T).read_text())["aabb"] == [[-5] * 3, [5] * 3]
 
 
-def test_train_defaults_to_ngp_with_a_bar_that_shows_the_remaining_time(tmp_path, capsys):
-    """``mitsnerf train DIR`` without --method: ngp, its budget in steps, a tqdm bar with elapsed<remaining."""
+def test_train_defaults_to_ngp_with_a_bar_that_shows_the_remaining_time(tmp_path, monkeypatch):
+    """``mitsnerf train DIR`` without --method: ngp, its budget in steps, a tqdm bar with elapsed<remaining
+    (on a terminal: a log gets no bar, tests/cli/test_progress.py)."""
+    import io
     import re
+    import sys
 
     from mitsnerf.train import TrainConfig
 
+    class Terminal(io.StringIO):
+        def isatty(self) -> bool:
+            return True
+
     root = _foreign(tmp_path / "data")
+    monkeypatch.setattr(sys, "stderr", Terminal())
     assert main(["train", str(root), "--out", str(tmp_path / "run"), "--steps", "3", "--batch-rays", "16"]) == 0
-    err = capsys.readouterr().err
+    err = sys.stderr.getvalue()
     assert re.search(r"train ngp: .*\b3/3 \[\d\d:\d\d<\d\d:\d\d", err), err[-300:]
     assert json.loads((tmp_path / "run" / "config.json").read_text())["method"] == "ngp"
     assert TrainConfig().steps == 3000  # the default budget: a few minutes of ngp on a 2-core CPU
+
+
+def test_train_on_foreign_data_says_its_near_far_rule_beside_the_box(tmp_path, capsys):
+    """Foreign data's readers often fix near/far (2 and 6 for NeRF-synthetic); train says it has none:
+    each ray's box entry and exit, and the range that gives over the train views."""
+    from mitsnerf.data.box import NEAR_FAR_RULE
+
+    root = _foreign(tmp_path / "data", aabb=[[-1, -1, -1], [1, 1, 1]], radius=4.0)
+    assert main(["train", str(root), "--out", str(tmp_path / "run"), "--steps", "1", "--batch-rays", "16"]) == 0
+    lines = capsys.readouterr().out.splitlines()
+    box = lines.index("mitsnerf: scene box [[-1.0, -1.0, -1.0], [1.0, 1.0, 1.0]] (transforms_train.json: aabb)")
+    near_far = lines[box + 1]
+    assert near_far.startswith(f"mitsnerf: near/far: {NEAR_FAR_RULE}, no fixed near/far; over the train views t_n "), \
+        near_far
+    ranges = near_far.split("over the train views ")[1]
+    t_n = [float(v) for v in ranges.split("t_n ")[1].split(",")[0].split("..")]
+    t_f = [float(v) for v in ranges.split("t_f ")[1].split(";")[0].split("..")]
+    assert ranges.endswith(" of 162 sampled rays miss the box")  # 9 x 9 points of each view; the box fills no view
+    # cameras at (4 cos k, 4 sin k, 0.5), 4.03 from the centre of the cube [-1, 1]^3: no ray enters it before
+    # 4.03 - sqrt(3) or leaves after 4.03 + sqrt(3); view 0's centre ray (to the origin) enters at 3.02, leaves at 5.04
+    r = math.hypot(4.0, 0.5)
+    assert r - math.sqrt(3) <= t_n[0] <= 3.02 <= t_n[1] < t_f[1] and t_f[0] <= 5.04 <= t_f[1] <= r + math.sqrt(3), \
+        near_far
+
+
+def test_mitsnerf_data_prints_no_near_far_line(tmp_path, capsys):
+    """mitsnerf's own datasets are not foreign: the box line alone (their readers follow the manifest)."""
+    from tests.cli.conftest import SPEC
+
+    spec = tmp_path / "tiny.toml"
+    spec.write_text(SPEC)
+    assert main(["generate", str(spec), "--out", str(tmp_path / "data"), "--no-progress"]) == 0
+    (dataset,) = (tmp_path / "data").iterdir()
+    capsys.readouterr()
+    assert main(["train", str(dataset), "--out", str(tmp_path / "run"), "--steps", "1", "--method", "nerf",
+                 "--batch-rays", "16", "--set", "network.width=8", "--set", "network.depth=1"]) == 0
+    out = capsys.readouterr().out
+    assert "mitsnerf: scene box" in out and "near/far" not in out
