@@ -24,6 +24,7 @@ import os
 import re
 import subprocess
 import sys
+from collections.abc import Mapping, MutableMapping
 
 MIN_LLVM_VERSION = 16
 INSTALL_HINT = "apt-get install -y libllvm19"
@@ -112,7 +113,7 @@ def candidates(search_globs: tuple[str, ...] = _SEARCH_GLOBS) -> list[tuple[int,
 
 
 def find_libllvm(
-    environ: dict[str, str] | None = None, search_globs: tuple[str, ...] = _SEARCH_GLOBS
+    environ: Mapping[str, str] | None = None, search_globs: tuple[str, ...] = _SEARCH_GLOBS
 ) -> tuple[str, int]:
     """The libLLVM drjit should load: ``(path, major version)``.
 
@@ -120,8 +121,8 @@ def find_libllvm(
     library found is chosen. Raises :class:`LLVMError` (with the fix) when none is
     at least version 16.
     """
-    environ = os.environ if environ is None else environ
-    user_path = environ.get("DRJIT_LIBLLVM_PATH")
+    env: Mapping[str, str] = os.environ if environ is None else environ
+    user_path = env.get("DRJIT_LIBLLVM_PATH")
     if user_path:
         if not os.path.exists(user_path):
             raise LLVMError(
@@ -148,11 +149,11 @@ def find_libllvm(
     return path, version
 
 
-def configure(environ: dict[str, str] | None = None) -> tuple[str, int]:
+def configure(environ: MutableMapping[str, str] | None = None) -> tuple[str, int]:
     """Find libLLVM and set ``DRJIT_LIBLLVM_PATH`` if the user has not; returns ``(path, version)``."""
-    environ = os.environ if environ is None else environ
-    path, version = find_libllvm(environ)
-    environ.setdefault("DRJIT_LIBLLVM_PATH", path)
+    env: MutableMapping[str, str] = os.environ if environ is None else environ
+    path, version = find_libllvm(env)
+    env.setdefault("DRJIT_LIBLLVM_PATH", path)
     return path, version
 
 

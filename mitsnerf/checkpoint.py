@@ -197,7 +197,9 @@ def load_checkpoint(path: str | os.PathLike) -> Checkpoint:
     if missing:
         raise DatasetError(path, "meta.json", f"missing {', '.join(missing)}: not a complete mitsnerf checkpoint")
     _check_counts(meta, path)
-    params, extra, moments = {}, {}, {}
+    params: dict[str, np.ndarray] = {}
+    extra: dict[str, np.ndarray] = {}
+    moments: dict[str, dict[str, np.ndarray]] = {}
     for name, value in files.items():
         kind, _, rest = name.partition("/")
         if kind == "param":

@@ -227,7 +227,8 @@ def field_docs(cls) -> dict[str, str]:
     out = {}
     for f in dataclasses.fields(cls):
         if not _is_internal(f):
-            out[f.name] = (_bounds(f).doc if _bounds(f) and _bounds(f).doc else "") or docs.get(f.name, "")
+            bounds = _bounds(f)
+            out[f.name] = (bounds.doc if bounds is not None else "") or docs.get(f.name, "")
     return out
 
 
@@ -375,7 +376,7 @@ def _convert(tp, value: Any, path: str, bounds: Bounds | None, source) -> Any:
     origin = typing.get_origin(tp)
     if origin in (typing.Union, types.UnionType):
         return _convert_union(tp, value, path, bounds, source)
-    if dataclasses.is_dataclass(tp):
+    if isinstance(tp, type) and dataclasses.is_dataclass(tp):
         if isinstance(value, tp):
             return value
         if not isinstance(value, Mapping):
@@ -411,7 +412,7 @@ def _convert_scalar(tp, value: Any, path: str, bounds: Bounds | None, source) ->
         ok = bounds.admits(value)
     if not ok:
         above = bounds is not None and bounds.hi is not None and is_number(value) and value > bounds.hi
-        why = f": {bounds.hi_why}" if above and bounds.hi_why else ""
+        why = f": {bounds.hi_why}" if above and bounds is not None and bounds.hi_why else ""
         raise SpecError(source, path, f"{_verb(bounds)} {describe(tp, bounds)}, got {value!r}{why}")
     return float(value) if tp is float else int(value) if tp is int else value
 
@@ -457,7 +458,7 @@ def _convert_tagged(members: list, value: Any, path: str, source) -> Any:
         return value
     if not isinstance(value, Mapping):
         raise SpecError(source, path, f"must be a table, got {_kind(value)}")
-    tags = {_tag(m): m for m in members}
+    tags = {str(_tag(m)): m for m in members}
     kind = getattr(members[0], "config_kind", "")
     if TAG not in value:
         raise SpecError(source, _join(path, TAG), f"missing field (one of {', '.join(tags)})")
@@ -529,18 +530,19 @@ def apply_overrides(data: Mapping[str, Any], overrides: Mapping[str, Any], sourc
         parts = str(key).split(".")
         node: Any = out
         for i, part in enumerate(parts):
+            index: str | int = part
             if isinstance(node, list):
                 if not part.isdigit() or int(part) >= len(node):
                     raise SpecError(source, str(key), f"no item {part!r} (there are {len(node)})")
-                part = int(part)
+                index = int(part)
             elif not isinstance(node, dict):
                 raise SpecError(source, str(key), f"cannot override inside {'.'.join(parts[:i])!r}: not a table")
             if i == len(parts) - 1:
-                node[part] = plain(value)
+                node[index] = plain(value)
             else:
-                if isinstance(node, dict) and part not in node:
-                    node[part] = {}
-                node = node[part]
+                if isinstance(node, dict) and index not in node:
+                    node[index] = {}
+                node = node[index]
     return out
 
 

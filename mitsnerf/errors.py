@@ -9,13 +9,14 @@ Each names where the problem is (a file and, where it applies, a field in it)::
 from __future__ import annotations
 
 import errno
+import os
 from pathlib import Path
 
 
 class MitsnerfError(Exception):
     """Base class: a problem with the user's input or environment, not a bug."""
 
-    def __init__(self, where: str | Path | None, field: str | None, message: str) -> None:
+    def __init__(self, where: str | os.PathLike | None, field: str | None, message: str) -> None:
         self.where = str(where) if where is not None else None
         self.field = field
         self.message = message
@@ -72,7 +73,7 @@ class DiskFullError(OutputError):
         'data/tiny-0e80: disk full (No space left on device) writing train/r_001.exr; data/tiny-0e80 was not created'
     """
 
-    def __init__(self, path: str | Path, reason: str, kept: str, writing: str | None = None) -> None:
+    def __init__(self, path: str | os.PathLike, reason: str, kept: str, writing: str | None = None) -> None:
         self.path, self.reason, self.kept, self.writing = Path(path), reason, kept, writing
         doing = f" writing {writing}" if writing else ""
         super().__init__(path, None, f"disk full ({reason}){doing}; {kept}")
@@ -116,9 +117,10 @@ def signal_cause(exc: BaseException) -> KeyboardInterrupt | None:
     """The KeyboardInterrupt (Ctrl-C, or a signal's :class:`Interrupted`) that is ``exc`` or in its chain
     of causes: a signal handled inside an import or a library callback can come back as another error."""
     seen = set()
-    while exc is not None and id(exc) not in seen:
-        if isinstance(exc, KeyboardInterrupt):
-            return exc
-        seen.add(id(exc))
-        exc = exc.__cause__ or exc.__context__
+    link: BaseException | None = exc
+    while link is not None and id(link) not in seen:
+        if isinstance(link, KeyboardInterrupt):
+            return link
+        seen.add(id(link))
+        link = link.__cause__ or link.__context__
     return None

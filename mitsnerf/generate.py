@@ -177,7 +177,9 @@ def _build(tmp: Path, spec: SceneSpec, splits: tuple[str, ...], digest: str, pro
     write_volume(tmp, spec, sigma_t, albedo, box)
     scene = mi.load_dict(scene_dict(spec, sigma_t, albedo))
     cams = {s: camera_rig(spec.cameras, "train" if s == "train" else "test") for s in splits}
-    images, medium, timings = {}, {}, {}
+    images: dict[str, Any] = {}
+    medium: dict[str, Any] = {}
+    timings: dict[str, Any] = {}
     for split in splits:
         images[split], timings[split] = render_split(scene, spec, split, cams[split], progress)
         ground_truth.check_views(spec, split, images[split])

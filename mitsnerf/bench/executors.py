@@ -24,7 +24,7 @@ import os
 import signal
 import sys
 import traceback
-from typing import Callable, Sequence
+from typing import Any, Callable, Sequence
 
 from mitsnerf.bench.cells import Cell
 
@@ -69,7 +69,7 @@ def run_pool(cells: Sequence[Cell], on_done: OnDone, on_error: OnError, *, worke
 
     workers = workers or max(1, (os.cpu_count() or 2) // 2)
     threads = threads or max(1, (os.cpu_count() or 1) // workers)
-    kwargs = {"max_workers": workers, "mp_context": mp.get_context("spawn")}
+    kwargs: dict[str, Any] = {"max_workers": workers, "mp_context": mp.get_context("spawn")}
     if sys.version_info >= (3, 11):
         kwargs["max_tasks_per_child"] = 1
     pool = cf.ProcessPoolExecutor(**kwargs)
@@ -84,10 +84,10 @@ def run_pool(cells: Sequence[Cell], on_done: OnDone, on_error: OnError, *, worke
                 continue
             on_done(cell, record, artefacts)
     except BaseException as exc:
-        workers = list((pool._processes or {}).values())  # (no public handle before Python 3.14)
+        in_flight = list((pool._processes or {}).values())  # (no public handle before Python 3.14)
         pool.shutdown(wait=False, cancel_futures=True)  # Ctrl-C: do not wait for queued cells
         if isinstance(exc, KeyboardInterrupt):
-            _stop_cells_in_flight(workers, exc)
+            _stop_cells_in_flight(in_flight, exc)
         raise
     pool.shutdown(wait=True)
 
@@ -139,7 +139,7 @@ def run_ray(cells: Sequence[Cell], on_done: OnDone, on_error: OnError, *, addres
     threads = threads or 1
     started_here = not ray.is_initialized()
     if started_here:
-        init = {"address": address, "include_dashboard": False, "log_to_driver": True,
+        init: dict[str, Any] = {"address": address, "include_dashboard": False, "log_to_driver": True,
                 "ignore_reinit_error": True}
         if address is None:
             init["num_cpus"] = max(os.cpu_count() or 1, threads)

@@ -111,9 +111,9 @@ def atomic_files(directory: str | os.PathLike, names: Sequence[str]) -> Iterator
         full = DiskFullError.of(exc)
         if full is None:
             raise
-        name = next((n for n, t in temps.items() if full.path == t), None)
+        writing = next((n for n, t in temps.items() if full.path == t), None)
         kept = f"none of {', '.join(names)} was written; the files there before are kept"
-        raise DiskFullError(directory, full.reason, kept, name) from exc
+        raise DiskFullError(directory, full.reason, kept, writing) from exc
 
 
 def atomic_write_bytes(path: str | os.PathLike, data: bytes) -> None:

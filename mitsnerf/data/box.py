@@ -47,17 +47,20 @@ def _parse_box(value: Any, where: Path | str | None, field: str) -> Box:
         raise DatasetError(where, field, str(exc).removeprefix("box: ")) from None
 
 
+def _positive(value: Any, where: Path | str | None, field: str) -> float:
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or not value > 0:
+        raise DatasetError(where, field, f"must be a positive number, got {value!r}")
+    return float(value)
+
+
 def ngp_box(doc: Mapping[str, Any], where: Path | str | None = None) -> Box:
     """The world box of instant-ngp's ``aabb_scale``, ``scale`` and ``offset`` keys (module docstring).
 
     >>> ngp_box({"aabb_scale": 1}).lo  # doctest: +ELLIPSIS
     (-1.515..., -1.515..., -1.515...)
     """
-    a, scale = doc.get("aabb_scale"), doc.get("scale", NGP_DEFAULT_SCALE)
     offset = doc.get("offset", NGP_DEFAULT_OFFSET)
-    for field, value in (("aabb_scale", a), ("scale", scale)):
-        if isinstance(value, bool) or not isinstance(value, (int, float)) or not value > 0:
-            raise DatasetError(where, field, f"must be a positive number, got {value!r}")
+    a, scale = (_positive(doc.get(f, d), where, f) for f, d in (("aabb_scale", None), ("scale", NGP_DEFAULT_SCALE)))
     off = np.asarray(offset, dtype=np.float64) if isinstance(offset, (list, tuple)) else np.full(3, np.nan)
     if off.shape != (3,) or not np.all(np.isfinite(off)):
         raise DatasetError(where, "offset", f"must be 3 finite numbers, got {offset!r}")

@@ -46,7 +46,7 @@ def read_manifest(directory: str | os.PathLike) -> dict[str, Any] | None:
 def is_complete(directory: Path, digest: str, format_version: int) -> bool:
     """Whether ``directory`` holds the finished dataset of hash ``digest`` and this format."""
     m = read_manifest(directory)
-    return bool(m) and m.get("format_version") == format_version and m.get("hash") == digest
+    return m is not None and bool(m) and m.get("format_version") == format_version and m.get("hash") == digest
 
 
 @contextlib.contextmanager

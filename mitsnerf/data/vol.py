@@ -47,7 +47,7 @@ def _box(name: str, value: Sequence[float]) -> tuple[float, float, float]:
     v = np.asarray(value, dtype=np.float64)
     if v.shape != (3,) or not np.isfinite(v).all():
         raise ValueError(f"{name}: must be 3 finite numbers, got {value!r}")
-    return tuple(float(c) for c in v)
+    return float(v[0]), float(v[1]), float(v[2])
 
 
 def write_vol(

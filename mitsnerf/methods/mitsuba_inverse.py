@@ -199,7 +199,8 @@ class MitsubaInverseModel(ViewModel):
         n_views = len(data.cameras)
         v = self.config.views_per_step
         u = np.asarray(rng.random(mi.Float, 2 * v), dtype=np.float64)
-        loss, rays = None, 0
+        loss: Any = None
+        rays = 0
         for k in range(v):
             i = min(int(u[k] * n_views), n_views - 1)
             seed = int(u[v + k] * 2**31)

@@ -226,7 +226,7 @@ class NeRFModel(OccupancyModel):
         x, d_s = _points(o, d, t, n)
         rgb, sigma = self._evaluate(self.base_field, x, d_s, delta, n)
         comp = composite(sigma, delta, rgb, n, background=bg, t=t)
-        return RenderOutput(comp, aux_rgb={"coarse": comp_c.rgb} if training else None)
+        return RenderOutput(comp, aux_rgb={"coarse": comp_c.rgb} if training and comp_c is not None else None)
 
     def _render_proposal(self, o, d, u, training: bool) -> RenderOutput:
         """The proposal network's weights place N_f samples; only those go through the fine network."""

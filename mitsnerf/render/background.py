@@ -52,7 +52,8 @@ def make_background(desc: Mapping[str, Any] | None, root: Path | None = None):
             rgb = [rgb] * 3
         if len(rgb) != 3:
             raise DatasetError(root, "background.radiance", f"needs 3 values, got {rgb!r}")
-        return ConstantBackground(tuple(float(v) for v in rgb))
+        r, g, b = (float(v) for v in rgb)
+        return ConstantBackground((r, g, b))
     if kind == "envmap":
         import mitsuba as mi
 

@@ -10,7 +10,7 @@ from __future__ import annotations
 import drjit as dr
 import mitsuba as mi
 
-from mitsnerf.methods.base import Model, RayModel, StepLoss
+from mitsnerf.methods.base import Model, RayModel, StepLoss, ViewModel
 from mitsnerf.train.config import TrainConfig
 from mitsnerf.train.data import PixelData
 
@@ -34,4 +34,6 @@ def step_loss(model: Model, data: PixelData, config: TrainConfig, step: int, rng
     """The step of ``model``'s protocol."""
     if isinstance(model, RayModel):
         return ray_batch_loss(model, data, config, rng)
-    return model.training_loss(data, step, rng)
+    if isinstance(model, ViewModel):
+        return model.training_loss(data, step, rng)
+    raise TypeError(f"{type(model).__name__}: a Model must subclass RayModel or ViewModel")

@@ -35,7 +35,7 @@ from __future__ import annotations
 
 import time
 from dataclasses import dataclass
-from typing import Callable
+from typing import Any, Callable
 
 import drjit as dr
 import numpy as np
@@ -82,7 +82,7 @@ def _rays(quality: Quality, Array3f):
     return rays.o, rays.d
 
 
-def make_problem(case: GradientCase, quality: Quality) -> tuple[object, Callable[[object], object]]:
+def make_problem(case: GradientCase, quality: Quality) -> tuple[Any, Callable[[Any], Any]]:
     """``(theta_0, image_fn)``: the parameter tensor and ``theta -> C`` (Array3f, one entry per pixel)."""
     import mitsuba as mi
 

@@ -26,7 +26,7 @@ Each ridge is a thin sheet around a zero set of noise, vertical because the nois
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import ClassVar
+from typing import Any, ClassVar
 
 import numpy as np
 
@@ -97,8 +97,8 @@ def generate(params: Params, resolution: int, seed: int) -> VolumeGrids:
 
     inside = env > 0.0
     xw, yw, zs, values = xw[inside], yw[inside], z[inside] / np.float32(params.stretch), env[inside]
-    octave = dict(frequency=params.base_frequency, octaves=params.octaves,
-                  persistence=params.persistence, lacunarity=params.lacunarity)
+    octave: dict[str, Any] = dict(frequency=params.base_frequency, octaves=params.octaves,
+                                  persistence=params.persistence, lacunarity=params.lacunarity)
     for noise in (fil_1, fil_2):
         ridge = np.clip(1.0 - np.abs(fbm(noise, xw, yw, zs, **octave)) / np.float32(params.width), 0.0, 1.0)
         values = values * ridge * ridge
