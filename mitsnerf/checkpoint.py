@@ -164,7 +164,7 @@ def save_checkpoint(path: str | os.PathLike, ckpt: Checkpoint) -> None:
         "optimizer": ckpt.optimizer,
         "rng": "step k draws from mitsnerf.train.step_rng(train.seed, k): the generator state is the step",
     }
-    arrays: dict[str, np.ndarray] = {"meta.json": np.frombuffer(json.dumps(meta).encode("utf-8"), dtype=np.uint8)}
+    arrays: dict[str, Any] = {"meta.json": np.frombuffer(json.dumps(meta).encode("utf-8"), dtype=np.uint8)}
     for key, value in ckpt.params.items():
         arrays[f"param/{key}"] = value
     for key, moms in ckpt.moments.items():

@@ -218,6 +218,41 @@ def describe(tp, bounds: Bounds | None = None) -> str:
     return named[tp] + rng if tp in named else "a value"
 
 
+@dataclasses.dataclass(frozen=True)
+class OptionSpec:
+    """How a command-line option reads one config field: the scalar type argparse converts to, the choices
+    (None: any value of the type), what the value must be in words, the default and the documentation."""
+
+    kind: type
+    choices: tuple | None
+    what: str
+    default: Any
+    doc: str
+
+
+def option_spec(cls, name: str) -> OptionSpec:
+    """The :class:`OptionSpec` of field ``name`` of config ``cls``, from its declaration (:func:`param`), so
+    that a flag's type, choices and help come from the one place the field is declared.
+
+    >>> from mitsnerf.train.config import TrainConfig
+    >>> o = option_spec(TrainConfig, "batch_rays")
+    >>> o.kind.__name__, o.what, o.default
+    ('int', 'an integer in [1, 4194304]', 2048)
+    """
+    f = {f.name: f for f in dataclasses.fields(cls)}[name]
+    tp = typing.get_type_hints(cls)[name]
+    bounds = _bounds(f)
+    kind: Any
+    choices: tuple | None
+    if typing.get_origin(tp) is typing.Literal:
+        kind, choices = type(typing.get_args(tp)[0]), typing.get_args(tp)
+    else:
+        kind, choices = tp, bounds.choices if bounds is not None else None
+    if kind not in (int, float, str, bool):
+        raise TypeError(f"{cls.__name__}.{name}: a {tp} field has no command-line option")
+    return OptionSpec(kind, choices, describe(tp, bounds), _default(f), field_docs(cls).get(name, ""))
+
+
 def field_docs(cls) -> dict[str, str]:
     """The documentation of each field of ``cls``: its :func:`param` ``doc``, else its attribute docstring."""
     docs: dict[str, str] = {}

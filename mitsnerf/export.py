@@ -123,9 +123,8 @@ def sample_field(
                 sigma[start:start + n] += np.asarray(s, dtype=np.float64)
                 color[start:start + n] += np.stack([np.asarray(c, dtype=np.float64) for c in rgb], axis=-1)
     r = resolution
-    sigma = (sigma / len(dirs)).astype(np.float32).reshape(r, r, r)
-    color = (color / len(dirs)).astype(np.float32).reshape(r, r, r, 3)
-    return sigma, color
+    return ((sigma / len(dirs)).astype(np.float32).reshape(r, r, r),
+            (color / len(dirs)).astype(np.float32).reshape(r, r, r, 3))
 
 
 def _save_npy(path: Path, array: np.ndarray) -> None:

@@ -282,7 +282,7 @@ def save_parameters(path: Path, params: Mapping[str, Any]) -> None:
 
     from mitsnerf.data.atomic import atomic_write_bytes
 
-    arrays = {k: np.asarray(v.numpy() if hasattr(v, "numpy") else v) for k, v in params.items()}
+    arrays: dict[str, Any] = {k: np.asarray(v.numpy() if hasattr(v, "numpy") else v) for k, v in params.items()}
     buf = io.BytesIO()
     np.savez(buf, **arrays)
     atomic_write_bytes(path, buf.getvalue())

@@ -85,7 +85,7 @@ def write_vol(
     with atomic_path(path) as tmp:
         with open(tmp, "xb") as f:
             f.write(header)
-            f.write(memoryview(body).cast("B"))
+            f.write(body.data.cast("B"))
             f.flush()
             os.fsync(f.fileno())
 

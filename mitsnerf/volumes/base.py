@@ -108,7 +108,7 @@ def voxels_in_ball(resolution: int, radius: float):
     return index, (x.ravel()[ii], y.ravel()[jj], z.ravel()[kk])
 
 
-def smoothstep(edge0: float, edge1: float, x: np.ndarray) -> np.ndarray:
+def smoothstep(edge0: float | np.ndarray, edge1: float | np.ndarray, x: np.ndarray) -> np.ndarray:
     """Cubic Hermite step: 0 for ``x <= edge0``, 1 for ``x >= edge1``, ``3t^2 - 2t^3`` between.
 
     >>> smoothstep(0.0, 1.0, np.array([-1.0, 0.25, 0.5, 2.0])).tolist()

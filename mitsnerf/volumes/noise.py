@@ -31,6 +31,8 @@ does the hashing per axis and only the blend on the full grid.
 
 from __future__ import annotations
 
+from typing import Any
+
 import numpy as np
 
 PERIOD = 256  # lattice cells after which the noise repeats
@@ -84,6 +86,7 @@ class GradientNoise:
                 rows.append(ends[0] + u * (ends[1] - ends[0]))
             slab = rows[0] + v * (rows[1] - rows[0])
             out = slab if out is None else out + w * (slab - out)
+        assert out is not None  # the loop over (0, 1) ran
         return out
 
 
@@ -105,7 +108,7 @@ def fbm(
     """
     if not 1 <= octaves <= MAX_OCTAVES:
         raise ValueError(f"octaves: must be an integer in [1, {MAX_OCTAVES}], got {octaves!r}")
-    total = None
+    total: Any = None
     amplitude, norm, f = 1.0, 0.0, float(frequency)
     for o in range(octaves):
         s = noise.shifts[o]
