@@ -63,6 +63,7 @@ from mitsnerf import env
 from mitsnerf.data.atomic import atomic_files, atomic_write_bytes, atomic_write_json
 from mitsnerf.data.vol import write_vol
 from mitsnerf.errors import DatasetError
+from mitsnerf.methods.base import HasField
 from mitsnerf.math.box import Box
 
 DEFAULT_DIRECTIONS = 16
@@ -184,9 +185,7 @@ def export_run(run_dir: Path, out_dir: Path | None = None, resolution: int = 64,
 
     model, dataset, config = load_run(Path(run_dir))
     out_dir = Path(out_dir) if out_dir is not None else Path(run_dir) / "export"
-    try:
-        field = model.field()
-    except NotImplementedError:
-        raise DatasetError(run_dir, None, f"method {config.get('method')!r} has no queryable field to export") from None
-    return export_field(field, out_dir, resolution, direction, n_directions, box=dataset.box,
+    if not isinstance(model, HasField):
+        raise DatasetError(run_dir, None, f"method {config.get('method')!r} has no queryable field to export")
+    return export_field(model.field(), out_dir, resolution, direction, n_directions, box=dataset.box,
                         info={"run": str(run_dir), "method": config.get("method"), "provenance": env.provenance()})

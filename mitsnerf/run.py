@@ -33,7 +33,8 @@ from mitsnerf.errors import DatasetError, DiskFullError, OutputError, UsageError
 from mitsnerf.evaluate import EvalConfig, render_views, stack_rgb
 from mitsnerf.math.box import Box
 from mitsnerf.methods import METHODS, get_method
-from mitsnerf.methods.base import Model, ParameterShapeError, SceneInfo, num_parameters
+from mitsnerf.fields.protocols import DensityField
+from mitsnerf.methods.base import HasField, Model, ParameterShapeError, SceneInfo, num_parameters
 from mitsnerf.render.background import make_background
 from mitsnerf.render.camera import Rendered
 from mitsnerf.run_dir import RUN_FILES, remove_run_files
@@ -257,7 +258,8 @@ def evaluate_run(model: Model, method: str, run_config: dict, result: TrainResul
     """Render the test views (and a few training views) with the run's footprint and score them."""
     k = eval_config.footprint
     renders, seconds = render_views(model, ref.cameras, pixel_center=ref.pixel_center, footprint=k)
-    density = getattr(_field_or_none(model), "density", None)
+    field = model.field() if isinstance(model, HasField) else None
+    density = field.density if isinstance(field, DensityField) else None
     scores, slices = scoring.score_views(stack_rgb(renders), ref, density, oracle=oracle,
                                          density_resolution=eval_config.density_resolution,
                                          od_samples=eval_config.od_samples)
@@ -267,13 +269,6 @@ def evaluate_run(model: Model, method: str, run_config: dict, result: TrainResul
     scores["psnr_train"] = scoring.image_scores(stack_rgb(train_renders), train_views.images[:n], with_ssim=False)["psnr_test"]
     return RunResult(method, run_config, result, scores, renders, slices, num_parameters(model.parameters()),
                      seconds, model)
-
-
-def _field_or_none(model: Model):
-    try:
-        return model.field()
-    except NotImplementedError:
-        return None
 
 
 def save_parameters(path: Path, params: Mapping[str, Any]) -> None:

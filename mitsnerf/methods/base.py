@@ -13,16 +13,21 @@ that ``drjit.opt`` optimisers take as is; after every step the trainer hands the
 values back through :meth:`Model.set_parameters`. A model changes its parameters only by
 returning new values from :meth:`Model.after_step`, which the trainer writes into the optimiser
 (coarse to fine, clamping): schedules return values, they never rewrite the optimiser.
+
+A capability beyond rendering is a protocol of its own, tested with ``isinstance``: :class:`HasField`, a
+model whose learned medium can be queried (``field()``; with ``density(x)`` the density scores and
+``mitsnerf export`` read it).
 """
 
 from __future__ import annotations
 
 from abc import ABC, abstractmethod
 from dataclasses import dataclass, field, replace
-from typing import Any, Callable, ClassVar, Mapping
+from typing import Any, Callable, ClassVar, Mapping, Protocol, runtime_checkable
 
 import drjit as dr
 
+from mitsnerf.fields.protocols import Field
 from mitsnerf.math.box import Box
 from mitsnerf.math.composite import Composite
 from mitsnerf.render.camera import Rendered, render_view
@@ -89,6 +94,14 @@ def check_shapes(current: Mapping[str, Any], values: Mapping[str, Any]) -> None:
             raise ParameterShapeError(key, value.shape, current[key].shape)
 
 
+@runtime_checkable
+class HasField(Protocol):
+    """A model whose learned medium can be queried: ``field()`` is its :class:`~mitsnerf.fields.protocols.Field`
+    as trained (a :class:`~mitsnerf.fields.protocols.DensityField` where the density is queryable)."""
+
+    def field(self) -> Field: ...
+
+
 class Model(ABC):
     """A trainable scene representation (see the module docstring). Subclass one of the protocols."""
 
@@ -120,10 +133,6 @@ class Model(ABC):
         values for some parameters (upsampled, clamped), which the trainer writes into the
         optimiser. May update the model's non-parameter state (an occupancy grid). Default: none."""
         return {}
-
-    def field(self):
-        """The field callable ``(x, d) -> (rgb, sigma)`` with ``density(x)``, as trained."""
-        raise NotImplementedError(f"{type(self).__name__} has no queryable field")
 
     def extra_state(self) -> dict:
         """Non-parameter state to checkpoint (numpy-convertible)."""

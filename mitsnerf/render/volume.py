@@ -18,11 +18,11 @@ from typing import Any, Callable
 
 import drjit as dr
 
+from mitsnerf.fields.protocols import Field
 from mitsnerf.math.box import Box
 from mitsnerf.math.composite import Composite, composite
 from mitsnerf.math.sampling import stratified_t
 
-Field = Callable[[Any, Any], tuple[Any, Any]]
 
 
 @dataclass(frozen=True)
