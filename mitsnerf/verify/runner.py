@@ -340,6 +340,16 @@ def format_table(results: list[CaseResult], alpha: float | None = None) -> str:
     return "\n".join(lines + ([""] + notes if notes else []))
 
 
+def count_line(results: list[CaseResult]) -> str:
+    """The summary a check run ends with: ``N passed, M failed`` (records, neither passed nor failed, are not counted).
+
+    >>> count_line([CaseResult("a", "c", "r", "e", None, "-", True, 0.1), CaseResult("b", "c", "r", "e", None, "-", None, 0.1)])
+    '1 passed, 0 failed'
+    """
+    passed = sum(r.passed is True for r in results)
+    return f"{passed} passed, {sum(r.passed is False for r in results)} failed"
+
+
 def format_mutations(report: MutationReport) -> str:
     """Per mutation: where it is planted, which cases catch it (with the deciding statistic), and the 0/1 matrix."""
     header = ("mutation", "planted in", "kind", "caught by")
