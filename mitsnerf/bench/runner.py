@@ -11,7 +11,7 @@
 4. **Run** the pending cells on an executor (:mod:`mitsnerf.bench.executors`); each finished
    cell is written at once, atomically (a failed one as ``error.json``, retried next time).
 5. **Outputs** from every cell on disk (:func:`write_outputs`), under ``results/<bench>[-quick]/``:
-   ``table.md`` (printed too), ``table.csv`` (per scene and method), ``average.csv``,
+   ``table.md`` (every column; a compact table is printed), ``table.csv`` (per scene and method), ``average.csv``,
    ``cells.csv`` (one row per cell), ``results.json`` (everything, with provenance),
    ``plots/*.png`` and ``report.html`` (self-contained).
 
@@ -34,7 +34,8 @@ from mitsnerf import env
 from mitsnerf.bench.cells import (ARTEFACTS_FILE, ERROR_FILE, Cell, cell_dir, code_version, is_done, read_record,
                                   write_error, write_result)
 from mitsnerf.bench.config import BenchConfig
-from mitsnerf.bench.tables import (ORACLE, average_rows, best_rules, cell_row, csv_keys, csv_table, markdown_report,
+from mitsnerf.bench.tables import (ORACLE, average_rows, best_rules, cell_row, compact_report, csv_keys, csv_table,
+                                   markdown_report,
                                    oracle_row, scene_rows, with_oracle_rows)
 from mitsnerf.config import from_dict, to_dict
 from mitsnerf.data.atomic import atomic_write_json, atomic_write_text
@@ -84,6 +85,7 @@ class BenchResult:
     per_scene: list[dict] = field(default_factory=list)
     average: list[dict] = field(default_factory=list)
     markdown: str = ""
+    """The compact tables printed by ``mitsnerf bench`` (:func:`mitsnerf.bench.tables.compact_report`)."""
     files: dict[str, Path] = field(default_factory=dict)
     external: list[tuple[dict, dict]] = field(default_factory=list)
     """``(record, artefacts)`` of every external entry, scored this run."""
@@ -279,12 +281,12 @@ def write_outputs(config: BenchConfig, options: BenchOptions, cells: list[Cell],
     if len(ceilings) > 1:
         average = [{**r, "ceiling": True} for r in average_rows(ceilings, [ORACLE])] + average
     best = best_rules(records)
-    markdown = markdown_report(per_scene, average, best)
+    markdown = compact_report(per_scene, average, best)
     files = {"table.md": out_root / "table.md", "table.csv": out_root / "table.csv",
              "average.csv": out_root / "average.csv", "cells.csv": out_root / "cells.csv",
              "results.json": out_root / "results.json"}
     title = f"mitsnerf benchmark {config.name}" + (" (quick)" if options.quick else "")
-    atomic_write_text(files["table.md"], f"# {title}\n\n{markdown}\n")
+    atomic_write_text(files["table.md"], f"# {title}\n\n{markdown_report(per_scene, average, best)}\n")
     atomic_write_text(files["table.csv"], csv_table(per_scene, csv_keys(per_scene)))
     atomic_write_text(files["average.csv"], csv_table(average, csv_keys(average)))
     cell_rows = [cell_row(r) for r in records]
