@@ -416,7 +416,7 @@ def cmd_bench(args) -> int:
 def cmd_check(args) -> int:
     from mitsnerf.outputs import check_output_dir
     from mitsnerf.verify.cases import QUALITIES
-    from mitsnerf.verify.runner import format_mutations, format_table, run_checks, run_mutations
+    from mitsnerf.verify.runner import count_line, format_mutations, format_table, run_checks, run_mutations
 
     if args.out:
         check_output_dir(Path(args.out), "--out")
@@ -428,6 +428,7 @@ def cmd_check(args) -> int:
         print(format_table(report.clean, alpha))
         print()
         print(format_mutations(report))
+        print(count_line(report.clean))
         failed = [r.name for r in report.clean if r.passed is False]
         if failed:
             print(f"mitsnerf check: {len(failed)} case(s) failed without a mutation: {', '.join(failed)}", file=sys.stderr)
@@ -439,6 +440,7 @@ def cmd_check(args) -> int:
         lambda r: print(f"  {r.name}: {r.status} ({r.seconds:.1f} s)", file=sys.stderr, flush=True))
     results = run_checks(args.quality, out=args.out, only=args.case, progress=progress)
     print(format_table(results, alpha))
+    print(count_line(results))
     failed = [r.name for r in results if r.passed is False]
     if failed:
         print(f"mitsnerf check: {len(failed)} case(s) failed: {', '.join(failed)}", file=sys.stderr)

@@ -79,7 +79,7 @@ def test_an_installed_wheel_lists_the_scenes_and_runs_the_quick_bench(wheel, tmp
     assert [line.split()[0] for line in scenes.stdout.splitlines()] == list_scenes()
     bench = run("bench", "--quick", "--no-progress", "--data", str(work / "data"), "--results", str(work / "results"))
     assert bench.returncode == 0, bench.stderr[-3000:]
-    assert "## Quality per scene" in bench.stdout and (work / "results" / "default-quick" / "table.md").is_file()
+    assert "## Per scene" in bench.stdout and (work / "results" / "default-quick" / "table.md").is_file()
 
 
 # ---------------------------------------------------------------- the user's own directories

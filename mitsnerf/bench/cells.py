@@ -26,6 +26,10 @@ from typing import Any, Mapping
 RESULT_FILE = "result.json"
 ARTEFACTS_FILE = "artefacts.npz"
 ERROR_FILE = "error.json"
+#: Which cell the checkpoint in ``CELL/run`` belongs to (config hash and code version), written before
+#: training: a sweep stopped by a signal continues the cell in flight from its checkpoint only if they match.
+#: Removed when the cell's result is written (a finished cell is not in flight).
+IN_FLIGHT_FILE = "in_flight.json"
 RECORD_FORMAT = 1
 """Version of the result record layout; part of every cell's hash."""
 
@@ -132,7 +136,8 @@ def is_done(cell: Cell) -> bool:
 
 def write_result(cell: Cell, record: Mapping[str, Any], artefacts: bytes | None) -> Path:
     """Write the artefacts, then the record (each atomically; the record last, so a
-    ``result.json`` is only ever seen with its artefacts). Removes a stale ``error.json``."""
+    ``result.json`` is only ever seen with its artefacts). Removes a stale ``error.json`` and the
+    cell's ``in_flight.json`` mark (:data:`IN_FLIGHT_FILE`)."""
     from mitsnerf.data.atomic import atomic_write_bytes, atomic_write_json
 
     directory = cell.path
@@ -141,6 +146,7 @@ def write_result(cell: Cell, record: Mapping[str, Any], artefacts: bytes | None)
         atomic_write_bytes(directory / ARTEFACTS_FILE, artefacts)
     atomic_write_json(directory / RESULT_FILE, dict(record))
     (directory / ERROR_FILE).unlink(missing_ok=True)
+    (directory / IN_FLIGHT_FILE).unlink(missing_ok=True)
     return directory / RESULT_FILE
 
 

@@ -30,7 +30,8 @@ oracle = { spp = 8 }
 ```
 
 External renders are matched and scored as ``mitsnerf score`` does (:mod:`mitsnerf.external`);
-relative paths are relative to the config file's folder.
+relative paths are relative to the config file's folder. A config of ``[[external]]`` entries alone
+(no ``[[methods]]``) scores them against the datasets and their oracles, training nothing.
 
 With ``methods = "all"``, every method in :data:`mitsnerf.methods.METHODS` runs with its
 default settings, and ``[method_settings.NAME]`` tables (``config``, ``train``, ``quick``)
@@ -142,7 +143,8 @@ class QuickProfile:
 class BenchConfig:
     name: str = param(doc="results go to results/<name>[-quick]/; default: the file's stem")
     scenes: tuple[str, ...] = param(doc='scene names or spec paths, or "all"')
-    methods: tuple[MethodRun, ...] = param(doc='[[methods]] tables, or "all" (with [method_settings.NAME])')
+    methods: tuple[MethodRun, ...] = param((), doc='[[methods]] tables, or "all" (with [method_settings.NAME]); '
+                                                    'may be left out when [[external]] entries are given')
     seeds: tuple[int, ...] = param((0,), lo=0, doc="training seeds; every cell runs once per seed")
     scene: Mapping[str, Any] = param(default_factory=dict,
                                      doc="dotted SceneSpec.with_overrides keys applied to every scene (before --quick's)")
@@ -165,8 +167,8 @@ class BenchConfig:
             raise ValueError("scenes: at least one scene is needed")
         if len(set(self.scenes)) != len(self.scenes):
             raise ValueError(f"scenes: listed twice: {sorted({s for s in self.scenes if self.scenes.count(s) > 1})}")
-        if not self.methods:
-            raise ValueError("methods: at least one method is needed")
+        if not self.methods and not self.external:
+            raise ValueError("methods: at least one method (or an [[external]] entry) is needed")
         if not self.seeds:
             raise ValueError("seeds: at least one seed is needed")
         if len(set(self.seeds)) != len(self.seeds):

@@ -16,6 +16,7 @@ import numpy as np
 
 from mitsnerf.bench.config import BenchConfig, ExternalRun
 from mitsnerf.errors import SpecError
+from mitsnerf.external import match_renders
 
 
 @dataclass(frozen=True)
@@ -36,10 +37,12 @@ class ExternalEntry:
 def plan_externals(config: BenchConfig, quick: bool, cells: Sequence) -> list[ExternalEntry]:
     """Every (external, scene) of the profile being run; paths relative to the config file's folder.
 
-    A scene name that is not one of the benchmark's, or a renders folder that does not exist, is a
-    SpecError at ``external.I.renders.NAME``.
+    A scene name that is not one of the benchmark's, a renders folder or density file that does not
+    exist, is a SpecError at ``external.I.renders.NAME`` (``density.NAME``); a folder lacking a test
+    frame's render is a DatasetError naming it. All before any dataset is generated.
     """
     datasets = {c.scene: Path(c.dataset_dir) for c in cells}
+    n_test = {c.scene: int(c.spec["cameras"]["n_test"]) for c in cells}
     base = config.base_dir
     entries = []
     for i, run in enumerate(config.external):
@@ -53,6 +56,9 @@ def plan_externals(config: BenchConfig, quick: bool, cells: Sequence) -> list[Ex
             if not (base / folder).is_dir():  # before the datasets and oracles are made, not after
                 raise SpecError(config.source, f"{where}.renders.{scene}", f"{base / folder}: renders folder not found")
             density = files.density.get(scene)
+            if density is not None and not (base / density).is_file():
+                raise SpecError(config.source, f"{where}.density.{scene}", f"{base / density}: density file not found")
+            match_renders(base / folder, [f"r_{k:03d}" for k in range(n_test[scene])], run.format or None)
             entries.append(ExternalEntry(run, scene, datasets[scene], base / folder,
                                          None if density is None else base / density))
     return entries

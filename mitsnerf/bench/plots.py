@@ -3,7 +3,8 @@
 - ``psnr_time_<scene>.png``: held-out PSNR against training time (evaluation excluded), whole
   image and medium pixels, one colour per method, one line per seed, the noise floor dashed;
 - ``per_view_<scene>.png``: test PSNR per view (mean over seeds) with the per-view noise floor;
-- ``error_budget_<scene>.png``: each method's medium PSNR against the oracle and the noise floor, with its gap;
+- ``error_budget_<scene>.png``: each method's medium PSNR against the oracle and the reference agreement (the
+  noise floor), its value and gap written right of the plot, clear of the lines;
 - ``images_<scene>.png``: the report view: ground truth and its medium-pixel mask, each
   method's render (first seed) and its error map ``mean_c |render - truth|`` (linear,
   clipped) on a shared scale;
@@ -87,7 +88,7 @@ def psnr_time(scene: str, records: Sequence[dict], methods: Sequence[str], path:
                 first = False
         floor = _floor(records, floor_key)
         if floor is not None:
-            ax.axhline(floor, color="k", ls="--", lw=1, label="GT noise floor")
+            ax.axhline(floor, color="k", ls="--", lw=1, label="ref agreement (two GT renders)")
         _label(ax, "training time, s (evaluation excluded)", "held-out PSNR, dB (linear)", f"{scene}: {title}")
     fig.tight_layout()
     return _save(fig, path)
@@ -108,7 +109,7 @@ def per_view(scene: str, records: Sequence[dict], methods: Sequence[str], path: 
     floor = next((r["metrics"].get("noise_floor_psnr_per_view") for r in records
                   if r["metrics"].get("noise_floor_psnr_per_view")), None)
     if floor:
-        ax.plot(np.arange(len(floor)), [np.nan if v is None else v for v in floor], "k--", lw=1, label="GT noise floor")
+        ax.plot(np.arange(len(floor)), [np.nan if v is None else v for v in floor], "k--", lw=1, label="ref agreement (two GT renders)")
     ceiling = next(((r.get("oracle") or {}).get("psnr_test_per_view") for r in records
                     if (r.get("oracle") or {}).get("psnr_test_per_view")), None)
     if ceiling:
@@ -209,7 +210,10 @@ def density_slices(scene: str, records: Sequence[dict], methods: Sequence[str], 
 
 def error_budget(scene: str, records: Sequence[dict], methods: Sequence[str], path: Path) -> Path | None:
     """Each method's medium PSNR (mean over seeds) as a bar, the oracle (the emission-absorption ceiling) and
-    the noise floor as lines, each bar labelled with its gap to the oracle; None without medium scores."""
+    the reference agreement (noise floor) as lines, each bar's value and gap to the oracle written right of
+    the axes (clear of the lines, whatever they cross); None without medium scores."""
+    from matplotlib.transforms import blended_transform_factory
+
     values = {m: [r["metrics"].get("psnr_test_medium") for r in records if r["method"] == m] for m in methods}
     values = {m: float(np.mean([v for v in vs if v is not None])) for m, vs in values.items()
               if any(v is not None for v in vs)}
@@ -217,24 +221,27 @@ def error_budget(scene: str, records: Sequence[dict], methods: Sequence[str], pa
         return None
     oracle = _floor(records, "oracle_psnr_test_medium")
     floor = _floor(records, "noise_floor_psnr_medium")
-    fig = _figure(6.4, 1.4 + 0.45 * len(values))
+    fig = _figure(7.2, 1.9 + 0.45 * len(values))
+    fig.set_layout_engine("constrained")  # room for the axis label and the notes right of the axes
     ax = fig.add_subplot(1, 1, 1)
     colours = _colours(methods)
     names = list(values)
     ax.barh(range(len(names)), [values[m] for m in names], color=[colours[m] for m in names])
-    low = min(list(values.values()) + [v for v in (oracle, floor) if v is not None]) - 3.0
+    lines = [v for v in (oracle, floor) if v is not None]
+    beside = blended_transform_factory(ax.transAxes, ax.transData)
     for i, m in enumerate(names):
-        gap = f"  {oracle - values[m]:.2f} dB to the oracle" if oracle is not None else ""
-        ax.text(values[m], i, f" {values[m]:.2f}{gap}", va="center", fontsize=7)
+        gap = f", {oracle - values[m]:.2f} below the oracle" if oracle is not None else ""
+        ax.text(1.02, i, f"{values[m]:.2f} dB{gap}", va="center", fontsize=8, transform=beside)
     if oracle is not None:
         ax.axvline(oracle, color="tab:red", ls=":", lw=1.5, label=f"oracle (EA ceiling) {oracle:.2f}")
     if floor is not None:
-        ax.axvline(floor, color="k", ls="--", lw=1, label=f"GT noise floor {floor:.2f}")
+        ax.axvline(floor, color="k", ls="--", lw=1, label=f"ref agreement (two GT renders) {floor:.2f}")
     ax.set_yticks(range(len(names)), names)
-    ax.set_xlim(left=max(low, 0.0), right=max([*values.values(), oracle or 0, floor or 0]) + 6.0)
+    ax.set_xlim(left=max(min([*values.values(), *lines]) - 3.0, 0.0), right=max([*values.values(), *lines]) + 1.0)
     _label(ax, "PSNR on medium pixels (dB)", "", f"{scene}: error budget")
-    if oracle is not None or floor is not None:
-        ax.legend(fontsize=8, loc="lower right")
+    if lines:
+        ax.get_legend().remove()
+        fig.legend(fontsize=8, loc="outside lower center", ncols=2)
     return _save(fig, path)
 
 

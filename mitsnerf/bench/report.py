@@ -8,7 +8,7 @@ import json
 from pathlib import Path
 from typing import Any, Sequence
 
-from mitsnerf.bench.tables import BEST, COST, LEGEND, QUALITY, Column, _cell_text, best_values
+from mitsnerf.bench.tables import BEST, COST, QUALITY, Column, _cell_text, best_values, cost_columns, is_best, legend, reference_lines
 
 STYLE = """
 body { font-family: sans-serif; margin: 2em; color: #222; }
@@ -30,13 +30,18 @@ def html_table(rows: Sequence[dict], columns: Sequence[Column], group: str | Non
     for row in rows:
         cells = []
         for key, _, digits in columns:
-            mark = marks.get((row.get(group) if group else None, key))
-            best = mark is not None and row.get(key) == mark
-            attr = ' class="best"' if best else ""
+            attr = ' class="best"' if is_best(row, key, digits, marks, group) else ""
             cells.append(f"<td{attr}>{html.escape(_cell_text(row, key, digits))}</td>")
         out.append(("<tr class='ceiling'>" if row.get("ceiling") else "<tr>") + "".join(cells) + "</tr>")
     out.append("</table>")
     return "\n".join(out)
+
+
+def _lines(lines: Sequence[str], tag: str = "div") -> str:
+    """``lines`` as one paragraph each (``tag="div"``) or as a list (``"ul"``), escaped."""
+    if tag == "ul":
+        return "<ul class='legend'>" + "".join(f"<li>{html.escape(line)}</li>" for line in lines) + "</ul>"
+    return "".join(f"<p class='legend'>{html.escape(line)}</p>" for line in lines)
 
 
 def _img(path: Path) -> str:
@@ -52,17 +57,18 @@ def write_report(path: Path, *, title: str, per_scene: Sequence[dict], average: 
 
     parts = [f"<!DOCTYPE html><html><head><meta charset='utf-8'><title>{html.escape(title)}</title>",
              f"<style>{STYLE}</style></head><body>", f"<h1>{html.escape(title)}</h1>"]
-    parts.append(f"<p class='legend'>{html.escape(LEGEND)}</p>")
     for note in notes:
         parts.append(f"<p class='legend'>{html.escape(note)}</p>")
     if failed:
         parts.append("<h2>Failed cells</h2><ul>" + "".join(
             f"<li>{html.escape(f['key'])}: {html.escape(f.get('error', ''))}</li>" for f in failed) + "</ul>")
-    parts += ["<h2>Quality per scene</h2>", html_table(per_scene, QUALITY, "scene", best),
-              "<h2>Cost per scene</h2>", html_table(per_scene, COST, "scene", best)]
+    cost = cost_columns(per_scene)
+    parts += ["<h2>Quality per scene</h2>", html_table(per_scene, QUALITY, "scene", best), _lines(reference_lines(per_scene)),
+              "<h2>Cost per scene</h2>", html_table(per_scene, cost, "scene", best)]
     if len({r["scene"] for r in per_scene}) > 1:
         parts += ["<h2>Quality averaged over scenes</h2>", html_table(average, QUALITY, None, best),
-                  "<h2>Cost averaged over scenes</h2>", html_table(average, COST, None, best)]
+                  _lines(reference_lines(average)), "<h2>Cost averaged over scenes</h2>", html_table(average, cost, None, best)]
+    parts += ["<h2>Columns</h2>", _lines([line[2:] for line in legend(QUALITY + cost).splitlines()], "ul")]
     for scene, figs in figures.items():
         parts.append(f"<h2>Scene {html.escape(scene)}</h2>")
         for caption, fig_path in figs:

@@ -11,7 +11,7 @@
 4. **Run** the pending cells on an executor (:mod:`mitsnerf.bench.executors`); each finished
    cell is written at once, atomically (a failed one as ``error.json``, retried next time).
 5. **Outputs** from every cell on disk (:func:`write_outputs`), under ``results/<bench>[-quick]/``:
-   ``table.md`` (printed too), ``table.csv`` (per scene and method), ``average.csv``,
+   ``table.md`` (every column; a compact table is printed), ``table.csv`` (per scene and method), ``average.csv``,
    ``cells.csv`` (one row per cell), ``results.json`` (everything, with provenance),
    ``plots/*.png`` and ``report.html`` (self-contained).
 
@@ -34,7 +34,8 @@ from mitsnerf import env
 from mitsnerf.bench.cells import (ARTEFACTS_FILE, ERROR_FILE, Cell, cell_dir, code_version, is_done, read_record,
                                   write_error, write_result)
 from mitsnerf.bench.config import BenchConfig
-from mitsnerf.bench.tables import (ORACLE, average_rows, best_rules, cell_row, csv_keys, csv_table, markdown_report,
+from mitsnerf.bench.tables import (ORACLE, average_rows, best_rules, cell_row, compact_report, csv_keys, csv_table,
+                                   markdown_report,
                                    oracle_row, scene_rows, with_oracle_rows)
 from mitsnerf.config import from_dict, to_dict
 from mitsnerf.data.atomic import atomic_write_json, atomic_write_text
@@ -84,6 +85,7 @@ class BenchResult:
     per_scene: list[dict] = field(default_factory=list)
     average: list[dict] = field(default_factory=list)
     markdown: str = ""
+    """The compact tables printed by ``mitsnerf bench`` (:func:`mitsnerf.bench.tables.compact_report`)."""
     files: dict[str, Path] = field(default_factory=dict)
     external: list[tuple[dict, dict]] = field(default_factory=list)
     """``(record, artefacts)`` of every external entry, scored this run."""
@@ -93,31 +95,49 @@ def out_root_of(config: BenchConfig, options: BenchOptions) -> Path:
     return Path(options.results_root) / (config.name + ("-quick" if options.quick else ""))
 
 
-def plan_cells(config: BenchConfig, options: BenchOptions) -> list[Cell]:
-    """Every cell of ``config``, resolved and validated (a SpecError naming the bench file and field)."""
+@dataclass(frozen=True)
+class SceneData:
+    """One scene's dataset as the benchmark makes it: what generating it, its oracle and the external
+    entries on it need (the same fields as a :class:`~mitsnerf.bench.cells.Cell`'s)."""
+
+    scene: str
+    spec: dict
+    eval: dict
+    dataset_dir: str
+    data_root: str
+    oracle: dict | None
+
+
+def plan_scenes(config: BenchConfig, options: BenchOptions) -> list[SceneData]:
+    """Every scene of ``config``, resolved and validated (a SpecError naming the bench file and field)."""
     from mitsnerf.generate import dataset_dir
 
+    data_root = Path(options.data_root).resolve()
+    evalc = to_dict(config.eval_config(options.quick))
+    oracle = config.oracle_config(options.quick)
+    oracle_data = to_dict(oracle) if oracle.enabled else None
+    return [SceneData(scene=spec.name, spec=spec.to_dict(), eval=evalc, dataset_dir=str(dataset_dir(spec, data_root)),
+                      data_root=str(data_root), oracle=oracle_data) for spec in _scene_specs(config, options.quick)]
+
+
+def plan_cells(config: BenchConfig, options: BenchOptions, scenes: list[SceneData] | None = None) -> list[Cell]:
+    """Every cell of ``config`` (on ``scenes``, default :func:`plan_scenes`), resolved and validated (a
+    SpecError naming the bench file and field)."""
     import mitsuba as mi
 
     variant = mi.variant() or env.set_variant()
     version = options.code_version or code_version()
     out_root = out_root_of(config, options).resolve()
-    data_root = Path(options.data_root).resolve()
-    evalc = to_dict(config.eval_config(options.quick))
-    oracle = config.oracle_config(options.quick)
-    oracle_data = to_dict(oracle) if oracle.enabled else None
-    specs = _scene_specs(config, options.quick)
     cells = []
-    for spec in specs:
-        ds_dir = str(dataset_dir(spec, data_root))
+    for site in plan_scenes(config, options) if scenes is None else scenes:
         for method, resolved, train in _method_settings(config, options.quick):
             for seed in config.seeds:
                 cells.append(Cell(
-                    bench=config.name, scene=spec.name, label=method.label, method=method.name, seed=seed,
-                    spec=spec.to_dict(), method_config=resolved, train=train[seed], eval=evalc,
-                    variant=variant, code_version=version, dataset_dir=ds_dir, data_root=str(data_root),
-                    out_dir=str(cell_dir(out_root, spec.name, method.label, seed)), quick=options.quick,
-                    oracle=oracle_data,
+                    bench=config.name, scene=site.scene, label=method.label, method=method.name, seed=seed,
+                    spec=site.spec, method_config=resolved, train=train[seed], eval=site.eval,
+                    variant=variant, code_version=version, dataset_dir=site.dataset_dir, data_root=site.data_root,
+                    out_dir=str(cell_dir(out_root, site.scene, method.label, seed)), quick=options.quick,
+                    oracle=site.oracle,
                 ))
     return cells
 
@@ -128,12 +148,10 @@ def _scene_specs(config: BenchConfig, quick: bool) -> list:
 
     A spec given by a relative path is relative to the config file's folder, as external renders are.
     """
-    from mitsnerf.scene.spec import is_spec_path, load_scene
-
     layers = [("scene", config.scene)] + ([("quick.scene", config.quick.scene)] if quick else [])
     specs = []
-    for name in config.scenes:
-        spec = load_scene(config.base_dir / name if is_spec_path(name) else name)
+    for i, name in enumerate(config.scenes):
+        spec = _listed_scene(config, i, name)
         for where, overrides in layers:
             if not overrides:
                 continue
@@ -147,6 +165,22 @@ def _scene_specs(config: BenchConfig, quick: bool) -> list:
     if len(set(names)) != len(names):
         raise SpecError(config.source, "scenes", f"two specs share a name ({', '.join(names)}); results are keyed by name")
     return specs
+
+
+def _listed_scene(config: BenchConfig, i: int, name: str):
+    """``scenes[i]`` of ``config`` loaded; an unknown scene name or a missing spec file is a SpecError at
+    ``scenes.I`` of the bench file (a problem inside a spec file names that file)."""
+    from mitsnerf.scene.spec import is_spec_path, load_scene
+
+    path = config.base_dir / name if is_spec_path(name) else None
+    if path is not None and not path.exists():
+        raise SpecError(config.source, f"scenes.{i}", f"{path}: no such spec file")
+    try:
+        return load_scene(path or name)
+    except SpecError as exc:
+        if path is None and exc.where == name:  # not a library scene: the bench file named it
+            raise SpecError(config.source, f"scenes.{i}", exc.message) from None
+        raise
 
 
 def _method_settings(config: BenchConfig, quick: bool) -> list[tuple[Any, dict, dict[int, dict]]]:
@@ -172,8 +206,9 @@ def _method_settings(config: BenchConfig, quick: bool) -> list[tuple[Any, dict, 
     return out
 
 
-def _generate(cells: list[Cell], options: BenchOptions, log: Callable[[str], None]) -> None:
-    """Generate (or find cached) the dataset of every scene among ``cells``, here, once."""
+def _generate(cells: list, options: BenchOptions, log: Callable[[str], None]) -> None:
+    """Generate (or find cached) the dataset of every scene among ``cells`` (cells or :class:`SceneData`), here,
+    once."""
     from mitsnerf.generate import generate_dataset
     from mitsnerf.scene.spec import parse_scene
 
@@ -238,7 +273,7 @@ def write_outputs(config: BenchConfig, options: BenchOptions, cells: list[Cell],
     out_root.mkdir(parents=True, exist_ok=True)
     records, failed = collect(cells)
     records += [record for record, _ in result.external]
-    scenes = list(dict.fromkeys(c.scene for c in cells))
+    scenes = list(dict.fromkeys([c.scene for c in cells] + [r["scene"] for r, _ in result.external]))
     methods = [m.label for m in config.methods] + list(dict.fromkeys(r["method"] for r, _ in result.external))
     ceilings = oracle_rows(records, scenes)
     per_scene = with_oracle_rows(scene_rows(records, failed, scenes, methods), ceilings)
@@ -246,12 +281,12 @@ def write_outputs(config: BenchConfig, options: BenchOptions, cells: list[Cell],
     if len(ceilings) > 1:
         average = [{**r, "ceiling": True} for r in average_rows(ceilings, [ORACLE])] + average
     best = best_rules(records)
-    markdown = markdown_report(per_scene, average, best)
+    markdown = compact_report(per_scene, average, best)
     files = {"table.md": out_root / "table.md", "table.csv": out_root / "table.csv",
              "average.csv": out_root / "average.csv", "cells.csv": out_root / "cells.csv",
              "results.json": out_root / "results.json"}
     title = f"mitsnerf benchmark {config.name}" + (" (quick)" if options.quick else "")
-    atomic_write_text(files["table.md"], f"# {title}\n\n{markdown}\n")
+    atomic_write_text(files["table.md"], f"# {title}\n\n{markdown_report(per_scene, average, best)}\n")
     atomic_write_text(files["table.csv"], csv_table(per_scene, csv_keys(per_scene)))
     atomic_write_text(files["average.csv"], csv_table(average, csv_keys(average)))
     cell_rows = [cell_row(r) for r in records]
@@ -296,11 +331,16 @@ def _write_report(out_root: Path, cells: list[Cell], result: BenchResult, record
     return files
 
 
-def _score_externals(config: BenchConfig, options: BenchOptions, cells: list[Cell], log: Callable[[str], None]) -> list:
-    """Score the config's external entries on the benchmark's datasets (generated here if needed)."""
+def _score_externals(config: BenchConfig, options: BenchOptions, cells: list[SceneData],
+                     log: Callable[[str], None]) -> list:
+    """Score the config's external entries on the benchmark's datasets (``cells``: one per scene; generated here
+    if needed)."""
     from mitsnerf.bench.external import plan_externals, score_external
 
     entries = plan_externals(config, options.quick, cells)
+    if not entries and not config.methods:
+        raise SpecError(config.source, "external", "nothing to run: no method, and no entry has renders for "
+                                                   "the --quick datasets (its quick = { renders = ... } table)")
     if not entries:
         return []
     _generate([c for c in cells if c.scene in {e.scene for e in entries}], options, log)
@@ -329,10 +369,11 @@ def run_benchmark(config: BenchConfig, options: BenchOptions, log: Callable[[str
     check_options(options.executor, options.workers, options.cpus_per_cell, options.address)
     if log is None:
         log = (lambda line: print(line, file=sys.stderr, flush=True)) if options.progress else (lambda line: None)
-    cells = plan_cells(config, options)
+    scenes = plan_scenes(config, options)
+    cells = plan_cells(config, options, scenes)
     out_root = out_root_of(config, options)
     result = BenchResult(out_root=out_root, cells=cells, records=[], failed=[])
-    result.external = _score_externals(config, options, cells, log)
+    result.external = _score_externals(config, options, scenes, log)
     pending = [c for c in cells if options.force or not is_done(c)]
     result.skipped = [c.key for c in cells if c not in pending]
     if result.skipped:

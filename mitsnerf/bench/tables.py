@@ -1,10 +1,14 @@
 """Result tables: cells aggregated per (scene, method) over seeds and averaged over scenes, as
-Markdown (terminal and file), CSV and JSON-ready rows; the best value per column marked.
+Markdown (terminal and file), CSV and JSON-ready rows; the best value per column bold (every row
+equal to it at the displayed precision: ties are all bold).
 
-Two tables each: *quality* (image scores in both encodings, whole image and medium pixels,
-the ground truth's noise floor and the oracle next to them, density-field errors) and *cost*
-(training time, throughput, peak memory, parameters). Each scene with an oracle
-(:mod:`mitsnerf.oracle`) gets an ``oracle`` row first (:func:`oracle_row`): the ceiling any
+Printed (:func:`compact_report`): :data:`COMPACT`, the headline medium-pixel PSNR beside the gap to
+the oracle, with one line per scene giving the agreement of its two reference renders and what a
+perfect model would score. Written (``table.md``, :func:`markdown_report`, and the report): two
+tables each, *quality* (image scores in both encodings, whole image and medium pixels, the
+reference agreement and the oracle next to them, density-field errors) and *cost* (training
+time, throughput, peak memory, parameters). A legend gives one line per column (:func:`legend`).
+Each scene with an oracle (:mod:`mitsnerf.oracle`) gets an ``oracle`` row first (:func:`oracle_row`): the ceiling any
 emission-absorption method can reach on that dataset, never marked best.
 """
 
@@ -23,8 +27,8 @@ KEYS: tuple[Column, ...] = (("scene", "scene", 0), ("method", "method", 0), ("se
 QUALITY: tuple[Column, ...] = KEYS + (
     ("psnr_test", "PSNR lin", 2),
     ("psnr_test_medium", "PSNR lin medium", 2),
-    ("noise_floor_psnr", "GT floor", 2),
-    ("noise_floor_psnr_medium", "GT floor medium", 2),
+    ("noise_floor_psnr", "ref agreement", 2),
+    ("noise_floor_psnr_medium", "ref agreement medium", 2),
     ("oracle_psnr_test_medium", "oracle medium", 2),
     ("gap_to_oracle", "gap to oracle", 2),
     ("psnr_test_srgb", "PSNR sRGB", 2),
@@ -51,6 +55,18 @@ COST: tuple[Column, ...] = KEYS + (
     ("curve_eval_seconds", "curve eval s", 1),
     ("note", "note", 0),
 )
+COMPACT: tuple[Column, ...] = (
+    ("scene", "scene", 0),
+    ("method", "method", 0),
+    ("budget", "budget", 0),
+    ("train_seconds", "train s", 1),
+    ("psnr_test_medium", "PSNR medium", 2),
+    ("gap_to_oracle", "gap to oracle", 2),
+    ("ssim_test", "SSIM", 4),
+    ("density_rel_l1", "sigma rel L1", 3),
+)
+"""The printed table: the headline (medium-pixel PSNR) and one figure of each kind; every column is in
+``table.md``, the CSVs, ``results.json`` and ``report.html``."""
 _TO_TARGET = re.compile(r"seconds_to_(.+)db")
 BEST: dict[str, str] = {
     "psnr_test": "max", "psnr_test_medium": "max", "psnr_test_srgb": "max", "psnr_test_medium_srgb": "max",
@@ -58,24 +74,66 @@ BEST: dict[str, str] = {
     "density_rel_l1": "min", "density_rel_l2": "min", "density_psnr": "max", "tau_rel_l1": "min",
     "transmittance_mae": "min", "rays_per_s": "max", "samples_per_s": "max", "peak_rss_mb": "min",
 }  # and "min" for every "seconds to X dB" column, whatever the config's targets (:func:`best_values`)
-LEGEND = (
-    "PSNR/SSIM of the test views; lin: linear radiance clipped to [0, 1]; sRGB: the clipped values "
-    "sRGB-encoded; medium: only pixels whose ray crosses the true medium. GT floor: PSNR between two "
-    "independent ground-truth renders of the test views (manifest noise_floor; a noise-free model scores "
-    "about 3 dB above it). oracle (the ceiling row): the true sigma_t with the in-scattered radiance J "
-    "estimated by volpath, rendered by the package's integrator at the same footprint: the best an "
-    "emission-absorption model can do on the dataset at the oracle's grid resolution; gap to oracle: "
-    "oracle medium PSNR minus the method's. sigma: learned against true density on the voxel centres; tau: optical depth "
-    "along every test ray; T MAE: mean abs error of the transmittance exp(-tau). budget: what set the run's "
-    "length (steps: the table is the same on any machine and load; a seconds cap makes it machine-dependent). "
-    "footprint K: each test pixel is the mean of K x K rays over its area (1: its centre ray). "
-    "train s excludes held-out evaluation; s to X dB medium: training seconds at the first held-out "
-    "evaluation (steps k/N of the budget) reaching X dB on medium pixels (measured, not decisive). "
-    "peak RSS: the high-water mark of the process that ran the cell (cumulative over "
-    "the cells of a sequential run, so not marked best there). "
-    "NAME (external): renders made by another tool, scored as mitsnerf score does (no training or cost figures). "
-    "Bold: best in the column (per scene). Means over seeds."
-)
+PERFECT_DB = 10 * math.log10(2)
+"""How far above the reference agreement a perfect (noise-free) model scores: its error is one reference
+render's noise, where two renders' difference holds two (half the MSE: +3.01 dB)."""
+MEANINGS: dict[str, str] = {
+    "scene": "the scene's name; mean of N: the mean over N scenes",
+    "method": "oracle (ceiling): the true sigma_t, in-scattered radiance J by volpath, the best an emission-absorption "
+              "model can do (never bold); NAME (external): another tool's renders, scored as mitsnerf score does",
+    "seeds": "training seeds the row is the mean of",
+    "PSNR lin": "PSNR of the test views, linear radiance clipped to [0, 1], whole image",
+    "PSNR lin medium": "the same on the pixels whose ray crosses the true medium (the headline figure)",
+    "PSNR medium": "PSNR of the test views on the pixels whose ray crosses the true medium (linear, clipped)",
+    "ref agreement": "PSNR between two independent ground-truth renders of the test views (manifest noise_floor); "
+                     f"a perfect model scores {PERFECT_DB:.2f} dB above it",
+    "ref agreement medium": "the same on medium pixels",
+    "oracle medium": "the oracle row's PSNR medium on this scene",
+    "gap to oracle": "oracle medium PSNR minus the row's (dB; 0: as good as the ceiling)",
+    "PSNR sRGB": "PSNR of the clipped values sRGB-encoded, whole image",
+    "PSNR sRGB medium": "the same on medium pixels",
+    "SSIM lin": "SSIM of the test views, linear radiance clipped to [0, 1]",
+    "SSIM": "SSIM of the test views, linear radiance clipped to [0, 1]",
+    "SSIM sRGB": "SSIM of the sRGB-encoded values",
+    "PSNR train": "PSNR on the training views",
+    "sigma rel L1": "relative L1 error of the learned density against the true sigma_t on the voxel centres",
+    "sigma rel L2": "the same, relative L2",
+    "sigma PSNR": "PSNR of the learned density against the true sigma_t",
+    "tau rel L1": "relative L1 error of the optical depth along every test ray",
+    "T MAE": "mean absolute error of the transmittance exp(-tau)",
+    "footprint K": "each test pixel is the mean of K x K rays over its area (1: its centre ray)",
+    "budget": "the training length: N steps (the table is the same on any machine), or steps with a seconds cap "
+              "(machine-dependent)",
+    "steps": "training steps run",
+    "train s": "training seconds, held-out evaluation excluded",
+    "rays/s": "training rays per second",
+    "samples/s": "training samples (points along rays) per second",
+    "peak RSS MiB": "high-water mark of the process that ran the cell (cumulative over a sequential run's cells, "
+                    "so bold only when every cell had its own process)",
+    "params": "trainable parameters",
+    "curve eval s": "seconds spent on the held-out evaluations of the PSNR curve",
+    "s to X dB medium": "training seconds at the first held-out evaluation (steps k/N of the budget) reaching "
+                        "X dB on medium pixels (measured, not decisive)",
+    "note": "failed cells, the oracle's settings, why a density figure is missing",
+}
+BOLD = ("bold: every value equal to the column's best at the displayed precision (per scene; ties are all bold); "
+        "figures are means over seeds")
+
+
+def legend(columns: Sequence[Column]) -> str:
+    """One line per column of ``columns`` (``- header: meaning``), then what bold means.
+
+    >>> print(legend([("psnr_test_medium", "PSNR medium", 2), ("gap_to_oracle", "gap to oracle", 2)]))
+    - PSNR medium: PSNR of the test views on the pixels whose ray crosses the true medium (linear, clipped)
+    - gap to oracle: oracle medium PSNR minus the row's (dB; 0: as good as the ceiling)
+    - bold: every value equal to the column's best at the displayed precision (per scene; ties are all bold); figures are means over seeds
+    """
+    lines = []
+    for _, header, _ in columns:
+        key = "s to X dB medium" if header.startswith("s to ") else header
+        if key in MEANINGS and not any(line.startswith(f"- {key}:") for line in lines):
+            lines.append(f"- {key}: {MEANINGS[key]}")
+    return "\n".join(lines + [f"- {BOLD}"])
 
 
 def _is_number(v: Any) -> bool:
@@ -97,9 +155,31 @@ def _fmt(value: Any, digits: int) -> str:
 
 
 def _cell_text(row: dict, key: str, digits: int) -> str:
-    """A table cell: the formatted value; a ceiling row's method reads ``oracle (ceiling)``."""
+    """A table cell: the formatted value; a ceiling row's method reads ``oracle (ceiling)``; a budget reads
+    ``N steps`` (``N steps or seconds`` with a seconds cap).
+
+    >>> _cell_text({"budget": "steps", "steps": 800}, "budget", 0), _cell_text({"method": "oracle", "ceiling": True}, "method", 0)
+    ('800 steps', 'oracle (ceiling)')
+    """
     text = _fmt(row.get(key), digits)
+    if key == "budget" and isinstance(row.get("budget"), str) and _is_number(row.get("steps")):
+        return f"{row['steps']:.0f} {row['budget']}"
     return f"{text} (ceiling)" if key == "method" and row.get("ceiling") else text
+
+
+def is_best(row: dict, key: str, digits: int, marks: dict[tuple[Any, str], Any], group: str | None) -> bool:
+    """Whether ``row[key]`` is bold: equal to the column's best (:func:`best_values`) at the displayed precision,
+    so every tied row is bold whatever the rows' order.
+
+    >>> marks = {(None, "p"): 25.8712}
+    >>> is_best({"p": 25.8712}, "p", 2, marks, None), is_best({"p": 25.8698}, "p", 2, marks, None)
+    (True, True)
+    >>> is_best({"p": 25.86}, "p", 2, marks, None), is_best({"p": 25.87, "ceiling": True}, "p", 2, marks, None)
+    (False, False)
+    """
+    mark = marks.get((row.get(group) if group else None, key))
+    return mark is not None and not row.get("ceiling") and _is_number(row.get(key)) \
+        and _fmt(row[key], digits) == _fmt(mark, digits)
 
 
 def best_values(rows: Sequence[dict], best: dict[str, str], group: str | None = None) -> dict[tuple[Any, str], Any]:
@@ -138,10 +218,7 @@ def markdown_table(rows: Sequence[dict], columns: Sequence[Column], best: dict[s
         cells = []
         for key, _, digits in columns:
             text = _cell_text(row, key, digits)
-            mark = marks.get((row.get(group) if group else None, key))
-            if mark is not None and row.get(key) == mark:
-                text = f"**{text}**"
-            cells.append(text)
+            cells.append(f"**{text}**" if is_best(row, key, digits, marks, group) else text)
         lines.append("| " + " | ".join(cells) + " |")
     return "\n".join(lines)
 
@@ -242,16 +319,57 @@ def cost_columns(rows: Sequence[dict]) -> tuple[Column, ...]:
     return COST[:-1] + tuple((f"seconds_to_{t}db", f"s to {t} dB medium", 1) for t in targets) + COST[-1:]
 
 
+def reference_lines(rows: Sequence[dict], group: str = "scene") -> list[str]:
+    """Per group of ``rows`` (a scene, or the mean over scenes): how well its two reference renders agree on
+    medium pixels, what a perfect model would score, and the oracle (the ceiling).
+
+    >>> reference_lines([{"scene": "cloud", "method": "oracle", "ceiling": True, "psnr_test_medium": 44.82,
+    ...                   "noise_floor_psnr_medium": 43.97}])
+    ['cloud: two reference renders agree to 43.97 dB (medium pixels): a perfect model would score about 46.98 dB; the oracle scores 44.82 dB.']
+    """
+    lines = []
+    for name in dict.fromkeys(r.get(group) for r in rows):
+        members = [r for r in rows if r.get(group) == name]
+        floor = next((r["noise_floor_psnr_medium"] for r in members if _is_number(r.get("noise_floor_psnr_medium"))),
+                     None)
+        oracle = next((r["psnr_test_medium"] for r in members if r.get("ceiling")), None)
+        text = (f"two reference renders agree to {_fmt(floor, 2)} dB (medium pixels): a perfect model would score about "
+                f"{_fmt(floor + PERFECT_DB, 2)} dB" if _is_number(floor) else
+                "no reference agreement measured (render.noise_floor = false)")
+        lines.append(f"{name}: {text}" + (f"; the oracle scores {_fmt(oracle, 2)} dB." if _is_number(oracle) else "."))
+    return lines
+
+
+def _notes(rows: Sequence[dict]) -> list[str]:
+    """``scene method: note`` of every non-ceiling row with a note (failed cells, missing density)."""
+    return [f"{r['scene']} {r['method']}: {r['note']}" for r in rows if r.get("note") and not r.get("ceiling")]
+
+
+def compact_report(per_scene: Sequence[dict], average: Sequence[dict], best: dict[str, str] | None = None) -> str:
+    """What ``mitsnerf bench`` prints: :data:`COMPACT` per scene (and averaged), each table's reference line(s)
+    and notes, and the legend of its columns."""
+    best = BEST if best is None else best
+    parts = ["## Per scene", "", markdown_table(per_scene, COMPACT, best, group="scene"), "",
+             *reference_lines(per_scene), *_notes(per_scene)]
+    if len({r["scene"] for r in per_scene}) > 1:
+        parts += ["", "## Averaged over scenes", "", markdown_table(average, COMPACT, best), "",
+                  *reference_lines(average), *_notes(average)]
+    parts += ["", legend(COMPACT),
+              "Every column (whole-image and sRGB scores, density and cost figures): table.md, table.csv, "
+              "results.json, report.html."]
+    return "\n".join(parts)
+
+
 def markdown_report(per_scene: Sequence[dict], average: Sequence[dict], best: dict[str, str] | None = None) -> str:
-    """The Markdown printed and written as ``table.md``: quality and cost, per scene and averaged."""
+    """The Markdown written as ``table.md``: every column, quality and cost, per scene and averaged."""
     best = BEST if best is None else best
     cost = cost_columns(per_scene)
     parts = ["## Quality per scene", "", markdown_table(per_scene, QUALITY, best, group="scene"), "",
-             "## Cost per scene", "", markdown_table(per_scene, cost, best, group="scene")]
+             *reference_lines(per_scene), "", "## Cost per scene", "", markdown_table(per_scene, cost, best, group="scene")]
     if len({r["scene"] for r in per_scene}) > 1:
         parts += ["", "## Quality averaged over scenes", "", markdown_table(average, QUALITY, best), "",
-                  "## Cost averaged over scenes", "", markdown_table(average, cost, best)]
-    parts += ["", LEGEND]
+                  *reference_lines(average), "", "## Cost averaged over scenes", "", markdown_table(average, cost, best)]
+    parts += ["", legend(QUALITY + cost)]
     return "\n".join(parts)
 
 

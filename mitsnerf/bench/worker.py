@@ -20,7 +20,7 @@ from typing import Any
 
 import numpy as np
 
-from mitsnerf.bench.cells import RECORD_FORMAT, Cell
+from mitsnerf.bench.cells import IN_FLIGHT_FILE, RECORD_FORMAT, Cell
 from mitsnerf.scoring import image_scores
 
 PEAK_MEMORY_NOTE = ("peak_rss_mb: RSS high-water mark (resource.getrusage ru_maxrss) of the process that ran "
@@ -145,10 +145,6 @@ def oracle_summary(oracle, footprint: int) -> dict[str, Any] | None:
             "psnr_test_per_view": oracle.metrics(footprint).get("psnr_test_per_view"),
             "error_split": info.get("error_split"), "seconds": info.get("seconds")}
 
-
-#: Which cell the checkpoint in ``CELL/run`` belongs to (config hash and code version), written before
-#: training: a sweep stopped by a signal continues the cell in flight from its checkpoint only if they match.
-IN_FLIGHT_FILE = "in_flight.json"
 
 
 def _resumable(cell: Cell) -> bool:

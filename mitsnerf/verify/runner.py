@@ -335,9 +335,20 @@ def format_table(results: list[CaseResult], alpha: float | None = None) -> str:
     notes = [f"{r.name}: {r.note}" for r in results if r.note]
     notes += [f"{r.name}: {r.detail}" for r in results if r.detail and r.passed is not True]
     if alpha is not None and any(r.rejected != "-" for r in results):
-        notes.append(f"rejected: tests rejected out of the case's one family (the pixels and channel means of all "
-                     f"its comparisons, weighted Holm), family-wise alpha {alpha:g} per case")
+        notes.append(f"rejected: the case's statistical tests (pixels and channel means) that found a difference; "
+                     f"a correct integrator gets one with probability at most {alpha:g} per case (columns: README.md, "
+                     f"'Reading mitsnerf check')")
     return "\n".join(lines + ([""] + notes if notes else []))
+
+
+def count_line(results: list[CaseResult]) -> str:
+    """The summary a check run ends with: ``N passed, M failed`` (records, neither passed nor failed, are not counted).
+
+    >>> count_line([CaseResult("a", "c", "r", "e", None, "-", True, 0.1), CaseResult("b", "c", "r", "e", None, "-", None, 0.1)])
+    '1 passed, 0 failed'
+    """
+    passed = sum(r.passed is True for r in results)
+    return f"{passed} passed, {sum(r.passed is False for r in results)} failed"
 
 
 def format_mutations(report: MutationReport) -> str:

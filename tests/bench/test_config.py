@@ -121,7 +121,7 @@ def _plan(raw: dict, source: str = "benchmarks/x.toml", quick: bool = False, tmp
 NERF = [{"name": "nerf"}]
 BAD_BENCH = [  # (raw config, quick, field, message); every error names benchmarks/x.toml
     ({}, False, "scenes", "missing field (a list)"),
-    ({"scenes": ["cloud"]}, False, "methods", "missing field (a list)"),
+    ({"scenes": ["cloud"]}, False, "methods", "at least one method (or an [[external]] entry) is needed"),
     ({"scenes": ["cloud"], "methods": NERF, "seeds": [0, -1]}, False, "seeds.1", "must be an integer >= 0, got -1"),
     ({"scenes": ["cloud"], "methods": NERF, "train": 3}, False, "train", "must be a table, got an integer"),
     ({"scenes": ["cloud"], "methods": [{"name": "nerf", "confg": {}}]}, False, "methods.0.confg",

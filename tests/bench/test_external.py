@@ -88,8 +88,40 @@ def test_external_entries_need_a_quick_table_for_quick(tiny_bench, tmp_path):
 
     config, options = tiny_bench
     (tmp_path / "ref").mkdir()
+    for name in ("r_000.exr", "r_001.exr"):  # matched to the test frames before any dataset is made
+        (tmp_path / "ref" / name).write_bytes(b"")
     ext = _with_external(config, [{"name": "ref", "renders": {"tcloud": "ref"}}], tmp_path)
     cells = plan_cells(ext, options("fresh"))
     assert [e.key for e in plan_externals(ext, False, cells)] == ["tcloud/ref (external)"]
     assert plan_externals(ext, True, cells) == []
     assert plan_externals(ext, False, cells)[0].renders == tmp_path / "ref"
+
+
+def test_a_config_of_external_entries_only_is_scored(tiny_bench, tmp_path):
+    """No [[methods]] at all: it used to be refused twice (methods: missing field, then at least one method)."""
+    config, options = tiny_bench
+    scenes = runner.plan_scenes(config, options("ext-only"))
+    folder, dataset = _renders(scenes, "tcloud", tmp_path)
+    raw = {**{k: v for k, v in to_dict(config).items() if k != "methods"}, "scenes": list(config.scenes[:1]),
+           "external": [{"name": "ref", "renders": {"tcloud": "ref"}}]}
+    ext = parse_bench_config(raw, tmp_path / "ext.toml")
+    assert ext.methods == () and plan_cells(ext, options("ext-only")) == []
+    result = run_benchmark(ext, dataclasses.replace(options("ext-only"), report=False))
+    assert [(r["scene"], r["method"]) for r in result.per_scene if not r.get("ceiling")] == [("tcloud", "ref (external)")]
+    assert "| tcloud | ref (external) |" in (result.out_root / "table.md").read_text()
+    with pytest.raises(SpecError, match=r"ext.toml: external: nothing to run"):
+        run_benchmark(ext, options("ext-only", quick=True))
+
+
+def test_a_missing_density_file_or_render_stops_before_any_dataset_is_made(tiny_bench, tmp_path, monkeypatch):
+    config, options = tiny_bench
+    folder, _ = _renders(runner.plan_scenes(config, options("fresh")), "tcloud", tmp_path)
+    monkeypatch.setattr(runner, "_generate", lambda *a, **k: pytest.fail("a dataset was generated"))
+    ext = _with_external(config, [{"name": "ref", "renders": {"tcloud": "ref"}, "density": {"tcloud": "no.npy"}}],
+                         tmp_path)
+    with pytest.raises(SpecError, match=r"ext.toml: external.0.density.tcloud: .*no.npy: density file not found"):
+        run_benchmark(ext, options("fresh"))
+    (folder / "r_001.exr").unlink()
+    ext = _with_external(config, [{"name": "ref", "renders": {"tcloud": "ref"}}], tmp_path)
+    with pytest.raises(DatasetError, match="no render for test frame r_001"):
+        run_benchmark(ext, options("fresh"))

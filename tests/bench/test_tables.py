@@ -61,3 +61,40 @@ def test_every_seconds_to_target_column_is_best_at_its_minimum():
             {"scene": "a", "seconds_to_33db": 2.0, "seconds_to_40db": 12.0}]
     marks = best_values(rows, BEST, group="scene")
     assert marks[("a", "seconds_to_33db")] == 2.0 and marks[("a", "seconds_to_40db")] == 9.0
+
+
+def test_ties_at_the_displayed_precision_are_all_bold_whatever_the_order():
+    """A sequential --quick printed ngp and its subclass both at 25.87 dB, only one of them bold."""
+    from mitsnerf.bench.report import html_table
+
+    rows = [{"scene": "a", "method": "ngp", "psnr_test_medium": 25.8712},
+            {"scene": "a", "method": "sub", "psnr_test_medium": 25.8698},
+            {"scene": "a", "method": "nerf", "psnr_test_medium": 25.86}]
+    for order in (rows, rows[::-1]):
+        md = markdown_table(order, QUALITY, BEST, group="scene")
+        bold = {line.split(" | ")[1] for line in md.splitlines()[2:] if "**" in line}
+        assert bold == {"ngp", "sub"}, md
+        assert html_table(order, QUALITY, "scene", BEST).count('class="best"') == 2
+
+
+def test_the_legend_has_one_line_per_column_and_says_what_bold_means():
+    from mitsnerf.bench.tables import COMPACT, cost_columns, legend
+
+    lines = legend(COMPACT).splitlines()
+    assert [line.split(":")[0] for line in lines] == [f"- {h}" for _, h, _ in COMPACT] + ["- bold"]
+    full = legend(QUALITY + cost_columns([{"seconds_to_35db": 1.0}]))
+    assert "- ref agreement:" in full and "- s to X dB medium:" in full and "GT floor" not in full
+    assert all(len(line) < 250 for line in full.splitlines())
+
+
+def test_the_printed_table_is_compact_and_says_what_a_perfect_model_scores():
+    from mitsnerf.bench.tables import PERFECT_DB, compact_report, oracle_row, with_oracle_rows
+
+    rows = scene_rows([{**r, "metrics": {**r["metrics"], "noise_floor_psnr_medium": 40.0}} for r in RECORDS])
+    ceiling = oracle_row("a", {"psnr_test_medium": 41.5}, {})
+    text = compact_report(with_oracle_rows(rows, [ceiling]), average_rows(rows))
+    header = next(line for line in text.splitlines() if line.startswith("| scene"))
+    assert header == "| scene | method | budget | train s | PSNR medium | gap to oracle | SSIM | sigma rel L1 |"
+    assert f"a: two reference renders agree to 40.00 dB (medium pixels): a perfect model would score about " \
+           f"{40 + PERFECT_DB:.2f} dB; the oracle scores 41.50 dB." in text
+    assert PERFECT_DB == pytest.approx(3.0103, abs=1e-4)

@@ -141,6 +141,17 @@ def bench_file(text: str) -> Callable:
     return setup
 
 
+def bench_external(entry: str, keep_renders: int = 2) -> Callable:
+    """A bench file with one method and the ``[[external]]`` table ``entry`` (``SPEC``: the tiny spec), and a
+    renders folder ``ren`` holding the first ``keep_renders`` of the tiny dataset's test views."""
+    def setup(ctx) -> None:
+        bench_file(f'scenes = ["SPEC"]\n[[methods]]\nname = "nerf"\n[[external]]\n{entry}\n')(ctx)
+        (ctx.tmp / "ren").mkdir()
+        for path in sorted((ctx.world.dataset / "test").glob("r_*.exr"))[:keep_renders]:
+            shutil.copy(path, ctx.tmp / "ren" / path.name)
+    return setup
+
+
 def deleted_cached_image(ctx) -> None:
     """A cache hit whose training image was deleted: generate must notice and render it again."""
     shutil.copytree(ctx.world.dataset.parent, ctx.tmp / "data")
@@ -379,6 +390,16 @@ CASES = [
     Case("bench train.steps 0", 6, ["bench", "{bench}", "--results", "{tmp}/res", "--data", "{tmp}/d"], 2,
          ("b.toml", "methods.0.train.steps"),
          bench_file('scenes = ["SPEC"]\n[[methods]]\nname = "nerf"\ntrain = { steps = 0 }\n'), (absent("d/*"),)),
+    Case("bench unknown scene", 6, ["bench", "{bench}", "--results", "{tmp}/res", "--data", "{tmp}/d"], 2,
+         ("b.toml", "scenes.0", "unknown scene 'no_such_scene'"),
+         bench_file('scenes = ["no_such_scene"]\n[[methods]]\nname = "nerf"\n'), (absent("res"), absent("d"))),
+    Case("bench external missing density", 6, ["bench", "{bench}", "--results", "{tmp}/res", "--data", "{tmp}/d"], 2,
+         ("b.toml", "external.0.density.tiny", "{tmp}/no.npy", "density file not found"),
+         bench_external('name = "x"\nrenders = { tiny = "ren" }\ndensity = { tiny = "no.npy" }'),
+         (absent("res"), absent("d"))),
+    Case("bench external missing render", 6, ["bench", "{bench}", "--results", "{tmp}/res", "--data", "{tmp}/d"], 2,
+         ("{tmp}/ren", "no render for test frame r_001"),
+         bench_external('name = "x"\nrenders = { tiny = "ren" }', keep_renders=1), (absent("res"), absent("d"))),
     # 7. small things
     Case("range printed whole", 7, ["generate", "{world.spec}", "--set", "render.spp_test=0", "--out", "{tmp}/d"], 2,
          ("render.spp_test", "[1, 1048576]"), None, (absent("d"),)),

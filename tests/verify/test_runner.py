@@ -7,7 +7,7 @@ import pytest
 from mitsnerf import cli
 from mitsnerf.verify import cases as C
 from mitsnerf.verify.mutations import MUTATIONS
-from mitsnerf.verify.runner import CaseResult, format_mutations, format_table, run_checks, run_mutations
+from mitsnerf.verify.runner import CaseResult, count_line, format_mutations, format_table, run_checks, run_mutations
 
 
 def test_run_checks_runs_the_named_cases_and_the_table_has_a_row_each():
@@ -32,7 +32,15 @@ def test_info_rows_failures_and_notes_are_marked_and_explained():
             CaseResult("b", "integrator", "r", "e", None, "2/15", False, 0.2, "why it failed")]
     table = format_table(rows, alpha=0.001)
     assert " info " in table and " FAIL " in table
-    assert "a: recorded" in table and "b: why it failed" in table and "family-wise alpha 0.001" in table
+    assert "a: recorded" in table and "b: why it failed" in table and "probability at most 0.001" in table
+    assert "Reading mitsnerf check" in table and "Holm" not in table
+
+
+def test_the_count_line_counts_passes_and_failures_not_records():
+    rows = [CaseResult("a", "record", "r", "e", 1.5, "0/3", None, 0.1),
+            CaseResult("b", "integrator", "r", "e", None, "2/15", False, 0.2, "why"),
+            CaseResult("c", "formula", "r", "e", None, "-", True, 0.1)]
+    assert count_line(rows) == "1 passed, 1 failed"
 
 
 def test_the_mutation_matrix_names_the_cases_that_catch_each_mutation():
