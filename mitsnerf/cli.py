@@ -275,10 +275,10 @@ def cmd_train(args) -> int:
 def cmd_score(args) -> int:
     from mitsnerf.bench.tables import QUALITY, markdown_table, scene_rows
     from mitsnerf.data.atomic import atomic_write_json
-    from mitsnerf.external import score_renders
+    from mitsnerf.external import renders_folder, score_renders
     from mitsnerf.outputs import check_output_file
 
-    renders = Path(args.renders)
+    renders = renders_folder(Path(args.renders))
     out = Path(args.out) if args.out else renders / "scores.json"
     check_output_file(out, "--out")
     dataset = _load(args, args.dataset)
@@ -552,16 +552,17 @@ def _score_parser(sub) -> None:
                                    "dataset has one cached, DATASET/oracle/), and with --density the density errors. "
                                    "Images are matched to the test frames by file name (r_000.png ...) or, when no "
                                    "name is a frame's, by the frame number in each name; PNG alpha is composited "
-                                   "over the dataset's background as straight alpha, EXR alpha as premultiplied "
-                                   "(--exr-alpha to say otherwise).")
+                                   "over the dataset's background as straight alpha, EXR alpha as its header's "
+                                   "mitsnerf:alpha says (--exr-alpha to say otherwise). A run directory stands for "
+                                   "its test/ renders.")
     p.add_argument("dataset", help="dataset directory (mitsnerf generate output, NeRF-synthetic or instant-ngp)")
-    p.add_argument("renders", help="folder of the renders of the test views")
+    p.add_argument("renders", help="folder of the renders of the test views, or a run directory (its test/)")
     p.add_argument("--density", metavar="GRID", help="sigma_t on a grid over the dataset's box: .npy [z, y, x] or Mitsuba .vol")
     p.add_argument("--name", help="the row's name (default: the renders folder's name)")
     p.add_argument("--format", choices=("png", "exr"), help="read only these images (needed when both are there)")
-    p.add_argument("--exr-alpha", choices=("premultiplied", "straight", "ignore"), default="premultiplied",
-                   help="how an RGBA EXR's alpha composites over the dataset's background (default premultiplied, "
-                        "OpenEXR's rule; ignore: the RGB as it is)")
+    p.add_argument("--exr-alpha", choices=("premultiplied", "straight", "ignore"),
+                   help="how an RGBA EXR's alpha composites over the dataset's background (default: as the file's "
+                        "mitsnerf:alpha header says; premultiplied, OpenEXR's rule; ignore: the RGB as it is)")
     p.add_argument("--out", help="JSON record to write (default: RENDERS/scores.json)")
     p.add_argument("--footprint", type=int, default=1, metavar="K",
                    help="the tool's rays per pixel side (default 1: one through each pixel centre): which of the "

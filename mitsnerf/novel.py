@@ -124,7 +124,8 @@ def write_views(out_dir: Path, stem: str, rendered) -> list[Path]:
     (out_dir / stem).parent.mkdir(parents=True, exist_ok=True)
     depth = normalised_depth(rendered.depth, rendered.opacity)
     files = {
-        f"{stem}.exr": lambda p: write_exr(p, np.concatenate([rendered.rgb, rendered.opacity[..., None]], axis=-1)),
+        f"{stem}.exr": lambda p: write_exr(p, np.concatenate([rendered.rgb, rendered.opacity[..., None]], axis=-1),
+                                           alpha="opacity"),
         f"{stem}.png": lambda p: write_png(p, rendered.rgb),
         f"{stem}_depth.exr": lambda p: write_exr(p, _grey3(depth)),
         f"{stem}_depth.png": lambda p: write_display_png(p, depth_colours(depth, rendered.opacity)),

@@ -93,7 +93,8 @@ def test_exr_alpha_is_premultiplied(dataset, tmp_path):
     folder.mkdir()
     for i, name in enumerate(views.names):
         rgb = views.images[i][..., :3] - 0.5 * background[i]
-        write_exr(folder / f"{name}.exr", np.concatenate([rgb, np.full_like(rgb[..., :1], 0.5)], axis=-1))
+        write_exr(folder / f"{name}.exr", np.concatenate([rgb, np.full_like(rgb[..., :1], 0.5)], axis=-1),
+                  alpha="premultiplied")
     images, _, _ = read_renders(ds, folder)
     np.testing.assert_allclose(images, views.images[..., :3], atol=1e-6)
     straight, _, _ = read_renders(ds, folder, exr_alpha="straight")  # rgb a + B (1 - a): not the test images
@@ -172,7 +173,8 @@ BAD = [
     ("stray file", lambda d, r: shutil.copy(r / "r_000.exr", r / "extra.exr"), "extra.exr: named after no test frame"),
     ("wrong size", _bad_size, "r_001.exr: image is 12x8, test frame r_001 is 12x12"),
     ("NaN pixel", _nan, "r_002.exr: 1 non-finite pixel values (NaN/inf), first at row 3, column 4"),
-    ("two kinds", lambda d, r: write_png(r / "r_000.png", np.zeros((12, 12, 3))), "both r_000.exr and r_000.png"),
+    ("two kinds", lambda d, r: (write_exr(r / "r_000.exr", read_exr(r / "r_000.exr")[..., :3]),  # says no alpha
+                                write_png(r / "r_000.png", np.zeros((12, 12, 3)))), "both r_000.exr and r_000.png"),
     ("no number", lambda d, r: [f.rename(r / f"view{'abc'[int(f.stem[-1])]}.exr") for f in r.glob("r_*.exr")],
      "no frame number in the name"),
     ("box min >= max", lambda d, r: None, "--box: min must be < max"),
