@@ -579,13 +579,16 @@ def _score_parser(sub) -> None:
 def _render_parser(sub) -> None:
     p = sub.add_parser("render", help="render a trained run from any camera or an orbit, with depth and opacity maps",
                        description="Render RUN: a dataset view (--split/--index, default the first test view), "
-                                   "a point (--look-from), or an orbit (--orbit N: frames, orbit.gif, and orbit.mp4 "
-                                   "if imageio-ffmpeg is installed). Each view: STEM.exr/.png, STEM_depth.exr/.png, "
-                                   "STEM_opacity.exr/.png.")
+                                   "every view of a split (--split without --index, named as its frames, r_000 ...: "
+                                   "the folder scores as it is with mitsnerf score), a point (--look-from), or an "
+                                   "orbit (--orbit N: frames, orbit.gif, and orbit.mp4 if imageio-ffmpeg is "
+                                   "installed). Each view: STEM.exr/.png, depth/STEM.exr/.png, opacity/STEM.exr/.png; "
+                                   "render.json lists every call into the folder.")
     p.add_argument("run", help="run directory (mitsnerf train --out)")
     p.add_argument("--out", help="output directory (default: RUN/renders)")
-    p.add_argument("--split", help="dataset split of the reference view (default: test)")
-    p.add_argument("--index", type=int, default=0, help="view index in --split (default 0)")
+    p.add_argument("--split", help="dataset split to render, every view of it unless --index (default: the first "
+                                   "test view); with --look-from or --orbit, the reference view's")
+    p.add_argument("--index", type=int, help="view index in --split (default 0)")
     p.add_argument("--look-from", type=float, nargs=3, metavar=("X", "Y", "Z"), help="camera position, world units")
     p.add_argument("--look-at", type=float, nargs=3, metavar=("X", "Y", "Z"), default=(0.0, 0.0, 0.0),
                    help="point the camera looks at (default: the box centre)")

@@ -45,3 +45,13 @@ def test_an_exr_that_does_not_say_its_alpha_is_refused_not_guessed(world, tmp_pa
     assert not (renders / "scores.json").exists()
     _same_as_run(_scores(capsys, world.dataset, renders, "--exr-alpha", "ignore", "--out", tmp_path / "s.json"),
                  world.run)
+
+
+def test_render_split_test_scores_as_the_run(world, tmp_path, capsys):
+    """``render RUN --split test`` renders every test view, named as the frames, depth and opacity apart:
+    the folder scores as it is and gives the run's figures."""
+    out = tmp_path / "renders"
+    assert main(["render", str(world.run), "--split", "test", "--out", str(out), "--no-progress"]) == 0
+    assert sorted(p.name for p in out.glob("*.exr")) == ["r_000.exr", "r_001.exr"]
+    assert (out / "depth" / "r_001.exr").is_file() and (out / "opacity" / "r_001.png").is_file()
+    _same_as_run(_scores(capsys, world.dataset, out, "--out", tmp_path / "s.json"), world.run)
