@@ -40,6 +40,11 @@ be the dataset's), looked up trilinearly as Mitsuba's ``gridvolume``.
 scores at the renders' footprint (1: one ray through each pixel centre, what most tools render;
 ``K``: the mean of ``K x K`` rays over the pixel). Of several cached oracles, the one with the
 default settings is taken. None cached: "no oracle".
+
+**Noise floor** (``noise_floor_*`` of the metrics, ``noise_floor_of`` says which): renders that are
+all PNG are held against the floor of their format, :func:`mitsnerf.scoring.png_noise_floor` (the
+second ground-truth render quantised to 8-bit sRGB: the dataset's own ``test_ref`` scores exactly
+it as PNG), others against the manifest's.
 """
 
 from __future__ import annotations
@@ -245,6 +250,24 @@ def read_oracle(dataset: Dataset, footprint: int = 1):
     return oracle, f"oracle {oracle.path} at footprint {footprint}"
 
 
+PNG_FLOOR = "8-bit sRGB PNG: test_ref quantised as a PNG against test"
+EXR_FLOOR = "linear float: test_ref against test (the manifest's)"
+
+
+def _floor_of_format(dataset: Dataset, ref: scoring.Reference, paths: Sequence[Path]) -> tuple[scoring.Reference, str | None]:
+    """``ref`` with the noise floor of the renders' format, and what that floor is: renders that are all PNG
+    are held against :func:`mitsnerf.scoring.png_noise_floor` (8-bit quantisation costs dB no tool can win
+    back), others against the manifest's floor; ``(ref, None)`` without a floor."""
+    import dataclasses
+
+    if ref.noise_floor is None:
+        return ref, None
+    if ref.masks is None or "test_ref" not in dataset.splits or any(p.suffix.lower() != ".png" for p in paths):
+        return ref, EXR_FLOOR
+    floor = scoring.png_noise_floor(ref.images, dataset.views("test_ref").images, ref.masks)
+    return dataclasses.replace(ref, noise_floor=floor), PNG_FLOOR
+
+
 @dataclass(frozen=True)
 class ExternalScore:
     """The scores of one folder of renders, and what they were matched and scored with."""
@@ -290,9 +313,10 @@ def score_renders(dataset: Dataset, folder: Path, *, density: Path | None = None
         oracle, oracle_source = read_oracle(dataset, footprint)
     else:
         oracle_source = f"oracle {oracle.path} at footprint {footprint}"
-    ref = scoring.reference(dataset, "test")
+    ref, floor_of = _floor_of_format(dataset, scoring.reference(dataset, "test"), paths)
     fn = None if grid is None else scoring.true_density(grid, dataset.box)
     metrics, slices = scoring.score_views(images, ref, fn, oracle=None if oracle is None else oracle.metrics(footprint))
+    metrics["noise_floor_of"] = floor_of
     if fn is None and ref.sigma_t is not None:
         metrics["density_note"] = "no density grid given (--density)"
     views = dataset.views("test")

@@ -207,6 +207,31 @@ def read_exr_alpha(path: str | os.PathLike) -> str | None:
     return str(value)
 
 
+def png_levels(linear_image) -> np.ndarray:
+    """The 8-bit levels :func:`write_png` stores for a linear image ``(..., 3|4)``: RGB clipped to
+    ``[0, 1]`` and sRGB-encoded, alpha clipped, NaN as 0, each rounded to the nearest of 256 levels.
+
+    >>> png_levels(np.array([[0.0, 0.5, 2.0]])).tolist()
+    [[0, 188, 255]]
+    """
+    arr = np.asarray(linear_image, dtype=np.float64)
+    arr = np.clip(np.nan_to_num(arr, nan=0.0, posinf=1.0, neginf=0.0), 0.0, 1.0)
+    arr[..., :3] = linear_to_srgb(arr[..., :3])
+    return np.round(arr * 255.0).astype(np.uint8)
+
+
+def png_quantised(linear_rgb) -> np.ndarray:
+    """Linear RGB ``(..., 3)`` as it comes back from an 8-bit sRGB PNG (:func:`png_levels`, decoded):
+    what a renderer that writes PNG can at best hand over.
+
+    >>> [round(float(v), 4) for v in png_quantised(np.array([0.0, 0.5, 2.0]))]
+    [0.0, 0.5029, 1.0]
+    """
+    from mitsnerf.math.color import srgb_to_linear
+
+    return srgb_to_linear(png_levels(linear_rgb).astype(np.float32) / np.float32(255.0))
+
+
 def write_png(path: str | os.PathLike, linear_image) -> None:
     """Write a linear image ``(H, W, 3|4)`` as an 8-bit sRGB PNG preview.
 
@@ -215,10 +240,7 @@ def write_png(path: str | os.PathLike, linear_image) -> None:
     """
     from PIL import Image
 
-    arr = _check_image(linear_image).astype(np.float64)
-    arr = np.clip(np.nan_to_num(arr, nan=0.0, posinf=1.0, neginf=0.0), 0.0, 1.0)
-    arr[..., :3] = linear_to_srgb(arr[..., :3])
-    u8 = np.round(arr * 255.0).astype(np.uint8)
+    u8 = png_levels(_check_image(linear_image))
     buf = io.BytesIO()
     Image.fromarray(u8, mode="RGBA" if u8.shape[2] == 4 else "RGB").save(buf, format="PNG")
     atomic_write_bytes(path, buf.getvalue())
