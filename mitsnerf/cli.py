@@ -275,10 +275,10 @@ def cmd_train(args) -> int:
 def cmd_score(args) -> int:
     from mitsnerf.bench.tables import QUALITY, markdown_table, scene_rows
     from mitsnerf.data.atomic import atomic_write_json
-    from mitsnerf.external import score_renders
+    from mitsnerf.external import renders_folder, score_renders
     from mitsnerf.outputs import check_output_file
 
-    renders = Path(args.renders)
+    renders = renders_folder(Path(args.renders))
     out = Path(args.out) if args.out else renders / "scores.json"
     check_output_file(out, "--out")
     dataset = _load(args, args.dataset)
@@ -291,6 +291,8 @@ def cmd_score(args) -> int:
     print(markdown_table(row, QUALITY))
     print(f"\n{len(result.files)} renders matched by {result.matched_by}; {result.oracle}; "
           f"density: {result.density or 'none given'} -> {out}")
+    if result.metrics.get("noise_floor_of"):
+        print(f"GT floor: {result.metrics['noise_floor_of']}")
     return 0
 
 
@@ -554,16 +556,17 @@ def _score_parser(sub) -> None:
                                    "dataset has one cached, DATASET/oracle/), and with --density the density errors. "
                                    "Images are matched to the test frames by file name (r_000.png ...) or, when no "
                                    "name is a frame's, by the frame number in each name; PNG alpha is composited "
-                                   "over the dataset's background as straight alpha, EXR alpha as premultiplied "
-                                   "(--exr-alpha to say otherwise).")
+                                   "over the dataset's background as straight alpha, EXR alpha as its header's "
+                                   "mitsnerf:alpha says (--exr-alpha to say otherwise). A run directory stands for "
+                                   "its test/ renders.")
     p.add_argument("dataset", help="dataset directory (mitsnerf generate output, NeRF-synthetic or instant-ngp)")
-    p.add_argument("renders", help="folder of the renders of the test views")
+    p.add_argument("renders", help="folder of the renders of the test views, or a run directory (its test/)")
     p.add_argument("--density", metavar="GRID", help="sigma_t on a grid over the dataset's box: .npy [z, y, x] or Mitsuba .vol")
     p.add_argument("--name", help="the row's name (default: the renders folder's name)")
     p.add_argument("--format", choices=("png", "exr"), help="read only these images (needed when both are there)")
-    p.add_argument("--exr-alpha", choices=("premultiplied", "straight", "ignore"), default="premultiplied",
-                   help="how an RGBA EXR's alpha composites over the dataset's background (default premultiplied, "
-                        "OpenEXR's rule; ignore: the RGB as it is)")
+    p.add_argument("--exr-alpha", choices=("premultiplied", "straight", "ignore"),
+                   help="how an RGBA EXR's alpha composites over the dataset's background (default: as the file's "
+                        "mitsnerf:alpha header says; premultiplied, OpenEXR's rule; ignore: the RGB as it is)")
     p.add_argument("--out", help="JSON record to write (default: RENDERS/scores.json)")
     p.add_argument("--footprint", type=int, default=1, metavar="K",
                    help="the tool's rays per pixel side (default 1: one through each pixel centre): which of the "
@@ -580,13 +583,16 @@ def _score_parser(sub) -> None:
 def _render_parser(sub) -> None:
     p = sub.add_parser("render", help="render a trained run from any camera or an orbit, with depth and opacity maps",
                        description="Render RUN: a dataset view (--split/--index, default the first test view), "
-                                   "a point (--look-from), or an orbit (--orbit N: frames, orbit.gif, and orbit.mp4 "
-                                   "if imageio-ffmpeg is installed). Each view: STEM.exr/.png, STEM_depth.exr/.png, "
-                                   "STEM_opacity.exr/.png.")
+                                   "every view of a split (--split without --index, named as its frames, r_000 ...: "
+                                   "the folder scores as it is with mitsnerf score), a point (--look-from), or an "
+                                   "orbit (--orbit N: frames, orbit.gif, and orbit.mp4 if imageio-ffmpeg is "
+                                   "installed). Each view: STEM.exr/.png, depth/STEM.exr/.png, opacity/STEM.exr/.png; "
+                                   "render.json lists every call into the folder.")
     p.add_argument("run", help="run directory (mitsnerf train --out)")
     p.add_argument("--out", help="output directory (default: RUN/renders)")
-    p.add_argument("--split", help="dataset split of the reference view (default: test)")
-    p.add_argument("--index", type=int, default=0, help="view index in --split (default 0)")
+    p.add_argument("--split", help="dataset split to render, every view of it unless --index (default: the first "
+                                   "test view); with --look-from or --orbit, the reference view's")
+    p.add_argument("--index", type=int, help="view index in --split (default 0)")
     p.add_argument("--look-from", type=float, nargs=3, metavar=("X", "Y", "Z"), help="camera position, world units")
     p.add_argument("--look-at", type=float, nargs=3, metavar=("X", "Y", "Z"), default=(0.0, 0.0, 0.0),
                    help="point the camera looks at (default: the box centre)")

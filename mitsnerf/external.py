@@ -3,14 +3,20 @@
 **Images.** ``RENDERS`` is a folder of ``.png`` and ``.exr`` files (other files are ignored; with
 ``fmt`` only that kind is read). Both are composited over what each pixel of the dataset sees
 behind the medium (its ``background``: a constant, or the environment map averaged over the pixel)
-where they have an alpha channel, by each format's convention: EXR is linear radiance with
-premultiplied alpha (OpenEXR's rule), ``rgb + B * (1 - a)``; PNG is sRGB with straight alpha,
-decoded to linear, ``rgb * a + B * (1 - a)``. Without alpha, or with alpha 1 (mitsnerf's own
-images, which hold the background already), an image is used as it is. A tool that writes EXR
-otherwise says so with ``exr_alpha``: ``"straight"`` (``rgb * a + B * (1 - a)``) or ``"ignore"``
-(the RGB as it is, as :func:`mitsnerf.data.dataset.load_dataset` reads a dataset's own EXRs
-unless its transforms say ``"exr_alpha": "premultiplied"``). Every image must have
-the test frame's size and finite values.
+where they have an alpha channel below 1. PNG is sRGB with straight alpha, decoded to linear,
+``rgb * a + B * (1 - a)``. An EXR's alpha means what its header's ``mitsnerf:alpha`` says
+(:data:`mitsnerf.data.images.ALPHA_ATTRIBUTE`, written into every RGBA EXR mitsnerf writes):
+``premultiplied`` ``rgb + B * (1 - a)``, ``straight`` ``rgb * a + B * (1 - a)``, or ``opacity``
+(mitsnerf's renders: the RGB is the full image already, used as it is). ``exr_alpha`` overrides
+the file: ``"premultiplied"``, ``"straight"`` or ``"ignore"`` (the RGB as it is). An EXR that
+does not say, with alpha below 1, is taken as premultiplied (OpenEXR's rule) only when the data
+agree, every pixel of alpha 0 black; else (its RGB holds a background already, or no pixel is
+transparent) it is refused with a line naming ``--exr-alpha`` rather than guessed. Every image
+must have the test frame's size and finite values.
+
+**A run** (a folder with ``config.json`` and ``test/``) stands for its ``test/`` renders. Where
+one stem has both an ``.exr`` that says its alpha (mitsnerf's) and a ``.png`` (its sRGB preview),
+the EXR is scored.
 
 **Matching** (:func:`match_renders`), against the test frames' names (``r_000``, ...):
 
@@ -34,6 +40,11 @@ be the dataset's), looked up trilinearly as Mitsuba's ``gridvolume``.
 scores at the renders' footprint (1: one ray through each pixel centre, what most tools render;
 ``K``: the mean of ``K x K`` rays over the pixel). Of several cached oracles, the one with the
 default settings is taken. None cached: "no oracle".
+
+**Noise floor** (``noise_floor_*`` of the metrics, ``noise_floor_of`` says which): renders that are
+all PNG are held against the floor of their format, :func:`mitsnerf.scoring.png_noise_floor` (the
+second ground-truth render quantised to 8-bit sRGB: the dataset's own ``test_ref`` scores exactly
+it as PNG), others against the manifest's.
 """
 
 from __future__ import annotations
@@ -47,7 +58,7 @@ import numpy as np
 
 from mitsnerf import scoring
 from mitsnerf.data.dataset import Dataset
-from mitsnerf.data.images import over, read_image
+from mitsnerf.data.images import ALPHA_ATTRIBUTE, over, read_exr_alpha, read_image
 from mitsnerf.errors import DatasetError, UsageError
 from mitsnerf.math.box import Box
 from mitsnerf.math.color import srgb_to_linear
@@ -58,10 +69,27 @@ EXR_ALPHA = ("premultiplied", "straight", "ignore")
 _NUMBER = re.compile(r"(\d+)(?!.*\d)")
 
 
+def renders_folder(folder: Path) -> Path:
+    """``folder``, or its ``test/`` when it is a run (it has ``config.json`` and ``test/``)."""
+    folder = Path(folder)
+    if (folder / "config.json").is_file() and (folder / "test").is_dir():
+        return folder / "test"
+    return folder
+
+
+def _preview_pair(a: Path, b: Path) -> Path | None:
+    """The EXR of a stem's ``.exr`` and ``.png`` when the EXR says its alpha (mitsnerf's; the PNG its preview)."""
+    exr, png = sorted((a, b), key=lambda p: p.suffix.lower() != ".exr")
+    if exr.suffix.lower() == ".exr" and png.suffix.lower() == ".png" and read_exr_alpha(exr) is not None:
+        return exr
+    return None
+
+
 def image_files(folder: Path, fmt: str | None = None) -> dict[str, Path]:
     """``{stem: path}`` of the ``.png``/``.exr`` files directly in ``folder`` (only ``fmt`` if given).
 
-    Two files with the same stem are refused: which one is meant is not for mitsnerf to guess.
+    Two files with the same stem are refused: which one is meant is not for mitsnerf to guess,
+    unless they are mitsnerf's EXR and its PNG preview (:func:`_preview_pair`).
     """
     folder = Path(folder)
     if not folder.is_dir():
@@ -70,6 +98,9 @@ def image_files(folder: Path, fmt: str | None = None) -> dict[str, Path]:
     found: dict[str, Path] = {}
     for path in sorted(folder.iterdir()):
         if not path.is_file() or path.suffix.lower().lstrip(".") not in kinds:
+            continue
+        if path.stem in found and (exr := _preview_pair(found[path.stem], path)) is not None:
+            found[path.stem] = exr
             continue
         if path.stem in found:
             raise DatasetError(folder, None, f"both {found[path.stem].name} and {path.name}: "
@@ -116,20 +147,45 @@ def match_renders(folder: Path, names: Sequence[str], fmt: str | None = None) ->
     return [numbered[k] for k in sorted(numbered)], "order"
 
 
-def _to_linear(path: Path, img: np.ndarray, background: np.ndarray | None, exr_alpha: str = "premultiplied") -> np.ndarray:
-    """Linear RGB of one render (module docstring): EXR by ``exr_alpha`` (premultiplied by default), PNG
-    sRGB with straight alpha, each composited over ``background`` by its alpha when it has one."""
+def exr_alpha_of(path: Path, img: np.ndarray, override: str | None = None) -> str:
+    """How the alpha of the RGBA EXR ``img`` (read from ``path``) applies: ``override`` if given, else what
+    the file says (``opacity`` is ``"ignore"``), else ``"premultiplied"`` where every pixel of alpha 0 is
+    black; a :class:`~mitsnerf.errors.DatasetError` naming ``--exr-alpha`` otherwise (module docstring).
+
+    >>> exr_alpha_of(Path("x.exr"), np.array([[[0.0, 0.0, 0.0, 0.0], [0.3, 0.3, 0.3, 0.5]]]))
+    'premultiplied'
+    """
+    if override is not None:
+        return override
+    said = read_exr_alpha(path) if path.exists() else None
+    if said is not None:
+        return "ignore" if said == "opacity" else said
+    clear = img[..., 3] <= 0
+    if clear.any() and not np.any(img[..., :3][clear]):
+        return "premultiplied"
+    why = "its RGB is not black where alpha is 0 (a background already?)" if clear.any() else "no pixel has alpha 0"
+    raise DatasetError(path, "alpha", f"below 1, the file does not say what it means (no {ALPHA_ATTRIBUTE} in its "
+                                      f"header) and {why}: say it with --exr-alpha premultiplied, straight or ignore")
+
+
+def _to_linear(path: Path, img: np.ndarray, background: np.ndarray | None, exr_alpha: str | None = None) -> np.ndarray:
+    """Linear RGB of one render (module docstring): EXR by :func:`exr_alpha_of`, PNG sRGB with straight
+    alpha, each composited over ``background`` by its alpha when it has one."""
     exr = path.suffix.lower() == ".exr"
     rgb = img[..., :3] if exr else srgb_to_linear(img[..., :3])
-    if img.shape[2] != 4 or background is None or (exr and exr_alpha == "ignore"):  # no alpha, or alpha 1 everywhere
+    if img.shape[2] != 4 or background is None:  # no alpha, or alpha 1 everywhere
         return rgb
-    return over(rgb, img[..., 3:4], background, premultiplied=exr and exr_alpha == "premultiplied")
+    mode = exr_alpha_of(path, img, exr_alpha) if exr else "straight"
+    if mode == "ignore":
+        return rgb
+    return over(rgb, img[..., 3:4], background, premultiplied=mode == "premultiplied")
 
 
 def read_renders(dataset: Dataset, folder: Path, fmt: str | None = None, split: str = "test",
-                 exr_alpha: str = "premultiplied") -> tuple[np.ndarray, list[Path], str]:
-    """The renders of ``split``'s views as linear RGB ``(V, H, W, 3)``, their files and the matching rule."""
-    if exr_alpha not in EXR_ALPHA:
+                 exr_alpha: str | None = None) -> tuple[np.ndarray, list[Path], str]:
+    """The renders of ``split``'s views as linear RGB ``(V, H, W, 3)``, their files and the matching rule
+    (``exr_alpha``: None, each EXR as its file says)."""
+    if exr_alpha is not None and exr_alpha not in EXR_ALPHA:
         raise UsageError("--exr-alpha", f"must be one of {', '.join(EXR_ALPHA)}, got {exr_alpha!r}")
     from mitsnerf.render.background import make_background, pixel_background
 
@@ -194,6 +250,24 @@ def read_oracle(dataset: Dataset, footprint: int = 1):
     return oracle, f"oracle {oracle.path} at footprint {footprint}"
 
 
+PNG_FLOOR = "8-bit sRGB PNG: test_ref quantised as a PNG against test"
+EXR_FLOOR = "linear float: test_ref against test (the manifest's)"
+
+
+def _floor_of_format(dataset: Dataset, ref: scoring.Reference, paths: Sequence[Path]) -> tuple[scoring.Reference, str | None]:
+    """``ref`` with the noise floor of the renders' format, and what that floor is: renders that are all PNG
+    are held against :func:`mitsnerf.scoring.png_noise_floor` (8-bit quantisation costs dB no tool can win
+    back), others against the manifest's floor; ``(ref, None)`` without a floor."""
+    import dataclasses
+
+    if ref.noise_floor is None:
+        return ref, None
+    if ref.masks is None or "test_ref" not in dataset.splits or any(p.suffix.lower() != ".png" for p in paths):
+        return ref, EXR_FLOOR
+    floor = scoring.png_noise_floor(ref.images, dataset.views("test_ref").images, ref.masks)
+    return dataclasses.replace(ref, noise_floor=floor), PNG_FLOOR
+
+
 @dataclass(frozen=True)
 class ExternalScore:
     """The scores of one folder of renders, and what they were matched and scored with."""
@@ -224,7 +298,7 @@ class ExternalScore:
 
 def score_renders(dataset: Dataset, folder: Path, *, density: Path | None = None, name: str | None = None,
                   fmt: str | None = None, footprint: int = 1, oracle=None,
-                  exr_alpha: str = "premultiplied") -> ExternalScore:
+                  exr_alpha: str | None = None) -> ExternalScore:
     """Score the renders in ``folder`` against ``dataset``'s test views: the metrics of a benchmark
     cell (:func:`mitsnerf.scoring.score_views`), with the oracle's at ``footprint`` (``oracle``, else
     :func:`read_oracle`'s) where there is one."""
@@ -232,16 +306,17 @@ def score_renders(dataset: Dataset, folder: Path, *, density: Path | None = None
         raise UsageError("--format", f"must be one of {', '.join(FORMATS)}, got {fmt!r}")
     if footprint < 1:
         raise UsageError("--footprint", f"must be >= 1, got {footprint}")
-    folder = Path(folder)
+    folder = renders_folder(Path(folder))
     grid = read_density(density, dataset.box) if density is not None else None  # bad input before the work
     images, paths, rule = read_renders(dataset, folder, fmt, exr_alpha=exr_alpha)
     if oracle is None or f"footprint_{footprint}" not in oracle.scores:
         oracle, oracle_source = read_oracle(dataset, footprint)
     else:
         oracle_source = f"oracle {oracle.path} at footprint {footprint}"
-    ref = scoring.reference(dataset, "test")
+    ref, floor_of = _floor_of_format(dataset, scoring.reference(dataset, "test"), paths)
     fn = None if grid is None else scoring.true_density(grid, dataset.box)
     metrics, slices = scoring.score_views(images, ref, fn, oracle=None if oracle is None else oracle.metrics(footprint))
+    metrics["noise_floor_of"] = floor_of
     if fn is None and ref.sigma_t is not None:
         metrics["density_note"] = "no density grid given (--density)"
     views = dataset.views("test")

@@ -103,7 +103,8 @@ def _write_split(root: Path, spec: SceneSpec, split: str, images: list[np.ndarra
 
     (root / split).mkdir(parents=True)
     for i, img in enumerate(images):
-        write_exr(root / split / f"r_{i:03d}.exr", img)
+        write_exr(root / split / f"r_{i:03d}.exr", img, alpha=("premultiplied" if medium else "opacity")
+                  if img.shape[2] == 4 else None)
         write_png(root / split / f"r_{i:03d}.png", unpremultiply(img) if medium else img[..., :3])
     seeds = [render_seed(spec.render.seed, f"{split}_medium" if medium else split, i) for i in range(len(cameras))]
     extra = {"aabb": box.to_list(), "split": split, "spp": split_spp(spec, split), "render_seeds": seeds,

@@ -3,6 +3,8 @@
 Cameras (world is Z-up, cameras look at ``look_at``, default the box centre):
 
 - a dataset view: ``split`` and ``index`` (default: the first test view);
+- every view of a split: ``split`` without ``index``, each named as the dataset's frame (``r_000``),
+  so that the folder scores as it is (``mitsnerf score DATASET OUT``);
 - a point: ``look_from = (x, y, z)``;
 - an orbit of ``N`` cameras around the vertical axis through ``look_at``, at the reference
   view's distance and elevation unless given: camera ``k`` sits at azimuth
@@ -11,19 +13,23 @@ Cameras (world is Z-up, cameras look at ``look_at``, default the box centre):
 
 Field of view and image size default to the reference view's (the dataset view above).
 
-Files written for a view named ``STEM`` (orbit frames are ``orbit/frame_000`` ...)::
+Files written for a view named ``STEM`` (orbit frames are ``orbit/frame_000`` ...; depth and
+opacity go apart from the images, so that a folder of renders scores as it is)::
 
-    STEM.exr            linear RGB, alpha = opacity
+    STEM.exr            linear RGB, the full image over the background; alpha = opacity 1 - T_N,
+                        its header saying so (mitsnerf:alpha = opacity)
     STEM.png            sRGB preview
-    STEM_depth.exr      D = sum_i w_i t_i / (1 - T_N): expected distance from the camera at which
+    depth/STEM.exr      D = sum_i w_i t_i / (1 - T_N): expected distance from the camera at which
                         light is absorbed or scattered, given it is (0 where 1 - T_N < 1e-4);
                         the same value in R, G, B
-    STEM_depth.png      D mapped through matplotlib's 'viridis' from the nearest to the farthest
+    depth/STEM.png      D mapped through matplotlib's 'viridis' from the nearest to the farthest
                         pixel with opacity > 0.01 (others black)
-    STEM_opacity.exr    1 - T_N in R, G, B
-    STEM_opacity.png    the same, grey, linear (not sRGB-encoded)
+    opacity/STEM.exr    1 - T_N in R, G, B
+    opacity/STEM.png    the same, grey, linear (not sRGB-encoded)
 
-plus ``render.json`` (every view's camera, the run, the variant, versions and commit), and for an
+(for ``orbit/frame_000``: ``orbit/depth/frame_000.exr`` ...), plus ``render.json``, a list with one
+entry per call that rendered into the folder (every view's camera, the run, the variant, versions
+and commit), and for an
 orbit also ``orbit.gif`` (pillow) and, only if ``imageio-ffmpeg`` is installed, ``orbit.mp4``.
 All files are written atomically.
 """
@@ -46,6 +52,8 @@ from mitsnerf.math.camera import Camera, look_at as look_at_matrix
 
 MIN_OPACITY = 1e-4
 """Depth is reported only where the opacity exceeds this."""
+MAX_PIXELS = 4096 * 4096
+"""The most pixels one rendered view may have (``--size``)."""
 
 
 def orbit_cameras(
@@ -120,22 +128,23 @@ def write_display_png(path: Path, display: np.ndarray) -> None:
 
 def write_views(out_dir: Path, stem: str, rendered) -> list[Path]:
     """The six files of one rendered view (see the module docstring); returns their paths."""
-    out_dir = Path(out_dir)
-    (out_dir / stem).parent.mkdir(parents=True, exist_ok=True)
+    image = Path(out_dir) / stem
+    folder, name = image.parent, image.name
+    for sub in (folder / "depth", folder / "opacity"):
+        sub.mkdir(parents=True, exist_ok=True)
     depth = normalised_depth(rendered.depth, rendered.opacity)
     files = {
-        f"{stem}.exr": lambda p: write_exr(p, np.concatenate([rendered.rgb, rendered.opacity[..., None]], axis=-1)),
-        f"{stem}.png": lambda p: write_png(p, rendered.rgb),
-        f"{stem}_depth.exr": lambda p: write_exr(p, _grey3(depth)),
-        f"{stem}_depth.png": lambda p: write_display_png(p, depth_colours(depth, rendered.opacity)),
-        f"{stem}_opacity.exr": lambda p: write_exr(p, _grey3(rendered.opacity)),
-        f"{stem}_opacity.png": lambda p: write_display_png(p, _grey3(rendered.opacity)),
+        folder / f"{name}.exr": lambda p: write_exr(p, np.concatenate([rendered.rgb, rendered.opacity[..., None]],
+                                                                      axis=-1), alpha="opacity"),
+        folder / f"{name}.png": lambda p: write_png(p, rendered.rgb),
+        folder / "depth" / f"{name}.exr": lambda p: write_exr(p, _grey3(depth)),
+        folder / "depth" / f"{name}.png": lambda p: write_display_png(p, depth_colours(depth, rendered.opacity)),
+        folder / "opacity" / f"{name}.exr": lambda p: write_exr(p, _grey3(rendered.opacity)),
+        folder / "opacity" / f"{name}.png": lambda p: write_display_png(p, _grey3(rendered.opacity)),
     }
-    paths = []
-    for name, write in files.items():
-        write(out_dir / name)
-        paths.append(out_dir / name)
-    return paths
+    for path, write in files.items():
+        write(path)
+    return list(files)
 
 
 def write_gif(path: Path, frames: Sequence[np.ndarray], fps: float = 12.0) -> None:
@@ -176,7 +185,8 @@ class ViewRequest:
     """Which cameras ``render_run`` renders; unset values come from the reference view."""
 
     split: str | None = None
-    index: int = 0
+    index: int | None = None
+    """None: the first view, or with ``split`` given, every view of it."""
     look_from: tuple[float, float, float] | None = None
     look_at: tuple[float, float, float] = (0.0, 0.0, 0.0)
     fov: float | None = None
@@ -190,21 +200,42 @@ class ViewRequest:
 
 
 def _reference(dataset, split: str | None, index: int):
+    from mitsnerf.errors import UsageError
+
     splits = dataset.splits
+    if split is not None and split not in splits:
+        raise UsageError("--split", f"the dataset has no split {split!r}; its splits: {', '.join(splits)}")
     split = split or ("test" if "test" in splits else splits[0])
     views = dataset.views(split)
     if not 0 <= index < len(views):
-        from mitsnerf.errors import UsageError
-
         raise UsageError("--index", f"split {split!r} has views 0..{len(views) - 1}, got {index}")
     return views.cameras[index], views.pixel_center, f"{split}_{index:03d}"
 
 
+def check_request(request: ViewRequest) -> None:
+    """A :class:`~mitsnerf.errors.UsageError` naming the option for a request no camera can honour:
+    ``look_from`` at ``look_at`` (no direction to look in), or a ``size`` over :data:`MAX_PIXELS`."""
+    from mitsnerf.errors import UsageError
+
+    if request.look_from is not None and np.allclose(request.look_from, request.look_at, rtol=0.0, atol=1e-9):
+        shown = " ".join(f"{v:g}" for v in request.look_from)
+        raise UsageError("--look-from", f"must differ from --look-at, the point looked at; both are {shown}")
+    if request.size is not None and request.size[0] * request.size[1] > MAX_PIXELS:
+        raise UsageError("--size", f"at most {MAX_PIXELS} pixels a view (4096 x 4096), got "
+                                   f"{request.size[0]} x {request.size[1]}")
+
+
 def cameras_for(request: ViewRequest, dataset) -> tuple[list[Camera], list[str], float]:
     """The cameras of ``request`` with their file stems, and the pixel-centre convention."""
-    ref, pixel_center, ref_name = _reference(dataset, request.split, request.index)
+    check_request(request)
+    ref, pixel_center, ref_name = _reference(dataset, request.split, request.index or 0)
     width, height = request.size or (ref.width, ref.height)
     fov = request.fov or ref.fov_x_deg
+    if request.split is not None and request.index is None and not request.orbit and request.look_from is None:
+        views = dataset.views(request.split)
+        cams = [c if request.size is None and request.fov is None else Camera.from_fov(c.c2w, width, height, fov)
+                for c in views.cameras]
+        return cams, list(views.names), pixel_center
     target = np.asarray(request.look_at, dtype=np.float64)
     if request.orbit:
         offset = ref.origin - target
@@ -223,6 +254,25 @@ def cameras_for(request: ViewRequest, dataset) -> tuple[list[Camera], list[str],
     return [Camera.from_fov(ref.c2w, width, height, fov)], [ref_name], pixel_center
 
 
+def previous_calls(path: Path) -> list:
+    """The entries of an existing ``render.json`` (one per earlier call; an older file's one record is one
+    entry), ``[]`` without one; an :class:`~mitsnerf.errors.OutputError` when it is not such a record."""
+    import json
+
+    from mitsnerf.errors import OutputError
+
+    if not path.exists():
+        return []
+    try:
+        calls = json.loads(path.read_text())
+    except (OSError, UnicodeDecodeError, ValueError) as exc:
+        raise OutputError(path, None, f"not a render record ({exc}); move it away to render here") from None
+    calls = [calls] if isinstance(calls, dict) else calls
+    if not isinstance(calls, list) or not all(isinstance(c, dict) for c in calls):
+        raise OutputError(path, None, "not a render record (a JSON list of objects); move it away to render here")
+    return calls
+
+
 def render_run(run_dir: Path, out_dir: Path, request: ViewRequest = ViewRequest(), progress: bool = True) -> list[Path]:
     """Render the views of ``request`` from the run in ``run_dir`` into ``out_dir``; returns the files."""
     from tqdm.auto import tqdm
@@ -234,20 +284,21 @@ def render_run(run_dir: Path, out_dir: Path, request: ViewRequest = ViewRequest(
     cams, stems, pixel_center = cameras_for(request, dataset)
     footprint = request.footprint or int((config.get("eval") or {}).get("footprint", 1))
     out_dir = Path(out_dir)
+    calls = previous_calls(out_dir / "render.json")
     out_dir.mkdir(parents=True, exist_ok=True)
     written, frames = [], []
     for cam, stem in tqdm(list(zip(cams, stems)), desc="render", unit="view", disable=True if not progress or len(cams) < 2 else None, leave=False):
         rendered = model.render_view(cam, pixel_center=pixel_center, footprint=footprint)
         written += write_views(out_dir, stem, rendered)
         frames.append(linear_to_srgb(np.clip(rendered.rgb, 0.0, 1.0)))
-    atomic_write_json(out_dir / "render.json", {
+    atomic_write_json(out_dir / "render.json", [*calls, {
         "run": str(run_dir),
         "views": [{"name": stem, "transform_matrix": cam.c2w.tolist(), "w": cam.width, "h": cam.height,
                    "fl_x": cam.fl_x, "fl_y": cam.fl_y, "cx": cam.cx, "cy": cam.cy} for cam, stem in zip(cams, stems)],
         "pixel_center": pixel_center,
         "footprint": footprint,
         "provenance": env.provenance(),
-    })
+    }])
     written.append(out_dir / "render.json")
     if request.orbit:
         write_gif(out_dir / "orbit.gif", frames, request.fps)

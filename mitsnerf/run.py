@@ -302,7 +302,8 @@ def write_run(run: RunResult, dataset: Dataset, out_dir: Path, test_names) -> No
         (tmp / "test").mkdir()
         for name, rendered in zip(test_names, run.renders):
             stem = Path(name).name
-            write_exr(tmp / "test" / f"{stem}.exr", np.concatenate([rendered.rgb, rendered.opacity[..., None]], axis=-1))
+            write_exr(tmp / "test" / f"{stem}.exr", np.concatenate([rendered.rgb, rendered.opacity[..., None]], axis=-1),
+                      alpha="opacity")
             write_png(tmp / "test" / f"{stem}.png", rendered.rgb)
         _carry_over(out_dir, tmp)
 

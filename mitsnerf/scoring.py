@@ -175,6 +175,19 @@ def noise_floor(test: np.ndarray, ref: np.ndarray, masks: np.ndarray) -> dict[st
     }
 
 
+def png_noise_floor(test: np.ndarray, test_ref: np.ndarray, masks: np.ndarray) -> dict[str, Any]:
+    """The noise floor of renders handed over as 8-bit sRGB PNG: :func:`noise_floor` of the second
+    ground-truth render ``test_ref`` quantised as a PNG (:func:`mitsnerf.data.images.png_quantised`)
+    against ``test``. A PNG render cannot score above it as an EXR render cannot above the floor.
+    """
+    from mitsnerf.data.images import png_quantised
+
+    floor = noise_floor(png_quantised(test_ref[..., :3]), test[..., :3], masks)
+    floor["method"] = ("mean over test views of PSNR(png(test_ref), test), test_ref quantised to 8-bit sRGB as a "
+                       "PNG and decoded, linear RGB clipped to [0, 1], max_val 1")
+    return floor
+
+
 def composite_agreement(full: np.ndarray, full_ref: np.ndarray, medium: np.ndarray, medium_ref: np.ndarray,
                         background: np.ndarray) -> dict[str, Any]:
     """Do the medium-alone renders, composited over the environment, reproduce the full images?

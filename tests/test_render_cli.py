@@ -44,14 +44,14 @@ def test_train_writes_a_run_with_its_final_checkpoint(run_dir):
 
 def test_render_a_dataset_view_writes_rgb_depth_and_opacity(run_dir, tmp_path, capsys):
     assert main(["render", str(run_dir), "--out", str(tmp_path)]) == 0
-    for suffix in ("", "_depth", "_opacity"):
-        assert read_exr(tmp_path / f"test_000{suffix}.exr").shape == (12, 12, 4 if suffix == "" else 3)
-        assert read_png(tmp_path / f"test_000{suffix}.png").shape[:2] == (12, 12)
+    for sub in ("", "depth/", "opacity/"):
+        assert read_exr(tmp_path / f"{sub}test_000.exr").shape == (12, 12, 4 if sub == "" else 3)
+        assert read_png(tmp_path / f"{sub}test_000.png").shape[:2] == (12, 12)
     rgba = read_exr(tmp_path / "test_000.exr")
-    opacity = read_exr(tmp_path / "test_000_opacity.exr")[..., 0]
+    opacity = read_exr(tmp_path / "opacity" / "test_000.exr")[..., 0]
     np.testing.assert_array_equal(rgba[..., 3], opacity)
     assert "7 files" in capsys.readouterr().out
-    info = json.loads((tmp_path / "render.json").read_text())
+    (info,) = json.loads((tmp_path / "render.json").read_text())
     assert info["views"][0]["name"] == "test_000" and info["provenance"]["variant"]
 
 
@@ -62,8 +62,11 @@ def test_render_look_from_with_size_and_an_orbit_gif(run_dir, tmp_path):
                  "--fov", "30", "--size", "10", "6"]) == 0
     assert read_exr(tmp_path / "view.exr").shape == (6, 10, 4)
     assert main(["render", str(run_dir), "--out", str(tmp_path), "--orbit", "3", "--size", "8"]) == 0
-    assert sorted(p.name for p in (tmp_path / "orbit").glob("frame_*.png") if "_" not in p.stem[6:]) == \
+    assert sorted(p.name for p in (tmp_path / "orbit").glob("frame_*.png")) == \
         ["frame_000.png", "frame_001.png", "frame_002.png"]
+    assert (tmp_path / "orbit" / "depth" / "frame_002.exr").is_file()
+    calls = json.loads((tmp_path / "render.json").read_text())  # both calls, in order
+    assert [c["views"][0]["name"] for c in calls] == ["view", "orbit/frame_000"]
     with Image.open(tmp_path / "orbit.gif") as gif:
         assert gif.n_frames == 3
 

@@ -59,6 +59,18 @@ def test_test_ref_scores_exactly_the_noise_floor(dataset, capsys, tmp_path):
     assert out.startswith("mitsnerf: scene box [[-0.5, -0.5, -0.5], [0.5, 0.5, 0.5]] (transforms_train.json: aabb)")
 
 
+def test_png_renders_are_held_against_the_floor_of_8_bit_png(dataset, capsys, tmp_path):
+    """test_ref's PNG previews score exactly the PNG floor, which lies below the manifest's (EXR) floor;
+    the row shows it as its GT floor and says which floor it is."""
+    status, out, err = _score(capsys, dataset, dataset / "test_ref", "--format", "png", "--out", tmp_path / "s.json")
+    assert status == 0, err
+    floor = json.loads((dataset / "manifest.json").read_text())["noise_floor"]
+    m = json.loads((tmp_path / "s.json").read_text())["metrics"]
+    assert m["psnr_test"] == m["noise_floor_psnr"] and m["psnr_test_medium"] == m["noise_floor_psnr_medium"]
+    assert m["noise_floor_psnr"] < floor["psnr"] and "8-bit sRGB PNG" in m["noise_floor_of"]
+    assert "GT floor: 8-bit sRGB PNG" in out
+
+
 def test_matched_by_order_equals_matched_by_name(dataset, tmp_path):
     by_name = _copy(dataset / "test_ref", tmp_path / "a")
     by_order = _copy(dataset / "test_ref", tmp_path / "b", ["frame_9", "frame_10", "frame_11"])  # 9 < 10 < 11
@@ -93,7 +105,8 @@ def test_exr_alpha_is_premultiplied(dataset, tmp_path):
     folder.mkdir()
     for i, name in enumerate(views.names):
         rgb = views.images[i][..., :3] - 0.5 * background[i]
-        write_exr(folder / f"{name}.exr", np.concatenate([rgb, np.full_like(rgb[..., :1], 0.5)], axis=-1))
+        write_exr(folder / f"{name}.exr", np.concatenate([rgb, np.full_like(rgb[..., :1], 0.5)], axis=-1),
+                  alpha="premultiplied")
     images, _, _ = read_renders(ds, folder)
     np.testing.assert_allclose(images, views.images[..., :3], atol=1e-6)
     straight, _, _ = read_renders(ds, folder, exr_alpha="straight")  # rgb a + B (1 - a): not the test images
@@ -172,7 +185,8 @@ BAD = [
     ("stray file", lambda d, r: shutil.copy(r / "r_000.exr", r / "extra.exr"), "extra.exr: named after no test frame"),
     ("wrong size", _bad_size, "r_001.exr: image is 12x8, test frame r_001 is 12x12"),
     ("NaN pixel", _nan, "r_002.exr: 1 non-finite pixel values (NaN/inf), first at row 3, column 4"),
-    ("two kinds", lambda d, r: write_png(r / "r_000.png", np.zeros((12, 12, 3))), "both r_000.exr and r_000.png"),
+    ("two kinds", lambda d, r: (write_exr(r / "r_000.exr", read_exr(r / "r_000.exr")[..., :3]),  # says no alpha
+                                write_png(r / "r_000.png", np.zeros((12, 12, 3)))), "both r_000.exr and r_000.png"),
     ("no number", lambda d, r: [f.rename(r / f"view{'abc'[int(f.stem[-1])]}.exr") for f in r.glob("r_*.exr")],
      "no frame number in the name"),
     ("box min >= max", lambda d, r: None, "--box: min must be < max"),

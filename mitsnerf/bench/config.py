@@ -106,8 +106,9 @@ class ExternalRun(ExternalFiles):
 
     name: str = param(doc='the row reads "NAME (external)"; unique')
     format: str = param("", choices=("", "png", "exr"), doc="read only these images (empty: both)")
-    exr_alpha: str = param("premultiplied", choices=("premultiplied", "straight", "ignore"),
-                           doc="how an RGBA EXR's alpha composites over the background (mitsnerf score --exr-alpha)")
+    exr_alpha: str = param("", choices=("", "premultiplied", "straight", "ignore"),
+                           doc="how an RGBA EXR's alpha composites over the background (mitsnerf score --exr-alpha; "
+                               "empty: as each file's header says)")
     footprint: int = param(1, lo=1, hi=64, doc="the tool's rays per pixel side (1: one through each pixel centre): "
                                                "the oracle's renders it is held against")
     quick: ExternalFiles = param(default_factory=ExternalFiles,

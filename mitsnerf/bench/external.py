@@ -75,7 +75,7 @@ def score_external(entry: ExternalEntry, report_view: int = 0, oracle=None) -> t
     dataset = load_dataset(entry.dataset_dir)
     k = entry.run.footprint
     s = score_renders(dataset, entry.renders, density=entry.density, name=entry.run.name, fmt=entry.run.format or None,
-                      footprint=k, oracle=oracle, exr_alpha=entry.run.exr_alpha)
+                      footprint=k, oracle=oracle, exr_alpha=entry.run.exr_alpha or None)
     record = {"key": entry.key, "scene": entry.scene, "method": entry.run.label, "method_name": "external",
               "seed": 0, "external": True, "renders": str(entry.renders), "matched_by": s.matched_by,
               "density": s.density, "oracle_source": s.oracle, "oracle": oracle_summary(s.oracle_used, k),

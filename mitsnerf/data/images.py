@@ -1,16 +1,24 @@
 """Image files: float EXR (linear radiance) and 8-bit sRGB PNG (previews, foreign datasets).
 
 Arrays are float32 ``(H, W, C)`` with ``C = 3`` (RGB) or ``4`` (RGBA), row 0 at the
-top. Writes are atomic (:mod:`mitsnerf.data.atomic`). A file that is missing,
+top. Every RGBA EXR mitsnerf writes says what its alpha means, in the string attribute
+``mitsnerf:alpha`` of its header (:data:`ALPHA_ATTRIBUTE`, one of :data:`ALPHA_MEANINGS`):
+
+- ``premultiplied``: RGB is the radiance of what is in front, alpha its coverage; over a
+  background ``B`` the image is ``rgb + (1 - a) B`` (OpenEXR's rule);
+- ``straight``: the same over ``B`` is ``rgb a + (1 - a) B``;
+- ``opacity``: RGB is already the full image over the background; alpha is only the opacity
+  ``1 - T`` (for depth-like use), never to be composited again.
+ Writes are atomic (:mod:`mitsnerf.data.atomic`). A file that is missing,
 unreadable, corrupt or lacks the R, G, B channels raises
 :class:`~mitsnerf.errors.DatasetError` naming the file (and the channel), one line.
 
 >>> import tempfile, shutil
 >>> d = Path(tempfile.mkdtemp())
 >>> img = np.array([[[0.0, 0.5, 2.0, 1.0]]], dtype=np.float32)   # (1, 1, 4), HDR value kept
->>> write_exr(d / "a.exr", img)
->>> read_exr(d / "a.exr").tolist()
-[[[0.0, 0.5, 2.0, 1.0]]]
+>>> write_exr(d / "a.exr", img, alpha="opacity")
+>>> read_exr(d / "a.exr").tolist(), read_exr_alpha(d / "a.exr")
+([[[0.0, 0.5, 2.0, 1.0]]], 'opacity')
 >>> write_png(d / "a.png", img)           # linear -> sRGB 8 bit, clipped to [0, 1]
 >>> (read_png(d / "a.png") * 255).round().tolist()
 [[[0.0, 188.0, 255.0, 255.0]]]
@@ -34,6 +42,9 @@ from mitsnerf.errors import DatasetError
 from mitsnerf.math.color import linear_to_srgb
 
 _RGBA = ("R", "G", "B", "A")
+ALPHA_ATTRIBUTE = "mitsnerf:alpha"
+"""The EXR header attribute that says what an RGBA image's alpha means."""
+ALPHA_MEANINGS = ("premultiplied", "straight", "opacity")
 
 
 def _check_image(image) -> np.ndarray:
@@ -89,14 +100,24 @@ def _library_output_to_buffer() -> Iterator[dict[str, str]]:
         captured["stdout"], captured["stderr"] = py_out.getvalue(), py_err.getvalue()
 
 
-def write_exr(path: str | os.PathLike, image) -> None:
-    """Write a linear float image ``(H, W, 3|4)`` as a 32-bit float, ZIP-compressed RGB(A) EXR."""
+def write_exr(path: str | os.PathLike, image, alpha: str | None = None) -> None:
+    """Write a linear float image ``(H, W, 3|4)`` as a 32-bit float, ZIP-compressed RGB(A) EXR.
+
+    ``alpha``: what an RGBA image's alpha means (one of :data:`ALPHA_MEANINGS`), written into the
+    header as :data:`ALPHA_ATTRIBUTE`; every RGBA image mitsnerf writes says it (None: the file does
+    not say, as another tool's). An RGB image has none.
+    """
     import OpenEXR
 
     arr = _check_image(image).astype(np.float32, copy=False)
+    if alpha is not None and (arr.shape[2] != 4 or alpha not in ALPHA_MEANINGS):
+        raise ValueError(f"an RGBA image needs alpha in {ALPHA_MEANINGS} (an RGB image none), got {alpha!r} "
+                         f"for {arr.shape[2]} channels")
     # The bindings read the raw buffer: each channel must be its own contiguous array.
     channels = {name: np.ascontiguousarray(arr[..., i]) for i, name in enumerate(_RGBA[: arr.shape[2]])}
     header = {"compression": OpenEXR.ZIP_COMPRESSION, "type": OpenEXR.scanlineimage}
+    if alpha is not None:
+        header[ALPHA_ATTRIBUTE] = alpha
     with atomic_path(path) as tmp:
         with OpenEXR.File(header, channels) as f:
             try:
@@ -161,6 +182,56 @@ def read_exr(path: str | os.PathLike) -> np.ndarray:
     return np.stack(out, axis=-1)
 
 
+def read_exr_alpha(path: str | os.PathLike) -> str | None:
+    """What an EXR's alpha means, from its header's :data:`ALPHA_ATTRIBUTE` (None: the file does not say).
+
+    A value that is not one of :data:`ALPHA_MEANINGS` raises :class:`~mitsnerf.errors.DatasetError`.
+    """
+    import OpenEXR
+
+    path = Path(path)
+    _check_exists(path)
+    failed = False
+    with _library_output_to_buffer():
+        try:
+            with OpenEXR.File(str(path), header_only=True) as f:
+                value = f.header().get(ALPHA_ATTRIBUTE)
+        except (RuntimeError, ValueError, OSError):
+            failed = True
+    if failed:
+        raise DatasetError(path, None, "not a readable OpenEXR file (corrupt, truncated or another format)")
+    if value is None:
+        return None
+    if value not in ALPHA_MEANINGS:
+        raise DatasetError(path, ALPHA_ATTRIBUTE, f"{value!r} is none of {', '.join(ALPHA_MEANINGS)}")
+    return str(value)
+
+
+def png_levels(linear_image) -> np.ndarray:
+    """The 8-bit levels :func:`write_png` stores for a linear image ``(..., 3|4)``: RGB clipped to
+    ``[0, 1]`` and sRGB-encoded, alpha clipped, NaN as 0, each rounded to the nearest of 256 levels.
+
+    >>> png_levels(np.array([[0.0, 0.5, 2.0]])).tolist()
+    [[0, 188, 255]]
+    """
+    arr = np.asarray(linear_image, dtype=np.float64)
+    arr = np.clip(np.nan_to_num(arr, nan=0.0, posinf=1.0, neginf=0.0), 0.0, 1.0)
+    arr[..., :3] = linear_to_srgb(arr[..., :3])
+    return np.round(arr * 255.0).astype(np.uint8)
+
+
+def png_quantised(linear_rgb) -> np.ndarray:
+    """Linear RGB ``(..., 3)`` as it comes back from an 8-bit sRGB PNG (:func:`png_levels`, decoded):
+    what a renderer that writes PNG can at best hand over.
+
+    >>> [round(float(v), 4) for v in png_quantised(np.array([0.0, 0.5, 2.0]))]
+    [0.0, 0.5029, 1.0]
+    """
+    from mitsnerf.math.color import srgb_to_linear
+
+    return srgb_to_linear(png_levels(linear_rgb).astype(np.float32) / np.float32(255.0))
+
+
 def write_png(path: str | os.PathLike, linear_image) -> None:
     """Write a linear image ``(H, W, 3|4)`` as an 8-bit sRGB PNG preview.
 
@@ -169,10 +240,7 @@ def write_png(path: str | os.PathLike, linear_image) -> None:
     """
     from PIL import Image
 
-    arr = _check_image(linear_image).astype(np.float64)
-    arr = np.clip(np.nan_to_num(arr, nan=0.0, posinf=1.0, neginf=0.0), 0.0, 1.0)
-    arr[..., :3] = linear_to_srgb(arr[..., :3])
-    u8 = np.round(arr * 255.0).astype(np.uint8)
+    u8 = png_levels(_check_image(linear_image))
     buf = io.BytesIO()
     Image.fromarray(u8, mode="RGBA" if u8.shape[2] == 4 else "RGB").save(buf, format="PNG")
     atomic_write_bytes(path, buf.getvalue())

@@ -71,7 +71,8 @@ class Artifacts:
 
         path = self.case_dir(name)
         for key, image in images.items():
-            write_exr(path / f"{key}.exr", np.asarray(image, dtype=np.float32))
+            image = np.asarray(image, dtype=np.float32)  # RGBA: Mitsuba's film, premultiplied
+            write_exr(path / f"{key}.exr", image, alpha="premultiplied" if image.shape[-1] == 4 else None)
         return path
 
 

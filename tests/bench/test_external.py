@@ -52,6 +52,12 @@ def test_external_rows_in_tables_plots_and_report(tiny_bench, tmp_path):
     record = next(r for r in result.records if r.get("external"))
     oracle = json.loads((Path(record["oracle"]["path"]) / "scores.json").read_text())["footprint_1"]
     assert row["oracle_psnr_test_medium"] == oracle["psnr_test_medium"]  # the cells' oracle, at footprint 1
+    cell = next(r for r in result.per_scene if not r.get("external") and not r.get("ceiling")
+                and r["method"] != "ref (external)")
+    # one table, each row at its own footprint with its own oracle: the cells' K = 3, the renders' K = 1
+    assert (cell["footprint"], row["footprint"]) == (3, 1)
+    assert cell["oracle_psnr_test_medium"] == next(r for r in result.per_scene if r.get("ceiling"))["psnr_test_medium"]
+    assert cell["oracle_psnr_test_medium"] != row["oracle_psnr_test_medium"]
     assert row["gap_to_oracle"] == pytest.approx(oracle["psnr_test_medium"] - row["psnr_test_medium"], abs=1e-5)
     root = result.out_root
     assert "| tcloud | ref (external) | 1 |" in (root / "table.md").read_text()
