@@ -292,7 +292,7 @@ def cmd_score(args) -> int:
     print(f"\n{len(result.files)} renders matched by {result.matched_by}; {result.oracle}; "
           f"density: {result.density or 'none given'} -> {out}")
     if result.metrics.get("noise_floor_of"):
-        print(f"GT floor: {result.metrics['noise_floor_of']}")
+        print(f"ref agreement: {result.metrics['noise_floor_of']}")
     return 0
 
 

@@ -61,14 +61,14 @@ def test_test_ref_scores_exactly_the_noise_floor(dataset, capsys, tmp_path):
 
 def test_png_renders_are_held_against_the_floor_of_8_bit_png(dataset, capsys, tmp_path):
     """test_ref's PNG previews score exactly the PNG floor, which lies below the manifest's (EXR) floor;
-    the row shows it as its GT floor and says which floor it is."""
+    the row shows it as its ref agreement and says which floor it is."""
     status, out, err = _score(capsys, dataset, dataset / "test_ref", "--format", "png", "--out", tmp_path / "s.json")
     assert status == 0, err
     floor = json.loads((dataset / "manifest.json").read_text())["noise_floor"]
     m = json.loads((tmp_path / "s.json").read_text())["metrics"]
     assert m["psnr_test"] == m["noise_floor_psnr"] and m["psnr_test_medium"] == m["noise_floor_psnr_medium"]
     assert m["noise_floor_psnr"] < floor["psnr"] and "8-bit sRGB PNG" in m["noise_floor_of"]
-    assert "GT floor: 8-bit sRGB PNG" in out
+    assert "ref agreement: 8-bit sRGB PNG" in out
 
 
 def test_matched_by_order_equals_matched_by_name(dataset, tmp_path):
