@@ -429,25 +429,25 @@ def cmd_check(args) -> int:
         report = run_mutations(args.quality, only=args.case, progress=progress)
         print(format_table(report.clean, alpha))
         print()
-        print(format_mutations(report))
-        print(count_line(report.clean))
+        print(format_mutations(report), flush=True)
         failed = [r.name for r in report.clean if r.passed is False]
         if failed:
             print(f"mitsnerf check: {len(failed)} case(s) failed without a mutation: {', '.join(failed)}", file=sys.stderr)
         if report.escaped:
             print(f"mitsnerf check: {len(report.escaped)} mutation(s) caught by no case: {', '.join(report.escaped)}",
                   file=sys.stderr)
+        sys.stderr.flush()
+        print(count_line(report.clean))  # last, alone on its line
         return 0 if report.passed else 1
     progress = None if args.no_progress else (
         lambda r: print(f"  {r.name}: {r.status} ({r.seconds:.1f} s)", file=sys.stderr, flush=True))
     results = run_checks(args.quality, out=args.out, only=args.case, progress=progress)
-    print(format_table(results, alpha))
-    print(count_line(results))
+    print(format_table(results, alpha), flush=True)
     failed = [r.name for r in results if r.passed is False]
     if failed:
-        print(f"mitsnerf check: {len(failed)} case(s) failed: {', '.join(failed)}", file=sys.stderr)
-        return 1
-    return 0
+        print(f"mitsnerf check: {len(failed)} case(s) failed: {', '.join(failed)}", file=sys.stderr, flush=True)
+    print(count_line(results))  # last, alone on its line
+    return 1 if failed else 0
 
 
 NO_PROGRESS_HELP = "no progress bars (they are off anyway when stderr is not a terminal)"

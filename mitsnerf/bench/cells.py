@@ -114,6 +114,19 @@ class Cell:
         return Path(self.out_dir)
 
 
+@dataclass(frozen=True)
+class SceneData:
+    """One scene's dataset as the benchmark makes it: what generating it, its oracle and the external
+    entries on it need (the same fields as a :class:`Cell`'s)."""
+
+    scene: str
+    spec: dict
+    eval: dict
+    dataset_dir: str
+    data_root: str
+    oracle: dict | None
+
+
 def cell_dir(out_root: Path, scene: str, label: str, seed: int) -> Path:
     return Path(out_root) / "cells" / scene / f"{label}-seed{seed}"
 

@@ -31,8 +31,8 @@ from typing import Any, Callable
 import numpy as np
 
 from mitsnerf import env
-from mitsnerf.bench.cells import (ARTEFACTS_FILE, ERROR_FILE, Cell, cell_dir, code_version, is_done, read_record,
-                                  write_error, write_result)
+from mitsnerf.bench.cells import (ARTEFACTS_FILE, ERROR_FILE, Cell, SceneData, cell_dir, code_version, is_done,
+                                  read_record, write_error, write_result)
 from mitsnerf.bench.config import BenchConfig
 from mitsnerf.bench.tables import (ORACLE, average_rows, best_rules, cell_row, compact_report, csv_keys, csv_table,
                                    markdown_report,
@@ -93,19 +93,6 @@ class BenchResult:
 
 def out_root_of(config: BenchConfig, options: BenchOptions) -> Path:
     return Path(options.results_root) / (config.name + ("-quick" if options.quick else ""))
-
-
-@dataclass(frozen=True)
-class SceneData:
-    """One scene's dataset as the benchmark makes it: what generating it, its oracle and the external
-    entries on it need (the same fields as a :class:`~mitsnerf.bench.cells.Cell`'s)."""
-
-    scene: str
-    spec: dict
-    eval: dict
-    dataset_dir: str
-    data_root: str
-    oracle: dict | None
 
 
 def plan_scenes(config: BenchConfig, options: BenchOptions) -> list[SceneData]:

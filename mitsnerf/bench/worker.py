@@ -20,7 +20,7 @@ from typing import Any
 
 import numpy as np
 
-from mitsnerf.bench.cells import IN_FLIGHT_FILE, RECORD_FORMAT, Cell
+from mitsnerf.bench.cells import IN_FLIGHT_FILE, RECORD_FORMAT, Cell, SceneData
 from mitsnerf.scoring import image_scores
 
 PEAK_MEMORY_NOTE = ("peak_rss_mb: RSS high-water mark (resource.getrusage ru_maxrss) of the process that ran "
@@ -117,7 +117,7 @@ def _open_dataset(cell: Cell, progress: bool):
     return load_dataset(generate_dataset(spec, Path(cell.data_root), progress=progress))
 
 
-def cell_oracle(cell: Cell, dataset=None, log=lambda line: None):
+def cell_oracle(cell: Cell | SceneData, dataset=None, log=lambda line: None):
     """The cached oracle (:class:`mitsnerf.oracle.cache.Oracle`) of the cell's dataset at its eval
     footprint, computed and cached first if missing; None when the cell has none (or foreign data)."""
     from mitsnerf.config import from_dict

@@ -322,6 +322,34 @@ def run_mutations(quality: C.Quality | str = "quick", mutations: Iterable[Mutati
     return report
 
 
+#: ``(pattern, one line)``: the words of the notes under the table that a user may not know, each explained once
+#: when a note uses it (:func:`terms`).
+TERMS: tuple[tuple[str, str], ...] = (
+    (r"seed's rule", "seed's rule: the default quadrature, delta_i = t_{i+1} - t_i with the last to t_f; in a medium "
+                     "dense where rays leave it, it is biased by about -(h/2) sigma_t(t_f) in optical depth (h: the "
+                     "sample spacing; its 'exit bias'), measured and printed, not tested"),
+    (r"midpoint", "midpoint rule: the quadrature option without that bias (each sample stands for its whole stratum)"),
+    (r"\bz\b", "z: a difference divided by its Monte Carlo standard error (|z| below about 4 is noise); "
+               "channel-mean z: that of the image's mean, per colour channel"),
+    (r"\bN = ", "N: samples per ray"),
+    (r"jitter", "jitter: training's random placement of each sample within its stratum of the ray"),
+    (r"furnace", "furnace: a medium in a uniform environment of radiance 1; with albedo 1 and unlimited depth the "
+                 "exact image is 1"),
+)
+
+
+def terms(notes: Iterable[str]) -> list[str]:
+    """One line per term of :data:`TERMS` that ``notes`` use, in that order.
+
+    >>> [line.split(":")[0] for line in terms(["box: seed's rule against volpath, channel-mean z +6.3"])]
+    ["seed's rule", 'z']
+    """
+    import re
+
+    text = "\n".join(notes)
+    return [line for pattern, line in TERMS if re.search(pattern, text)]
+
+
 def format_table(results: list[CaseResult], alpha: float | None = None) -> str:
     """A fixed-width ASCII table: case, checks, reference, measured error, max |z|, rejections, result, time."""
     header = ("case", "checks", "reference", "measured error", "max|z|", "rejected", "result", "time")
@@ -339,7 +367,8 @@ def format_table(results: list[CaseResult], alpha: float | None = None) -> str:
         notes.append(f"rejected: the case's statistical tests (pixels and channel means) that found a difference; "
                      f"a correct integrator gets one with probability at most {alpha:g} per case (columns: README.md, "
                      f"'Reading mitsnerf check')")
-    return "\n".join(lines + ([""] + notes if notes else []))
+    words = terms(notes)
+    return "\n".join(lines + ([""] + notes if notes else []) + (["", "Words in the notes:"] + words if words else []))
 
 
 def count_line(results: list[CaseResult]) -> str:

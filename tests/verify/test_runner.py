@@ -80,3 +80,28 @@ def test_cli_check_mutations_prints_the_matrix_and_fails_when_a_mutation_escapes
 def test_cli_check_rejects_an_unknown_case(capsys):
     assert cli.main(["check", "--case", "nope", "--no-progress"]) == 2
     assert "unknown case" in capsys.readouterr().err
+
+
+def test_a_failing_check_ends_with_its_count_line_after_the_failure_line(monkeypatch):
+    """stdout and stderr on one terminal: the count line was followed by the stderr failure line."""
+    import io
+    import sys
+
+    both = io.StringIO()
+    monkeypatch.setattr(sys, "stdout", both)
+    monkeypatch.setattr(sys, "stderr", both)
+    monkeypatch.setattr(C, "CLOSED_FORM", dataclasses.replace(C.CLOSED_FORM, rtol=0.0))
+    assert cli.main(["check", "--case", "closed_form", "--no-progress"]) == 1
+    lines = both.getvalue().splitlines()
+    assert lines[-1] == "0 passed, 1 failed" and "1 case(s) failed: closed_form" in lines[-2]
+
+
+def test_the_words_of_the_notes_are_explained_under_them():
+    rows = [CaseResult("box", "integrator", "r", "e", 6.3, "0/3", True, 0.1,
+                       note="seed's rule against volpath as it is (its first-order exit bias, not a test): "
+                            "relative +1.7e-03, channel-mean z +6.3"),
+            CaseResult("train_average", "training path", "r", "e", 1.0, "0/3", True, 0.1,
+                       note="N = 512 (seed's rule, training jitter)")]
+    table = format_table(rows, alpha=0.001).split("Words in the notes:\n")[1].splitlines()
+    assert [line.split(":")[0] for line in table] == ["seed's rule", "z", "N", "jitter"]
+    assert "Words in the notes" not in format_table(rows[:0] + [CaseResult("c", "f", "r", "e", None, "-", True, 0.1)])
