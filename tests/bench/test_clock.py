@@ -41,8 +41,10 @@ def test_hook_time_is_not_training_time(blob_grid):
     data = PixelData.from_views(images, cams)
     train(model, data, TrainConfig(steps=2, batch_rays=32), 1e-2, progress=False)  # compile the kernels first
     start = time.perf_counter()
-    result, _ = train(model, data, TrainConfig(steps=10**6, seconds=budget, batch_rays=32, log_every=1), 1e-2,
-                      progress=False, on_log=hook)
+    # how many steps fit in the budget depends on the machine's speed; an idle fast one reached step 81 and
+    # the divergence monitor stopped the training there (this test is about the clock, not the loss)
+    result, _ = train(model, data, TrainConfig(steps=10**6, seconds=budget, batch_rays=32, log_every=1,
+                                               divergence_factor=0), 1e-2, progress=False, on_log=hook)
     wall = time.perf_counter() - start
     assert len(calls) >= 2
     # training got its full budget, and every step but the last began inside it (the clock is read before
