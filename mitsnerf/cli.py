@@ -147,16 +147,16 @@ def _train_values(args) -> dict:
     return {k: v for k, v in values.items() if v is not None}
 
 
-def _train_config(values: dict):
-    """The TrainConfig of the command-line values; a bad one is blamed on its flag (``--batch-rays``)."""
+def _options_config(cls, values: dict, command: str = "train"):
+    """Config ``cls`` of the command-line values (``{field: value}``); a bad one is blamed on its flag
+    (``--batch-rays``, ``--lr``, ``--footprint``), not on the config."""
     from mitsnerf.config import from_dict
     from mitsnerf.errors import SpecError, UsageError
-    from mitsnerf.train import TrainConfig
 
     try:
-        return from_dict(TrainConfig, values)
+        return from_dict(cls, values)
     except SpecError as exc:
-        raise UsageError(f"--{exc.field.replace('_', '-')}" if exc.field else "train", exc.message) from None
+        raise UsageError(f"--{exc.field.replace('_', '-')}" if exc.field else command, exc.message) from None
 
 
 def _load(args, path):
@@ -169,7 +169,7 @@ def _load(args, path):
     from mitsnerf.errors import UsageError
     from mitsnerf.math.box import Box
 
-    _check_numbers([("--pixel-center", args.pixel_center, lambda v: True, "finite"),
+    _check_numbers([("--pixel-center", args.pixel_center, lambda v: 0 <= v < 1, "in [0, 1)"),
                     ("--background", args.background, lambda v: v >= 0, "finite and >= 0")])
     box = None
     if args.box:
@@ -212,9 +212,10 @@ def _fresh_settings(args) -> tuple[str, dict, object]:
         raise UsageError("--method", f"unknown method {method!r} (known: {', '.join(sorted(METHODS))})")
     overrides = apply_overrides({}, _overrides(args.set), "--set")
     if args.lr is not None:
+        _options_config(METHODS[method].config_type, {"lr": args.lr})
         overrides["lr"] = args.lr
     from_dict(METHODS[method].config_type, overrides, source="--set")
-    eval_config = from_dict(EvalConfig, {} if args.footprint is None else {"footprint": args.footprint})
+    eval_config = _options_config(EvalConfig, {} if args.footprint is None else {"footprint": args.footprint})
     return method, overrides, eval_config
 
 
@@ -245,9 +246,10 @@ def _check_outside_dataset(out: Path, dataset: Path) -> None:
 def cmd_train(args) -> int:
     from mitsnerf.run import fit, resume_run
     from mitsnerf.run_dir import claim_run_dir
+    from mitsnerf.train import TrainConfig
 
     train_values = _train_values(args)
-    train_config = _train_config(train_values)  # every setting checked before anything runs
+    train_config = _options_config(TrainConfig, train_values)  # every setting checked before anything runs
     if args.resume:
         _check_resume_flags(args)
     else:
@@ -275,12 +277,14 @@ def cmd_train(args) -> int:
 def cmd_score(args) -> int:
     from mitsnerf.bench.tables import QUALITY, markdown_table, scene_rows
     from mitsnerf.data.atomic import atomic_write_json
+    from mitsnerf.evaluate import EvalConfig
     from mitsnerf.external import renders_folder, score_renders
     from mitsnerf.outputs import check_output_file
 
     renders = renders_folder(Path(args.renders))
     out = Path(args.out) if args.out else renders / "scores.json"
     check_output_file(out, "--out")
+    _options_config(EvalConfig, {"footprint": args.footprint}, "score")
     dataset = _load(args, args.dataset)
     result = score_renders(dataset, renders, density=Path(args.density) if args.density else None, name=args.name,
                            fmt=args.format, footprint=args.footprint, exr_alpha=args.exr_alpha)
@@ -710,7 +714,7 @@ def main(argv: list[str] | None = None) -> int:
         import mitsnerf  # noqa: F401  (finds libLLVM before drjit loads)
         from mitsnerf import env
 
-        env.set_variant(args.variant)
+        env.set_variant(args.variant, "--variant")
         from mitsnerf.train.checkpointing import stop_signals
 
         with stop_signals():  # SIGTERM and SIGHUP stop a command as Ctrl-C does

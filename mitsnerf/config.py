@@ -603,12 +603,21 @@ def search_dirs(env_var: str, shipped: Path) -> list[Path]:
     ``$env_var`` (``os.pathsep``-separated), then the ``shipped`` one (package data).
 
     >>> import os
-    >>> os.environ["MITSNERF_DOCTEST_DIRS"] = os.pathsep.join(["mine", "ours"])
-    >>> [p.name for p in search_dirs("MITSNERF_DOCTEST_DIRS", Path("lib"))]
+    >>> import tempfile
+    >>> mine, ours = tempfile.mkdtemp(suffix="mine"), tempfile.mkdtemp(suffix="ours")
+    >>> os.environ["MITSNERF_DOCTEST_DIRS"] = os.pathsep.join([mine, ours])
+    >>> [p.name[-4:] for p in search_dirs("MITSNERF_DOCTEST_DIRS", Path("lib"))]
     ['mine', 'ours', 'lib']
     >>> del os.environ["MITSNERF_DOCTEST_DIRS"]
+
+    A directory listed there that does not exist is refused, naming the variable (a typo would otherwise
+    leave the user's specs silently unused).
     """
-    return [Path(p) for p in os.environ.get(env_var, "").split(os.pathsep) if p] + [Path(shipped)]
+    mine = [Path(p) for p in os.environ.get(env_var, "").split(os.pathsep) if p]
+    for d in mine:
+        if not d.is_dir():
+            raise SpecError(f"${env_var}", None, f"{d}: no such directory")
+    return mine + [Path(shipped)]
 
 
 def named_files(dirs: list[Path], suffix: str = ".toml") -> dict[str, Path]:

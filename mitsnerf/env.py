@@ -102,23 +102,47 @@ def usable_variants() -> tuple[str, ...]:
     return tuple(v for v in SUPPORTED_VARIANTS if _installed(v) and dr.has_backend(backend[v]))
 
 
-def set_variant(variant: str | None = None) -> str:
-    """Select the Mitsuba variant (``None``: :func:`default_variant`) and return its name."""
+def set_variant(variant: str | None = None, source: str = "variant") -> str:
+    """Select the Mitsuba variant (``None``: :func:`default_variant`) and return its name. A variant this
+    machine cannot run is refused naming where it came from (``source``, e.g. ``--variant``; one from
+    ``$MITSNERF_VARIANT`` names that), why, and the usable ones:
+
+    >>> set_variant("llvm_ad_rgb")
+    'llvm_ad_rgb'
+    >>> set_variant("scalar_rgb", "--variant")
+    Traceback (most recent call last):
+    ...
+    mitsnerf.env.EnvironmentError_: --variant: 'scalar_rgb' is not supported; choose one of llvm_ad_rgb, cuda_ad_rgb
+    """
     import mitsuba as mi
 
-    variant = variant or default_variant()
+    if not variant:
+        variant, source = default_variant(), VARIANT_ENV if os.environ.get(VARIANT_ENV) else source
     if variant not in SUPPORTED_VARIANTS:
-        raise EnvironmentError_(
-            f"variant {variant!r} is not supported; choose one of {', '.join(SUPPORTED_VARIANTS)}"
-        )
-    if variant not in mi.variants() or not _installed(variant):
-        raise EnvironmentError_(f"variant {variant!r} is not built into this Mitsuba")
+        raise EnvironmentError_(f"{source}: {variant!r} is not supported; choose one of {', '.join(SUPPORTED_VARIANTS)}")
+    why = _why_unusable(variant)
+    if why:
+        usable = ", ".join(usable_variants()) or "none"
+        raise EnvironmentError_(f"{source}: {variant!r} cannot run here: {why} (usable here: {usable})")
     if mi.variant() != variant:
         try:
             mi.set_variant(variant)
         except Exception as exc:  # Mitsuba raises ImportError/RuntimeError by backend
-            raise EnvironmentError_(f"cannot use variant {variant!r}: {exc}") from exc
+            raise EnvironmentError_(f"{source}: cannot use {variant!r}: {exc}") from exc
     return variant
+
+
+def _why_unusable(variant: str) -> str:
+    """Why this machine cannot run supported ``variant`` ("" when it can)."""
+    import drjit as dr
+
+    if not _installed(variant):
+        return "this Mitsuba has no module for it (a wheel trimmed to other variants)"
+    if variant.startswith("cuda") and not dr.has_backend(dr.JitBackend.CUDA):
+        return "no CUDA device or driver"
+    if variant.startswith("llvm") and not dr.has_backend(dr.JitBackend.LLVM):
+        return f"no usable libLLVM >= 16 ({_llvm.INSTALL_HINT})"
+    return ""
 
 
 @lru_cache(maxsize=1)

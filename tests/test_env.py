@@ -90,3 +90,19 @@ def test_provenance_records_versions_and_commit():
     for key in ("variant", "mitsuba", "drjit", "llvm", "commit"):
         assert info[key]
     assert info["mitsuba"].startswith("3.9") and info["drjit"].startswith("1.5")
+
+
+@pytest.mark.skipif("cuda_ad_rgb" in env.usable_variants(), reason="a CUDA device is usable here")
+@pytest.mark.parametrize("source", ["--variant", "MITSNERF_VARIANT"])
+def test_cuda_without_a_cuda_device_is_one_line_naming_its_source(source, monkeypatch, capsys):
+    from mitsnerf.cli import main
+
+    argv = ["env"]
+    if source == "--variant":
+        argv = ["--variant", "cuda_ad_rgb", "env"]
+    else:
+        monkeypatch.setenv("MITSNERF_VARIANT", "cuda_ad_rgb")
+    assert main(argv) == 2
+    err = capsys.readouterr().err
+    assert err.count("mitsnerf: error:") == 1 and "Traceback" not in err and "jit_init_thread_state" not in err
+    assert f"error: {source}: 'cuda_ad_rgb' cannot run here: no CUDA device" in err and "llvm_ad_rgb" in err

@@ -180,6 +180,9 @@ class Dataset:
                 path = _resolve_image(base, fp)
                 if path is None:
                     raise FileNotFoundError(f"image not found: {base / fp} (tried .exr, .png and the path as given)")
+                if self.manifest.get("format_version") is not None and path.suffix.lower() != ".exr":
+                    raise FileNotFoundError(f"{base / fp}.exr: missing (a mitsnerf dataset's images are its linear "
+                                            f"EXRs; {path.name} beside it is an 8-bit sRGB preview)")
                 loaded[fp] = (path, read_image(path))
             return loaded[fp]
 

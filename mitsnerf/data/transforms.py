@@ -83,10 +83,6 @@ def write_transforms(
     atomic_write_json(path, doc)
 
 
-def _reject_constant(name: str):
-    raise ValueError(f"non-finite number {name} is not allowed")
-
-
 def read_json(path: str | os.PathLike) -> Any:
     """Parse a JSON file; a missing, unreadable or malformed file (NaN included) raises DatasetError."""
     path = Path(path)
@@ -97,11 +93,31 @@ def read_json(path: str | os.PathLike) -> Any:
     except (OSError, UnicodeDecodeError) as exc:
         raise DatasetError(path, None, f"cannot read ({exc.__class__.__name__}: {exc})") from None
     try:
-        return json.loads(text, parse_constant=_reject_constant)
+        doc = json.loads(text)
     except json.JSONDecodeError as exc:
         raise DatasetError(path, None, f"invalid JSON: {exc.msg} at line {exc.lineno} column {exc.colno}") from None
-    except ValueError as exc:
-        raise DatasetError(path, None, f"invalid JSON: {exc}") from None
+    bad = non_finite_field(doc)
+    if bad is not None:
+        raise DatasetError(path, bad[0], f"non-finite number {json.dumps(bad[1])} is not allowed")
+    return doc
+
+
+def non_finite_field(doc: Any, where: str = "") -> tuple[str, float] | None:
+    """The dotted field (list items by index) of the first NaN or infinity in parsed JSON ``doc``, with it.
+
+    >>> non_finite_field({"frames": [{"m": [[1, 2]]}, {"m": [[0, float("nan")]]}]})
+    ('frames[1].m[0][1]', nan)
+    >>> non_finite_field({"camera_angle_x": 0.7}) is None
+    True
+    """
+    if isinstance(doc, float) and not math.isfinite(doc):
+        return where, doc
+    items = doc.items() if isinstance(doc, dict) else enumerate(doc) if isinstance(doc, list) else ()
+    for key, value in items:
+        found = non_finite_field(value, f"{where}[{key}]" if isinstance(key, int) else f"{where}.{key}".lstrip("."))
+        if found is not None:
+            return found
+    return None
 
 
 class _Frame:

@@ -105,6 +105,13 @@ def garbage_grid(ctx) -> None:
     (copy_dataset(ctx) / "volume" / "sigma_t.npy").write_bytes(os.urandom(256))
 
 
+def nan_transforms(ctx) -> None:
+    path = copy_dataset(ctx) / "transforms_train.json"
+    doc = json.loads(path.read_text())
+    doc["frames"][1]["transform_matrix"][0][3] = float("nan")
+    path.write_text(json.dumps(doc))  # json writes NaN, as a careless tool would
+
+
 def deleted_image(ctx) -> None:
     (copy_dataset(ctx) / "train" / "r_002.exr").unlink()
 
@@ -470,6 +477,29 @@ CASES = [
          (unchanged("rn"),)),
     Case("--out inside the dataset", 1, [*train_on("{ds}"), "--out", "{ds}/run"], 2, ("--out", "{ds}/run", "inside the dataset"),
          copy_dataset, (unchanged("ds"),)),
+    # the environment, the data and the options' names
+    Case("deleted EXR --no-verify", 3, [*train_on("{ds}"), "--out", "{tmp}/r", "--no-verify"], 2,
+         ("train/r_002.exr", "missing", "frames[2].file_path", "preview"), deleted_image, (absent("r"),)),
+    Case("NaN in a transforms JSON --no-verify", 6, [*train_on("{ds}"), "--out", "{tmp}/r", "--no-verify"], 2,
+         ("transforms_train.json", "frames[1].transform_matrix[0][3]", "NaN"), nan_transforms, (absent("r"),)),
+    Case("MITSNERF_SCENES a missing directory", 7, ["scenes"], 2, ("$MITSNERF_SCENES", "{tmp}/nodir", "no such directory"),
+         None, (), {"MITSNERF_SCENES": "{tmp}/nodir"}),
+    Case("MITSNERF_BENCHMARKS a missing directory", 7, ["bench", "default", "--results", "{tmp}/res", "--data", "{tmp}/d"],
+         2, ("$MITSNERF_BENCHMARKS", "{tmp}/nodir"), None, (absent("res"), absent("d")),
+         {"MITSNERF_BENCHMARKS": "{tmp}/nodir"}),
+    Case("--pixel-center 2", 7, [*TRAIN, "--out", "{tmp}/r", "--pixel-center", "2"], 2, ("--pixel-center", "[0, 1)"),
+         None, (absent("r"),)),
+    Case("--lr 0 names --lr", 6, [*TRAIN, "--out", "{tmp}/r", "--lr", "0"], 2, ("error: --lr: ", "got 0"), None,
+         (absent("r"),)),
+    Case("--footprint 0 names --footprint", 6, [*TRAIN, "--out", "{tmp}/r", "--footprint", "0"], 2,
+         ("error: --footprint: ", "[1, 16]"), None, (absent("r"),)),
+    Case("score --footprint 0 names --footprint", 6, ["score", "{world.dataset}", "{world.run}", "--footprint", "0",
+                                                      "--out", "{tmp}/s.json"], 2, ("error: --footprint: ",), None,
+         (absent("s.json"),)),
+    Case("--variant unsupported", 6, ["--variant", "scalar_spectral", "env"], 2,
+         ("--variant", "scalar_spectral", "llvm_ad_rgb, cuda_ad_rgb"), None, ()),
+    Case("MITSNERF_VARIANT unsupported", 6, ["env"], 2, ("MITSNERF_VARIANT", "scalar_rgb", "not supported"), None, (),
+         {"MITSNERF_VARIANT": "scalar_rgb"}),
 ]
 
 

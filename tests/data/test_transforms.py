@@ -141,7 +141,9 @@ def test_malformed_json(tmp_path):
     err = _error(tmp_path, '{"frames": [')
     assert err.field is None and "invalid JSON" in err.message and "line 1" in err.message
     err = _error(tmp_path, '{"camera_angle_x": NaN, "frames": []}')
-    assert "NaN" in err.message
+    assert err.field == "camera_angle_x" and "NaN" in err.message
+    err = _error(tmp_path, '{"frames": [{"file_path": "a", "transform_matrix": [[1, 0, 0, 0], [0, 1, 0, -Infinity]]}]}')
+    assert err.field == "frames[0].transform_matrix[1][3]" and "-Infinity" in err.message
     err = _error(tmp_path, "[1, 2]")
     assert "JSON object" in err.message
 
