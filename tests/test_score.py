@@ -215,5 +215,5 @@ def test_match_needs_a_folder(tmp_path):
 def test_a_bad_footprint_is_one_line_and_exit_2(dataset, tmp_path, capsys):
     renders = _copy(dataset / "test_ref", tmp_path / "renders")
     status, out, err = _score(capsys, dataset, renders, "--footprint", "0")
-    assert status == 2 and err == "mitsnerf: error: --footprint: must be >= 1, got 0\n", err
+    assert status == 2 and err == "mitsnerf: error: --footprint: must be an integer in [1, 16], got 0\n", err
     assert not (renders / "scores.json").exists()

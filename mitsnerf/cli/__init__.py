@@ -1,0 +1,103 @@
+"""``mitsnerf``: the command line. Argument parsing only; each command calls into the package.
+
+Errors the user can act on (bad spec, missing or corrupt data, an unusable output location, no LLVM,
+NaN loss) print one line ``mitsnerf: error: FILE: FIELD: what`` and exit with status 2 (``--debug``
+shows their traceback); anything else is a bug and keeps its traceback. SIGINT, SIGTERM and SIGHUP
+stop a command: training saves a checkpoint and says how to continue; the exit status is 128 + the
+signal's number (130, 143, 129).
+"""
+
+from __future__ import annotations
+
+import argparse
+import errno
+import sys
+
+from mitsnerf.cli import bench, check, env, export, generate, methods, render, scenes, score, train
+
+
+class _Parser(argparse.ArgumentParser):
+    """argparse, with a mistake on the command line reported as every user error is: one line
+    ``mitsnerf: error: ...`` (and where to find the usage), exit status 2."""
+
+    def error(self, message: str):
+        self.exit(2, f"mitsnerf: error: {self.prog}: {message} (see {self.prog} --help)\n")
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = _Parser(
+        prog="mitsnerf",
+        description="Mitsuba 3 ground truth for participating media, Dr.Jit NeRFs fitted to it, and the benchmarks between them.",
+    )
+    parser.add_argument("--debug", action="store_true",
+                        help="show the traceback of a user error too (bad input, data, output location)")
+    parser.add_argument("--variant", help="Mitsuba variant (default: $MITSNERF_VARIANT, else cuda_ad_rgb if a GPU is usable, else llvm_ad_rgb)")
+    sub = parser.add_subparsers(dest="command", required=True)
+    for command in COMMANDS:
+        command.add_parser(sub)
+    return parser
+
+
+COMMANDS = (env, scenes, methods, generate, train, score, render, export, bench, check)
+"""The command modules, each with ``add_parser(subparsers)`` and ``run(args)``; in the order ``mitsnerf --help`` lists them."""
+
+
+#: OSErrors of the machine rather than of the code (full disk, read-only or forbidden place), reported in
+#: one line naming the file; every other exception that is not a MitsnerfError is a bug and keeps its traceback.
+ENVIRONMENT_ERRNOS = frozenset({errno.ENOSPC, errno.EDQUOT, errno.EROFS, errno.EACCES, errno.EPERM})
+
+
+def user_error_line(exc: BaseException) -> str | None:
+    """The one line a user error prints (``FILE: FIELD: problem``), None for a bug.
+
+    User errors are matched by class: :class:`mitsnerf.errors.MitsnerfError` (bad input, data, output
+    location; command-line options as :class:`~mitsnerf.errors.UsageError`), the environment's
+    :class:`~mitsnerf._llvm.LLVMError` and :class:`~mitsnerf.env.EnvironmentError_`, and an OSError of
+    :data:`ENVIRONMENT_ERRNOS` with its file. A plain ValueError from the package's own code is a bug.
+    """
+    from mitsnerf._llvm import LLVMError
+    from mitsnerf.env import EnvironmentError_
+    from mitsnerf.errors import DiskFullError, MitsnerfError
+
+    if isinstance(exc, (MitsnerfError, LLVMError, EnvironmentError_)):
+        return str(exc)
+    if DiskFullError.of(exc) is not None:  # a full disk the atomic writers did not see (a lock file, a cache)
+        return str(DiskFullError.of(exc))
+    if isinstance(exc, OSError) and exc.errno in ENVIRONMENT_ERRNOS and exc.filename is not None:
+        return f"{exc.filename}: {exc.strerror}"
+    return None
+
+
+def _interrupted(exc: KeyboardInterrupt) -> int:
+    """Say what a signal stopped (and what it saved); the shell's exit status 128 + its number."""
+    from mitsnerf.errors import Interrupted
+
+    print("mitsnerf: interrupted" + (f"; {exc}" if str(exc) else ""), file=sys.stderr)
+    return exc.exit_status if isinstance(exc, Interrupted) else 130
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    try:
+        import mitsnerf  # noqa: F401  (finds libLLVM before drjit loads)
+        from mitsnerf import env
+
+        env.set_variant(args.variant, "--variant")
+        from mitsnerf.train.checkpointing import stop_signals
+
+        with stop_signals():  # SIGTERM and SIGHUP stop a command as Ctrl-C does
+            return int(args.func(args) or 0)
+    except KeyboardInterrupt as exc:
+        return _interrupted(exc)
+    except Exception as exc:  # one line for errors a user can act on; tracebacks for bugs
+        from mitsnerf.errors import signal_cause
+
+        stop = signal_cause(exc)
+        if stop is not None:  # a signal inside code that re-raised it as another error (an import)
+            return _interrupted(stop)
+        line = user_error_line(exc)
+        if line is None or args.debug:
+            raise
+        print(f"mitsnerf: error: {line}", file=sys.stderr)
+        return 2

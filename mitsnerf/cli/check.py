@@ -1,0 +1,56 @@
+"""``mitsnerf check``."""
+
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+
+
+def run(args) -> int:
+    from mitsnerf.outputs import check_output_dir
+    from mitsnerf.verify.cases import QUALITIES
+    from mitsnerf.verify.runner import count_line, format_mutations, format_table, run_checks, run_mutations
+
+    if args.out:
+        check_output_dir(Path(args.out), "--out")
+    alpha = QUALITIES[args.quality].alpha
+    if args.mutations:
+        progress = None if args.no_progress else (
+            lambda label, r: print(f"  {label}: {r.name}: {r.status} ({r.seconds:.1f} s)", file=sys.stderr, flush=True))
+        report = run_mutations(args.quality, only=args.case, progress=progress)
+        print(format_table(report.clean, alpha))
+        print()
+        print(format_mutations(report), flush=True)
+        failed = [r.name for r in report.clean if r.passed is False]
+        if failed:
+            print(f"mitsnerf check: {len(failed)} case(s) failed without a mutation: {', '.join(failed)}", file=sys.stderr)
+        if report.escaped:
+            print(f"mitsnerf check: {len(report.escaped)} mutation(s) caught by no case: {', '.join(report.escaped)}",
+                  file=sys.stderr)
+        sys.stderr.flush()
+        print(count_line(report.clean))  # last, alone on its line
+        return 0 if report.passed else 1
+    progress = None if args.no_progress else (
+        lambda r: print(f"  {r.name}: {r.status} ({r.seconds:.1f} s)", file=sys.stderr, flush=True))
+    results = run_checks(args.quality, out=args.out, only=args.case, progress=progress)
+    print(format_table(results, alpha), flush=True)
+    failed = [r.name for r in results if r.passed is False]
+    if failed:
+        print(f"mitsnerf check: {len(failed)} case(s) failed: {', '.join(failed)}", file=sys.stderr, flush=True)
+    print(count_line(results))  # last, alone on its line
+    return 1 if failed else 0
+
+
+def add_parser(sub) -> None:
+    p = sub.add_parser("check", help="verify the integrator against Mitsuba's volpath, closed forms and finite differences",
+                       description="Run the verification cases (mitsnerf.verify) and print a table; "
+                                   "exit status 1 if any case fails.")
+    p.add_argument("--quality", choices=("quick", "thorough"), default="quick",
+                   help="quick: 12x12 images, 256-16384 spp (about a minute); thorough: 24x24, 1024-65536 spp (minutes)")
+    p.add_argument("--out", help="directory for the images of failing cases (default: a new temporary directory)")
+    p.add_argument("--case", action="append", metavar="NAME", help="run only this case (repeatable)")
+    p.add_argument("--mutations", action="store_true",
+                   help="also run every case under each built-in mutation (bugs planted in the package's functions) "
+                        "and print which cases catch each; exit status 1 if one is caught by none")
+    p.add_argument("--no-progress", action="store_true", help="no per-case progress lines on stderr")
+    p.set_defaults(func=run)

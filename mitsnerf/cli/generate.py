@@ -1,0 +1,55 @@
+"""``mitsnerf generate``."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from mitsnerf.cli.common import NO_PROGRESS_HELP, SCENES_HELP, parse_overrides, with_user_dirs
+
+
+def _scene_overrides(args) -> dict:
+    """``--nerf-synthetic`` (the box at [-1.5, 1.5]^3, cameras at radius 4), then the ``--set`` pairs over it."""
+    from mitsnerf.scene.spec import nerf_synthetic_overrides
+
+    return {**(nerf_synthetic_overrides() if args.nerf_synthetic else {}), **parse_overrides(args.set)}
+
+
+@with_user_dirs
+def run(args) -> int:
+    from mitsnerf.errors import UsageError
+    from mitsnerf.generate import generate_all, generate_dataset
+    from mitsnerf.outputs import check_output_dir
+    from mitsnerf.scene.spec import load_scene
+
+    if not args.all and not args.scene:
+        raise UsageError("generate", "name a SCENE or pass --all")
+    check_output_dir(Path(args.out), "--out")
+    overrides = _scene_overrides(args)
+    if args.all:
+        for path in generate_all(Path(args.out), overrides=overrides, force=args.force,
+                                 verify_hashes=not args.no_verify, progress=not args.no_progress):
+            print(path)
+        return 0
+    spec = load_scene(args.scene)
+    if overrides:
+        spec = spec.with_overrides(overrides)
+    print(generate_dataset(spec, Path(args.out), force=args.force, verify_hashes=not args.no_verify,
+                           progress=not args.no_progress))
+    return 0
+
+
+def add_parser(sub) -> None:
+    p = sub.add_parser("generate", help="render a scene's ground-truth dataset with Mitsuba's volpath")
+    p.add_argument("scene", nargs="?", help="a scene name (mitsnerf scenes lists them) or the path of a spec")
+    p.add_argument("--scenes", action="append", metavar="DIR", help=SCENES_HELP)
+    p.add_argument("--out", default="data", help="dataset root; the dataset goes to OUT/NAME-HASH (default: data)")
+    p.add_argument("--all", action="store_true", help="render every scene of the library and of --scenes")
+    p.add_argument("--force", action="store_true", help="render again even if cached")
+    p.add_argument("--no-verify", action="store_true",
+                   help="on a cache hit, skip checking the files against the manifest's sha256 hashes")
+    p.add_argument("--set", action="append", metavar="KEY=VALUE", help="override a spec field, e.g. cameras.width=32")
+    p.add_argument("--nerf-synthetic", action="store_true",
+                   help="write the scene at the NeRF-synthetic scale: box [-1.5, 1.5]^3 (world.scale=3, sigma_t / 3), "
+                        "cameras at radius 4, where those readers' near/far 2..6 work; --set wins over it")
+    p.add_argument("--no-progress", action="store_true", help=NO_PROGRESS_HELP)
+    p.set_defaults(func=run)

@@ -1,0 +1,64 @@
+"""``mitsnerf score``."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from mitsnerf.cli.common import open_dataset, options_config
+
+
+def run(args) -> int:
+    from mitsnerf.bench.tables import QUALITY, markdown_table, scene_rows
+    from mitsnerf.data.atomic import atomic_write_json
+    from mitsnerf.evaluate import EvalConfig
+    from mitsnerf.external import renders_folder, score_renders
+    from mitsnerf.outputs import check_output_file
+
+    renders = renders_folder(Path(args.renders))
+    out = Path(args.out) if args.out else renders / "scores.json"
+    check_output_file(out, "--out")
+    options_config(EvalConfig, {"footprint": args.footprint}, "score")
+    dataset = open_dataset(args, args.dataset)
+    result = score_renders(dataset, renders, density=Path(args.density) if args.density else None, name=args.name,
+                           fmt=args.format, footprint=args.footprint, exr_alpha=args.exr_alpha)
+    record = result.record(dataset, renders)
+    scene = (dataset.manifest or {}).get("name") or Path(dataset.root).resolve().name
+    row = scene_rows([{"scene": scene, "method": f"{result.name} (external)", "seed": 0, "metrics": result.metrics}])
+    atomic_write_json(out, record)
+    print(markdown_table(row, QUALITY))
+    print(f"\n{len(result.files)} renders matched by {result.matched_by}; {result.oracle}; "
+          f"density: {result.density or 'none given'} -> {out}")
+    if result.metrics.get("noise_floor_of"):
+        print(f"ref agreement: {result.metrics['noise_floor_of']}")
+    return 0
+
+
+def add_parser(sub) -> None:
+    p = sub.add_parser("score", help="score any tool's renders of a dataset's test views, as a benchmark cell",
+                       description="Score RENDERS (a folder of PNG or EXR images) against DATASET's test views: "
+                                   "PSNR/SSIM linear and sRGB, medium PSNR, the noise floor, the oracle (when the "
+                                   "dataset has one cached, DATASET/oracle/), and with --density the density errors. "
+                                   "Images are matched to the test frames by file name (r_000.png ...) or, when no "
+                                   "name is a frame's, by the frame number in each name; PNG alpha is composited "
+                                   "over the dataset's background as straight alpha, EXR alpha as its header's "
+                                   "mitsnerf:alpha says (--exr-alpha to say otherwise). A run directory stands for "
+                                   "its test/ renders.")
+    p.add_argument("dataset", help="dataset directory (mitsnerf generate output, NeRF-synthetic or instant-ngp)")
+    p.add_argument("renders", help="folder of the renders of the test views, or a run directory (its test/)")
+    p.add_argument("--density", metavar="GRID", help="sigma_t on a grid over the dataset's box: .npy [z, y, x] or Mitsuba .vol")
+    p.add_argument("--name", help="the row's name (default: the renders folder's name)")
+    p.add_argument("--format", choices=("png", "exr"), help="read only these images (needed when both are there)")
+    p.add_argument("--exr-alpha", choices=("premultiplied", "straight", "ignore"),
+                   help="how an RGBA EXR's alpha composites over the dataset's background (default: as the file's "
+                        "mitsnerf:alpha header says; premultiplied, OpenEXR's rule; ignore: the RGB as it is)")
+    p.add_argument("--out", help="JSON record to write (default: RENDERS/scores.json)")
+    p.add_argument("--footprint", type=int, default=1, metavar="K",
+                   help="the tool's rays per pixel side (default 1: one through each pixel centre): which of the "
+                        "cached oracle's renders the renders are held against")
+    p.add_argument("--box", type=float, nargs=6, metavar=("X0", "Y0", "Z0", "X1", "Y1", "Z1"),
+                   help="the scene box (default: from the data, as mitsnerf train)")
+    p.add_argument("--pixel-center", type=float, help="0.5 (Mitsuba, mitsnerf) or 0 (original NeRF loader); default from the data")
+    p.add_argument("--background", type=float, nargs=3, metavar=("R", "G", "B"), help="background for foreign PNG data (default white)")
+    p.add_argument("--no-verify", action="store_true",
+                   help="skip checking the dataset's files against the sha256 hashes in its manifest")
+    p.set_defaults(func=run)

@@ -1,0 +1,132 @@
+"""``mitsnerf train``."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from mitsnerf.cli.common import NO_PROGRESS_HELP, open_dataset, options_config, parse_overrides
+
+
+DEFAULT_METHOD = "ngp"
+"""What ``mitsnerf train DIR`` fits with no ``--method``: a few minutes on a 2-core CPU."""
+
+
+def _train_values(args) -> dict:
+    values = {"steps": args.steps, "seconds": args.seconds, "batch_rays": args.batch_rays, "seed": args.seed,
+              "checkpoint_every": args.checkpoint_every}
+    if args.no_pixel_jitter:
+        values["pixel_jitter"] = False
+    return {k: v for k, v in values.items() if v is not None}
+
+
+def _fresh_settings(args) -> tuple[str, dict, object]:
+    """``(method, method overrides, EvalConfig)`` of a new run, checked before anything runs."""
+    from mitsnerf.config import apply_overrides, from_dict
+    from mitsnerf.errors import UsageError
+    from mitsnerf.evaluate import EvalConfig
+    from mitsnerf.methods import METHODS
+
+    if not args.dataset:
+        raise UsageError("train", "name a DATASET directory (or pass --resume to continue the run in --out)")
+    method = DEFAULT_METHOD if args.method is None else args.method
+    if method not in METHODS:
+        raise UsageError("--method", f"unknown method {method!r} (known: {', '.join(sorted(METHODS))})")
+    overrides = apply_overrides({}, parse_overrides(args.set), "--set")
+    if args.lr is not None:
+        options_config(METHODS[method].config_type, {"lr": args.lr})
+        overrides["lr"] = args.lr
+    from_dict(METHODS[method].config_type, overrides, source="--set")
+    eval_config = options_config(EvalConfig, {} if args.footprint is None else {"footprint": args.footprint})
+    return method, overrides, eval_config
+
+
+def _check_resume_flags(args) -> None:
+    from mitsnerf.errors import UsageError
+
+    fixed = [flag for flag, value in (("--method", args.method), ("--set", args.set), ("--batch-rays", args.batch_rays),
+                                       ("--lr", args.lr), ("--seed", args.seed), ("--box", args.box),
+                                       ("--footprint", args.footprint), ("--no-pixel-jitter", args.no_pixel_jitter),
+                                       ("--deterministic", args.deterministic)) if value not in (None, False)]
+    if args.force:
+        raise UsageError("--force", "starts the run over; --resume continues it: pass one of them")
+    if fixed:
+        raise UsageError("train --resume", f"{', '.join(fixed)} come from the checkpoint; "
+                                           "only --steps, --seconds and --checkpoint-every may change")
+
+
+def _check_outside_dataset(out: Path, dataset: Path) -> None:
+    """Refuse a run directory inside (or at) the dataset directory: its files would change a hashed dataset."""
+    from mitsnerf.errors import UsageError
+
+    ds = dataset.resolve()
+    if out.resolve().is_relative_to(ds):
+        raise UsageError("--out", f"{out} is inside the dataset {dataset}: a run there would change the dataset's "
+                                  "files; put the run outside it, e.g. --out runs/NAME")
+
+
+def run(args) -> int:
+    from mitsnerf.run import fit, resume_run
+    from mitsnerf.run_dir import claim_run_dir
+    from mitsnerf.train import TrainConfig
+
+    train_values = _train_values(args)
+    train_config = options_config(TrainConfig, train_values)  # every setting checked before anything runs
+    if args.resume:
+        _check_resume_flags(args)
+    else:
+        method, overrides, eval_config = _fresh_settings(args)
+    out = Path(args.out)
+    if args.dataset:
+        _check_outside_dataset(out, Path(args.dataset))
+    with claim_run_dir(out, resume=args.resume, force=args.force):
+        if args.resume:
+            run = resume_run(out, train_values, dataset=open_dataset(args, args.dataset) if args.dataset else None,
+                             verify_hashes=not args.no_verify, progress=not args.no_progress)
+        else:
+            dataset = open_dataset(args, args.dataset)
+            run = fit(dataset, method, overrides, train_config, out, eval_config=eval_config,
+                      deterministic=args.deterministic, progress=not args.no_progress)
+    m = run.metrics()
+    medium = "" if m.get("psnr_test_medium") is None else f" ({m['psnr_test_medium']:.2f} dB on medium pixels)"
+    rate = "no steps run" if m["rays_per_s"] is None else f"{m['rays_per_s']:.0f} rays/s"
+    print(f"{run.method}: test PSNR {m['psnr_test']:.2f} dB{medium}, footprint {m['footprint']}x{m['footprint']}, "
+          f"train PSNR {m['psnr_train']:.2f} dB, {m['steps']} steps in {m['train_seconds']:.1f} s, "
+          f"{rate} -> {args.out}")
+    return 0
+
+
+def add_parser(sub) -> None:
+    p = sub.add_parser("train", help="fit a method to a dataset and evaluate it on the test views")
+    p.add_argument("dataset", nargs="?", help="dataset directory (mitsnerf generate output or NeRF-synthetic); "
+                                              "with --resume, default: the one the checkpoint names")
+    p.add_argument("--out", required=True, help="run directory to write (checkpoints go there while training)")
+    p.add_argument("--method", help=f"default: {DEFAULT_METHOD}")
+    p.add_argument("--resume", action="store_true",
+                   help="continue the run in --out from its checkpoint.npz, bit-for-bit (settings come from it)")
+    p.add_argument("--force", action="store_true",
+                   help="replace the run already in --out (finished or interrupted); without it such a run is refused")
+    p.add_argument("--no-verify", action="store_true",
+                   help="skip checking the dataset's files against the sha256 hashes in its manifest "
+                        "(grids and images are still checked)")
+    p.add_argument("--deterministic", action="store_true",
+                   help="train on one thread: every method bit-identical run to run (multi-threaded, the grid "
+                        "methods' scatter-add gradients round in thread order; slower)")
+    p.add_argument("--checkpoint-every", type=int, metavar="N",
+                   help="write a checkpoint every N steps (default 0: only at the end and on Ctrl-C)")
+    p.add_argument("--steps", type=int, help="the budget: optimiser steps (default 3000); schedules follow the step")
+    p.add_argument("--seconds", type=float, help="also stop after this many seconds of training (not reproducible)")
+    p.add_argument("--batch-rays", type=int)
+    p.add_argument("--lr", type=float, help="the method's learning rate (its config's lr)")
+    p.add_argument("--box", type=float, nargs=6, metavar=("X0", "Y0", "Z0", "X1", "Y1", "Z1"),
+                   help="the scene box (default: from the data: an aabb key, mitsnerf's manifest, instant-ngp's "
+                        "aabb_scale, else [-1.5, 1.5]^3)")
+    p.add_argument("--footprint", type=int, metavar="K",
+                   help="evaluate each test pixel as the mean of K x K rays over its area (default 3; 1: the centre)")
+    p.add_argument("--no-pixel-jitter", action="store_true",
+                   help="train on rays through pixel centres instead of random points of each pixel")
+    p.add_argument("--seed", type=int)
+    p.add_argument("--set", action="append", metavar="KEY=VALUE", help="method config override, e.g. network.width=128")
+    p.add_argument("--pixel-center", type=float, help="0.5 (Mitsuba, mitsnerf) or 0 (original NeRF loader); default from the data")
+    p.add_argument("--background", type=float, nargs=3, metavar=("R", "G", "B"), help="background for foreign PNG data (default white)")
+    p.add_argument("--no-progress", action="store_true", help=NO_PROGRESS_HELP)
+    p.set_defaults(func=run)
