@@ -57,7 +57,9 @@ def add_parser(sub) -> None:
     p.add_argument("--results", default="results", help="results root (default: results)")
     p.add_argument("--no-progress", action="store_true",
                    help="no progress lines or bars on stderr (bars are off anyway when stderr is not a terminal)")
-    p.add_argument("--executor", choices=("sequential", "pool", "ray"), default="sequential",
+    from mitsnerf.bench.executors import EXECUTORS
+
+    p.add_argument("--executor", choices=EXECUTORS, default="sequential",
                    help="where cells run: this process one after another (default; the only one whose timings "
                         "are comparable), a local process pool, or Ray (pip install 'mitsnerf[ray]')")
     p.add_argument("--address", help="Ray cluster address (--executor ray; default: start a local instance)")

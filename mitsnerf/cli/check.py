@@ -45,8 +45,12 @@ def add_parser(sub) -> None:
     p = sub.add_parser("check", help="verify the integrator against Mitsuba's volpath, closed forms and finite differences",
                        description="Run the verification cases (mitsnerf.verify) and print a table; "
                                    "exit status 1 if any case fails.")
-    p.add_argument("--quality", choices=("quick", "thorough"), default="quick",
-                   help="quick: 12x12 images, 256-16384 spp (about a minute); thorough: 24x24, 1024-65536 spp (minutes)")
+    from mitsnerf.verify.cases import QUALITIES
+
+    sizes = "; ".join(f"{q.name}: {q.width}x{q.width} images, Mitsuba references at {q.spp} spp times each case's "
+                      f"factor, N = {q.n_samples} samples per ray" for q in QUALITIES.values())
+    p.add_argument("--quality", choices=tuple(QUALITIES), default="quick",
+                   help=f"{sizes} (default quick: about a minute)")
     p.add_argument("--out", help="directory for the images of failing cases (default: a new temporary directory)")
     p.add_argument("--case", action="append", metavar="NAME", help="run only this case (repeatable)")
     p.add_argument("--mutations", action="store_true",

@@ -62,7 +62,8 @@ def options_config(cls, values: dict, command: str = "train"):
     try:
         return from_dict(cls, values)
     except SpecError as exc:
-        raise UsageError(f"--{exc.field.replace('_', '-')}" if exc.field else command, exc.message) from None
+        field = (exc.field or "").split(".")[0]
+        raise UsageError(flag_of(cls, field) if field in values else command, exc.message) from None
 
 
 def open_dataset(args, path):
@@ -124,3 +125,72 @@ NO_PROGRESS_HELP = "no progress bars (they are off anyway when stderr is not a t
 
 SCENES_HELP = ("a directory of your own scene specs (NAME.toml), searched before the library "
                "(repeatable; also $MITSNERF_SCENES)")
+
+
+# --------------------------------------------------------------------------- options built from the configs
+
+
+def flag_of(cls, field: str) -> str:
+    """The option that sets field ``field`` of config ``cls``: ``--batch-rays``; a boolean whose default is
+    true is turned off by ``--no-FIELD``.
+
+    >>> from mitsnerf.train.config import TrainConfig
+    >>> flag_of(TrainConfig, "batch_rays"), flag_of(TrainConfig, "pixel_jitter")
+    ('--batch-rays', '--no-pixel-jitter')
+    """
+    from mitsnerf.config import option_spec
+
+    dashed = field.replace("_", "-")
+    return f"--no-{dashed}" if option_spec(cls, field).default is True else f"--{dashed}"
+
+
+def add_config_options(parser, cls, names: tuple[str, ...], **defaults_shown) -> None:
+    """One option per field of config ``cls`` in ``names``, its type, choices and help taken from the field's
+    declaration (:func:`mitsnerf.config.option_spec`: doc, range, default), so that ``--help`` cannot drift
+    from the code. An option not given is None: the config's default applies (``defaults_shown`` names
+    another default for the help, where the command has its own).
+
+    >>> import argparse
+    >>> from mitsnerf.train.config import TrainConfig
+    >>> p = argparse.ArgumentParser()
+    >>> add_config_options(p, TrainConfig, ("steps", "pixel_jitter"))
+    >>> vars(p.parse_args(["--steps", "5", "--no-pixel-jitter"]))
+    {'steps': 5, 'pixel_jitter': False}
+    >>> vars(p.parse_args([]))
+    {'steps': None, 'pixel_jitter': None}
+    """
+    from mitsnerf.config import option_spec
+
+    for name in names:
+        o = option_spec(cls, name)
+        doc = " ".join(o.doc.replace("``", "").split()).rstrip(".")
+        if o.kind is bool:
+            what = f"turn {'off' if o.default else 'on'} {name}"
+            parser.add_argument(flag_of(cls, name), dest=name, action="store_const", const=not o.default,
+                                default=None, help=f"{what}: {doc} (default: {'on' if o.default else 'off'})")
+            continue
+        default = defaults_shown.get(name, o.default)
+        parser.add_argument(flag_of(cls, name), dest=name, type=o.kind, choices=o.choices, default=None,
+                            metavar=None if o.choices else name.upper(),
+                            help=f"{doc} ({o.what}; default {default:g})" if isinstance(default, float)
+                            else f"{doc} ({o.what}; default {default})")
+
+
+def given(args, names: tuple[str, ...]) -> dict:
+    """The options of ``names`` the user gave (not None), as config data."""
+    return {n: getattr(args, n) for n in names if getattr(args, n, None) is not None}
+
+
+def add_dataset_options(parser) -> None:
+    """The options of every command that reads a dataset (train, score): its box, pixel centre, the background
+    of foreign PNGs, and ``--no-verify``; :func:`open_dataset` reads them."""
+    parser.add_argument("--box", type=float, nargs=6, metavar=("X0", "Y0", "Z0", "X1", "Y1", "Z1"),
+                        help="the scene box (default: from the data: an aabb key, mitsnerf's manifest, instant-ngp's "
+                             "aabb_scale, else [-1.5, 1.5]^3)")
+    parser.add_argument("--pixel-center", type=float,
+                        help="0.5 (Mitsuba, mitsnerf) or 0 (original NeRF loader), in [0, 1); default from the data")
+    parser.add_argument("--background", type=float, nargs=3, metavar=("R", "G", "B"),
+                        help="background for foreign PNG data (default white)")
+    parser.add_argument("--no-verify", action="store_true",
+                        help="skip checking the dataset's files against the sha256 hashes in its manifest "
+                             "(grids and images are still checked)")

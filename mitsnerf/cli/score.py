@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from mitsnerf.cli.common import open_dataset, options_config
+from mitsnerf.cli.common import add_dataset_options, open_dataset, options_config
 
 
 def run(args) -> int:
@@ -55,10 +55,5 @@ def add_parser(sub) -> None:
     p.add_argument("--footprint", type=int, default=1, metavar="K",
                    help="the tool's rays per pixel side (default 1: one through each pixel centre): which of the "
                         "cached oracle's renders the renders are held against")
-    p.add_argument("--box", type=float, nargs=6, metavar=("X0", "Y0", "Z0", "X1", "Y1", "Z1"),
-                   help="the scene box (default: from the data, as mitsnerf train)")
-    p.add_argument("--pixel-center", type=float, help="0.5 (Mitsuba, mitsnerf) or 0 (original NeRF loader); default from the data")
-    p.add_argument("--background", type=float, nargs=3, metavar=("R", "G", "B"), help="background for foreign PNG data (default white)")
-    p.add_argument("--no-verify", action="store_true",
-                   help="skip checking the dataset's files against the sha256 hashes in its manifest")
+    add_dataset_options(p)
     p.set_defaults(func=run)

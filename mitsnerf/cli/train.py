@@ -4,19 +4,16 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from mitsnerf.cli.common import NO_PROGRESS_HELP, open_dataset, options_config, parse_overrides
+from mitsnerf.cli.common import add_config_options, add_dataset_options, given, NO_PROGRESS_HELP, open_dataset, options_config, parse_overrides
 
 
 DEFAULT_METHOD = "ngp"
 """What ``mitsnerf train DIR`` fits with no ``--method``: a few minutes on a 2-core CPU."""
 
 
-def _train_values(args) -> dict:
-    values = {"steps": args.steps, "seconds": args.seconds, "batch_rays": args.batch_rays, "seed": args.seed,
-              "checkpoint_every": args.checkpoint_every}
-    if args.no_pixel_jitter:
-        values["pixel_jitter"] = False
-    return {k: v for k, v in values.items() if v is not None}
+TRAIN_OPTIONS = ("steps", "seconds", "batch_rays", "seed", "checkpoint_every", "pixel_jitter")
+"""The TrainConfig fields ``train`` takes as options (``--batch-rays``, ``--no-pixel-jitter``), built from their
+declarations."""
 
 
 def _fresh_settings(args) -> tuple[str, dict, object]:
@@ -45,7 +42,7 @@ def _check_resume_flags(args) -> None:
 
     fixed = [flag for flag, value in (("--method", args.method), ("--set", args.set), ("--batch-rays", args.batch_rays),
                                        ("--lr", args.lr), ("--seed", args.seed), ("--box", args.box),
-                                       ("--footprint", args.footprint), ("--no-pixel-jitter", args.no_pixel_jitter),
+                                       ("--footprint", args.footprint), ("--no-pixel-jitter", args.pixel_jitter is not None),
                                        ("--deterministic", args.deterministic)) if value not in (None, False)]
     if args.force:
         raise UsageError("--force", "starts the run over; --resume continues it: pass one of them")
@@ -69,7 +66,7 @@ def run(args) -> int:
     from mitsnerf.run_dir import claim_run_dir
     from mitsnerf.train import TrainConfig
 
-    train_values = _train_values(args)
+    train_values = given(args, TRAIN_OPTIONS)
     train_config = options_config(TrainConfig, train_values)  # every setting checked before anything runs
     if args.resume:
         _check_resume_flags(args)
@@ -95,38 +92,44 @@ def run(args) -> int:
     return 0
 
 
+def _method_help() -> str:
+    """What ``--method`` takes, from the method registry (so a method added there is listed)."""
+    from mitsnerf.methods import METHODS
+
+    listed = "; ".join(f"{name}: {entry.description}" for name, entry in METHODS.items())
+    return f"the method to fit (default {DEFAULT_METHOD}): {listed}. `mitsnerf methods NAME` lists its --set keys"
+
+
+def _lr_help() -> str:
+    """``--lr``'s help: each registered method's own default learning rate, from its config."""
+    from mitsnerf.config import option_spec
+    from mitsnerf.methods import METHODS
+
+    defaults = ", ".join(f"{n} {option_spec(e.config_type, 'lr').default:g}" for n, e in METHODS.items())
+    return f"the method's learning rate, its config's lr (default: {defaults})"
+
+
 def add_parser(sub) -> None:
+    from mitsnerf.evaluate import EvalConfig
+    from mitsnerf.train import TrainConfig
+
     p = sub.add_parser("train", help="fit a method to a dataset and evaluate it on the test views")
     p.add_argument("dataset", nargs="?", help="dataset directory (mitsnerf generate output or NeRF-synthetic); "
                                               "with --resume, default: the one the checkpoint names")
     p.add_argument("--out", required=True, help="run directory to write (checkpoints go there while training)")
-    p.add_argument("--method", help=f"default: {DEFAULT_METHOD}")
+    p.add_argument("--method", metavar="NAME", help=_method_help())
     p.add_argument("--resume", action="store_true",
                    help="continue the run in --out from its checkpoint.npz, bit-for-bit (settings come from it)")
     p.add_argument("--force", action="store_true",
                    help="replace the run already in --out (finished or interrupted); without it such a run is refused")
-    p.add_argument("--no-verify", action="store_true",
-                   help="skip checking the dataset's files against the sha256 hashes in its manifest "
-                        "(grids and images are still checked)")
     p.add_argument("--deterministic", action="store_true",
                    help="train on one thread: every method bit-identical run to run (multi-threaded, the grid "
                         "methods' scatter-add gradients round in thread order; slower)")
-    p.add_argument("--checkpoint-every", type=int, metavar="N",
-                   help="write a checkpoint every N steps (default 0: only at the end and on Ctrl-C)")
-    p.add_argument("--steps", type=int, help="the budget: optimiser steps (default 3000); schedules follow the step")
-    p.add_argument("--seconds", type=float, help="also stop after this many seconds of training (not reproducible)")
-    p.add_argument("--batch-rays", type=int)
-    p.add_argument("--lr", type=float, help="the method's learning rate (its config's lr)")
-    p.add_argument("--box", type=float, nargs=6, metavar=("X0", "Y0", "Z0", "X1", "Y1", "Z1"),
-                   help="the scene box (default: from the data: an aabb key, mitsnerf's manifest, instant-ngp's "
-                        "aabb_scale, else [-1.5, 1.5]^3)")
-    p.add_argument("--footprint", type=int, metavar="K",
-                   help="evaluate each test pixel as the mean of K x K rays over its area (default 3; 1: the centre)")
-    p.add_argument("--no-pixel-jitter", action="store_true",
-                   help="train on rays through pixel centres instead of random points of each pixel")
-    p.add_argument("--seed", type=int)
+    training = p.add_argument_group("training (every method; the budget is steps, schedules follow the step)")
+    add_config_options(training, TrainConfig, TRAIN_OPTIONS)
+    training.add_argument("--lr", type=float, help=_lr_help())
+    add_config_options(p.add_argument_group("evaluation"), EvalConfig, ("footprint",))
     p.add_argument("--set", action="append", metavar="KEY=VALUE", help="method config override, e.g. network.width=128")
-    p.add_argument("--pixel-center", type=float, help="0.5 (Mitsuba, mitsnerf) or 0 (original NeRF loader); default from the data")
-    p.add_argument("--background", type=float, nargs=3, metavar=("R", "G", "B"), help="background for foreign PNG data (default white)")
+    add_dataset_options(p)
     p.add_argument("--no-progress", action="store_true", help=NO_PROGRESS_HELP)
     p.set_defaults(func=run)

@@ -30,6 +30,7 @@ class TrainConfig:
     lr_final_factor: float = param(0.1, lo=0.0, hi=1.0, lo_open=True)
     """Exponential decay of the learning rate to ``lr * lr_final_factor`` at the last step."""
     seed: int = param(0, lo=0, hi=2**32 - 1)
+    """Seed of the initialisation and of every step's random numbers (rays, jitter)."""
     log_every: int = param(25, lo=1)
     """Steps between progress-bar updates and history entries."""
     checkpoint_every: int = param(0, lo=0)

@@ -1,0 +1,51 @@
+"""The command line is built from the registries and the configs' declarations, so --help cannot drift."""
+
+from __future__ import annotations
+
+import pytest
+
+from mitsnerf.cli import main
+from mitsnerf.config import option_spec
+from mitsnerf.evaluate import EvalConfig
+from mitsnerf.methods import METHODS
+from mitsnerf.train import TrainConfig
+
+
+@pytest.fixture(autouse=True)
+def _wide(monkeypatch):
+    monkeypatch.setenv("COLUMNS", "10000")  # argparse wraps at $COLUMNS; a hyphenated name must stay whole
+
+
+def _help(capsys, *argv: str) -> str:
+    with pytest.raises(SystemExit):
+        main([*argv, "--help"])
+    return " ".join(capsys.readouterr().out.split())
+
+
+def test_train_help_lists_every_registered_method_and_its_learning_rate(capsys):
+    text = _help(capsys, "train")
+    for name, entry in METHODS.items():
+        assert f"{name}: {entry.description}" in text
+        assert f"{name} {option_spec(entry.config_type, 'lr').default:g}" in text
+
+
+@pytest.mark.parametrize(("cls", "field", "flag"), [(TrainConfig, "batch_rays", "--batch-rays"),
+                                                    (TrainConfig, "steps", "--steps"),
+                                                    (TrainConfig, "pixel_jitter", "--no-pixel-jitter"),
+                                                    (EvalConfig, "footprint", "--footprint")])
+def test_train_options_say_what_their_config_field_declares(capsys, cls, field, flag):
+    text = _help(capsys, "train")
+    spec = option_spec(cls, field)
+    assert flag in text
+    if spec.kind is not bool:
+        assert f"{spec.what}; default {spec.default}" in text
+
+
+def test_a_bad_option_value_is_blamed_on_the_option(world, tmp_path, capsys):
+    assert main(["train", str(world.dataset), "--out", str(tmp_path / "r"), "--batch-rays", "0"]) == 2
+    assert "mitsnerf: error: --batch-rays: must be an integer in [1, 4194304], got 0" in capsys.readouterr().err
+
+
+def test_resume_refuses_a_setting_the_checkpoint_fixes(world, tmp_path, capsys):
+    assert main(["train", "--resume", "--out", str(world.run), "--no-pixel-jitter"]) == 2
+    assert "--no-pixel-jitter come from the checkpoint" in capsys.readouterr().err
