@@ -1,7 +1,7 @@
 #!/usr/bin/env python3
 """How far two trainings of the same config differ: every method twice multi-threaded, twice on one thread.
 
-The same dataset, config and seed, trained with :func:`mitsnerf.run.fit` (no run directory). For
+The same dataset, config and seed, trained with :func:`mitsnerf.runs.fit.fit` (no run directory). For
 each pair: the largest difference of any parameter value, and of the test PSNR (whole image and
 medium pixels). Multi-threaded, the grid methods' scatter-add gradients are summed in the order
 the threads run, so their runs drift apart; ``deterministic`` (one Dr.Jit thread, ``--deterministic``)
@@ -35,7 +35,7 @@ def _params(run) -> dict[str, np.ndarray]:
 
 
 def _pair(dataset, method: str, steps: int, batch: int, deterministic: bool) -> dict:
-    from mitsnerf.run import fit
+    from mitsnerf.runs.fit import fit
     from mitsnerf.train import TrainConfig
 
     runs = [fit(dataset, method, {}, TrainConfig(steps=steps, batch_rays=batch, log_every=steps), None,

@@ -61,10 +61,10 @@ def run_one(method: str, name: str, s: dict, data_root: Path, scene: str) -> dic
     from mitsnerf import scoring
     from mitsnerf.config import from_dict
     from mitsnerf.data.dataset import load_dataset
-    from mitsnerf.evaluate import EvalConfig
+    from mitsnerf.train.evaluate import EvalConfig
     from mitsnerf.generate import generate_dataset
     from mitsnerf.oracle.cache import OracleConfig, ensure_oracle
-    from mitsnerf.run import fit
+    from mitsnerf.runs.fit import fit
     from mitsnerf.scene.spec import load_scene
     from mitsnerf.train import TrainConfig
 

@@ -35,8 +35,8 @@ def default_budgets() -> dict[str, dict]:
 def measure(dataset, method: str, settings: dict, jitter: bool, ks, ref) -> list[dict]:
     from mitsnerf import scoring
     from mitsnerf.config import from_dict
-    from mitsnerf.evaluate import render_views, stack_rgb
-    from mitsnerf.run import fit
+    from mitsnerf.train.evaluate import render_views, stack_rgb
+    from mitsnerf.runs.fit import fit
     from mitsnerf.train import TrainConfig
 
     train = from_dict(TrainConfig, {**settings["train"], "pixel_jitter": jitter})

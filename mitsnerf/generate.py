@@ -39,7 +39,7 @@ from mitsnerf.scene.spec import SceneSpec, list_scenes, load_scene
 from mitsnerf.scene.to_mitsuba import background_description, scene_box, scene_dict, volume_grids
 
 #: Version of the dataset layout and generation rules; part of the dataset hash.
-#: 2: the noise floor's medium mask is the centre-ray opacity > 1e-3 rule of ``mitsnerf.run``.
+#: 2: the noise floor's medium mask is the centre-ray opacity > 1e-3 rule of ``mitsnerf.runs.fit``.
 #: 3: the plume family rises along the world's up axis z (it lay along y); families are part of the data.
 #: 4: the scene box is recorded (manifest ``box``, transforms ``aabb``); medium masks by ``mitsnerf.scoring``.
 #: 5: the medium alone (``medium/``, a NeRF-synthetic view); the spec's ``world.scale``.

@@ -1,6 +1,6 @@
 """Every score mitsnerf reports, each computed once, by one rule.
 
-Dataset generation (the noise floor), :func:`mitsnerf.run.fit`, the benchmark and
+Dataset generation (the noise floor), :func:`mitsnerf.runs.fit.fit`, the benchmark and
 ``mitsnerf score`` all score through this module.
 
 **Medium pixels** (:func:`medium_masks`): a pixel sees the medium when the true medium's opacity

@@ -7,7 +7,7 @@ import mitsuba as mi
 import numpy as np
 import pytest
 
-from mitsnerf.checkpoint import (
+from mitsnerf.train.checkpoint import (
     CHECKPOINT_FILE,
     Checkpointer,
     capture,

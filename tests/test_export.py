@@ -9,7 +9,7 @@ import mitsuba as mi
 import numpy as np
 import pytest
 
-from mitsnerf.export import export_field, sample_field
+from mitsnerf.runs.export import export_field, sample_field
 from mitsnerf.fields.grid import GridField
 from mitsnerf.fields.nerf import NeRFConfig, NeRFField
 from mitsnerf.math.box import UNIT_BOX

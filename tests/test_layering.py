@@ -23,9 +23,9 @@ LAYERS = (
     ("mitsnerf.render",),
     ("mitsnerf.scoring", "mitsnerf.oracle"),
     ("mitsnerf.methods",),
-    ("mitsnerf.train", "mitsnerf.checkpoint", "mitsnerf.evaluate", "mitsnerf.generate"),
-    ("mitsnerf.run", "mitsnerf.run_dir"),
-    ("mitsnerf.export", "mitsnerf.novel", "mitsnerf.external"),
+    ("mitsnerf.train", "mitsnerf.train.checkpoint", "mitsnerf.train.evaluate", "mitsnerf.generate"),
+    ("mitsnerf.runs", "mitsnerf.runs.fit", "mitsnerf.runs.directory"),
+    ("mitsnerf.runs.export", "mitsnerf.runs.novel", "mitsnerf.runs.external"),
     ("mitsnerf.verify", "mitsnerf.bench"),
     ("mitsnerf.cli", "mitsnerf.__main__"),
 )
@@ -91,7 +91,7 @@ def test_the_check_finds_a_planted_upward_import(tmp_path):
     (pkg / "math").mkdir(parents=True)
     (pkg / "__init__.py").write_text("")
     (pkg / "math" / "__init__.py").write_text("")
-    (pkg / "math" / "bad.py").write_text("def f():\n    from mitsnerf.run import fit\n")
+    (pkg / "math" / "bad.py").write_text("def f():\n    from mitsnerf.runs.fit import fit\n")
     (pkg / "run.py").write_text("")
     global ROOT
     saved, ROOT = ROOT, pkg
@@ -99,4 +99,4 @@ def test_the_check_finds_a_planted_upward_import(tmp_path):
         found = upward_imports(pkg)
     finally:
         ROOT = saved
-    assert len(found) == 1 and "mitsnerf.math.bad (layer 1) imports mitsnerf.run (layer 9)" in found[0]
+    assert len(found) == 1 and "mitsnerf.math.bad (layer 1) imports mitsnerf.runs.fit (layer 9)" in found[0]

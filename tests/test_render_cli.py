@@ -34,7 +34,7 @@ def run_dir(tmp_path_factory):
 
 
 def test_train_writes_a_run_with_its_final_checkpoint(run_dir):
-    from mitsnerf.checkpoint import load_checkpoint
+    from mitsnerf.train.checkpoint import load_checkpoint
 
     names = {p.name for p in run_dir.iterdir()}
     assert {"config.json", "params.npz", "metrics.json", "checkpoint.npz", "test"} <= names
@@ -85,7 +85,7 @@ def test_export_cli_writes_the_medium(run_dir, tmp_path):
 def test_resume_continues_the_run(run_dir, tmp_path):
     import shutil
 
-    from mitsnerf.checkpoint import load_checkpoint
+    from mitsnerf.train.checkpoint import load_checkpoint
 
     run = tmp_path / "run"
     shutil.copytree(run_dir, run)
@@ -97,12 +97,12 @@ def test_resume_continues_the_run(run_dir, tmp_path):
 
 
 def test_training_errors_are_one_line_and_exit_non_zero(run_dir, monkeypatch, capsys):
-    import mitsnerf.run
+    import mitsnerf.runs.fit
 
     def nan(*args, **kwargs):
         raise TrainingError(None, "step 7", "loss became nan; stopped; last good checkpoint: RUN/checkpoint.npz (step 6)")
 
-    monkeypatch.setattr(mitsnerf.run, "fit", nan)
+    monkeypatch.setattr(mitsnerf.runs.fit, "fit", nan)
     config = json.loads((run_dir / "config.json").read_text())
     assert main(["train", config["dataset"], "--out", str(run_dir.parent / "never")]) == 2
     err = capsys.readouterr().err.strip().splitlines()

@@ -15,7 +15,7 @@ from mitsnerf.data.dataset import load_dataset
 from mitsnerf.data.images import read_exr, write_exr, write_png
 from mitsnerf.data.vol import write_vol
 from mitsnerf.errors import DatasetError
-from mitsnerf.external import match_renders, score_renders
+from mitsnerf.runs.external import match_renders, score_renders
 from mitsnerf.scene.spec import parse_scene
 
 SPEC = {
@@ -95,7 +95,7 @@ def test_png_with_alpha_is_composited_over_the_background(dataset, tmp_path):
 def test_exr_alpha_is_premultiplied(dataset, tmp_path):
     """An RGBA EXR composites as ``rgb + B (1 - a)`` (OpenEXR's premultiplied alpha): the test images written
     as half opacity over the dataset's own background score exactly; read as straight alpha they would not."""
-    from mitsnerf.external import read_renders
+    from mitsnerf.runs.external import read_renders
     from mitsnerf.render.background import make_background, pixel_background
 
     ds = load_dataset(dataset)
@@ -118,7 +118,7 @@ def test_exr_alpha_is_premultiplied(dataset, tmp_path):
 def test_an_exr_with_alpha_one_is_used_as_it_is_and_a_later_one_is_composited(dataset, tmp_path):
     """mitsnerf's own EXRs (alpha 1) are read unchanged; the background is computed when a later file needs it."""
     from mitsnerf.data.images import read_image
-    from mitsnerf.external import read_renders
+    from mitsnerf.runs.external import read_renders
 
     ds = load_dataset(dataset)
     views = ds.views("test")

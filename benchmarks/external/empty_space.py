@@ -31,7 +31,7 @@ def main() -> None:
     env.set_variant()
     from mitsnerf.data.dataset import load_dataset
     from mitsnerf.data.images import read_image
-    from mitsnerf.external import read_renders
+    from mitsnerf.runs.external import read_renders
 
     dataset = load_dataset(args.dataset)
     views = dataset.views("test")

@@ -12,7 +12,7 @@ Layout under ``results/<bench>[-quick]/``::
     cells/<scene>/<label>-seed<k>/result.json     the record (metrics, curve, provenance), written last
                                  /artefacts.npz   images and density slices for the plots
                                  /error.json      instead of result.json when the cell failed
-                                 /run/            mitsnerf.run.fit's run directory (params, checkpoint, renders)
+                                 /run/            mitsnerf.runs.fit.fit's run directory (params, checkpoint, renders)
 """
 
 from __future__ import annotations

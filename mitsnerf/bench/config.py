@@ -29,7 +29,7 @@ eval = { curve_points = 3 }
 oracle = { spp = 8 }
 ```
 
-External renders are matched and scored as ``mitsnerf score`` does (:mod:`mitsnerf.external`);
+External renders are matched and scored as ``mitsnerf score`` does (:mod:`mitsnerf.runs.external`);
 relative paths are relative to the config file's folder. A config of ``[[external]]`` entries alone
 (no ``[[methods]]``) scores them against the datasets and their oracles, training nothing.
 
@@ -51,7 +51,7 @@ from typing import Any, Mapping
 from mitsnerf.config import (INTERNAL, as_spec_error, deep_merge, from_dict, named_files, param, read_toml, search_dirs,
                              source_field, to_dict)
 from mitsnerf.errors import SpecError
-from mitsnerf.evaluate import EvalConfig
+from mitsnerf.train.evaluate import EvalConfig
 from mitsnerf.methods import METHODS
 from mitsnerf.oracle.cache import OracleConfig
 

@@ -1,5 +1,5 @@
 """A benchmark's ``[[external]]`` entries: other tools' renders, scored as ``mitsnerf score`` does
-(:func:`mitsnerf.external.score_renders`) against the benchmark's own datasets, and shown in the
+(:func:`mitsnerf.runs.external.score_renders`) against the benchmark's own datasets, and shown in the
 tables, plots and report beside the cells as ``NAME (external)``.
 
 They are scored on every run (it takes seconds), after the datasets exist and before any cell
@@ -16,7 +16,7 @@ import numpy as np
 
 from mitsnerf.bench.config import BenchConfig, ExternalRun
 from mitsnerf.errors import SpecError
-from mitsnerf.external import match_renders
+from mitsnerf.runs.external import match_renders
 
 
 @dataclass(frozen=True)
@@ -70,7 +70,7 @@ def score_external(entry: ExternalEntry, report_view: int = 0, oracle=None) -> t
     from mitsnerf import env
     from mitsnerf.bench.worker import oracle_summary
     from mitsnerf.data.dataset import load_dataset
-    from mitsnerf.external import score_renders
+    from mitsnerf.runs.external import score_renders
 
     dataset = load_dataset(entry.dataset_dir)
     k = entry.run.footprint

@@ -1,4 +1,4 @@
-"""Run one benchmark cell: the dataset, :func:`mitsnerf.run.fit` with a held-out PSNR curve, the scores.
+"""Run one benchmark cell: the dataset, :func:`mitsnerf.runs.fit.fit` with a held-out PSNR curve, the scores.
 
 :func:`run_cell` is what every executor calls, in-process or in a worker process/Ray task;
 it returns the record (JSON data) and the artefacts (``.npz`` bytes) instead of writing
@@ -67,7 +67,7 @@ class CurveRecorder:
             return
         self.done = min(self.n_points, entry["step"] * self.n_points // self.steps)
         start = time.perf_counter()
-        from mitsnerf.evaluate import render_views, stack_rgb
+        from mitsnerf.train.evaluate import render_views, stack_rgb
 
         ref = self.reference
         renders, _ = render_views(model, ref.cameras, pixel_center=ref.pixel_center, footprint=self.footprint)
@@ -150,7 +150,7 @@ def oracle_summary(oracle, footprint: int) -> dict[str, Any] | None:
 def _resumable(cell: Cell) -> bool:
     """Whether ``CELL/run`` holds an interrupted run of this very cell (same config and code)."""
     from mitsnerf.bench.cells import read_record
-    from mitsnerf.run_dir import inspect_run_dir
+    from mitsnerf.runs.directory import inspect_run_dir
 
     mark = read_record(cell.path, IN_FLIGHT_FILE) or {}
     return (mark.get("config_hash"), mark.get("code_version")) == (cell.config_hash, cell.code_version) \
@@ -158,12 +158,12 @@ def _resumable(cell: Cell) -> bool:
 
 
 def _fit(cell: Cell, dataset, train_config, evalc, curve: CurveRecorder, ref, oracle: dict | None, progress: bool):
-    """:func:`mitsnerf.run.fit` into ``CELL/run``, claimed (locked); an interrupted run of the cell is
+    """:func:`mitsnerf.runs.fit.fit` into ``CELL/run``, claimed (locked); an interrupted run of the cell is
     continued. Returns ``(run, step resumed from or None)``."""
-    from mitsnerf.checkpoint import CHECKPOINT_FILE, load_checkpoint
+    from mitsnerf.train.checkpoint import CHECKPOINT_FILE, load_checkpoint
     from mitsnerf.data.atomic import atomic_write_json
-    from mitsnerf.run import fit
-    from mitsnerf.run_dir import claim_run_dir
+    from mitsnerf.runs.fit import fit
+    from mitsnerf.runs.directory import claim_run_dir
 
     run_dir = cell.path / "run"
     resume = _resumable(cell)
@@ -194,7 +194,7 @@ def run_cell(cell: Cell, *, progress: bool = False, threads: int = 0, executor: 
     import drjit as dr
 
     from mitsnerf.config import from_dict
-    from mitsnerf.evaluate import EvalConfig
+    from mitsnerf.train.evaluate import EvalConfig
     from mitsnerf.scoring import reference
     from mitsnerf.train import TrainConfig
 

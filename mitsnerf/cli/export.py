@@ -9,7 +9,7 @@ from mitsnerf.cli.common import check_numbers
 
 
 def run(args) -> int:
-    from mitsnerf.export import MAX_RESOLUTION, export_run
+    from mitsnerf.runs.export import MAX_RESOLUTION, export_run
     from mitsnerf.outputs import check_output_dir
 
     check_numbers([("--resolution", args.resolution, lambda v: 1 <= v <= MAX_RESOLUTION,

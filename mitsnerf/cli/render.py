@@ -9,7 +9,7 @@ from mitsnerf.cli.common import NO_PROGRESS_HELP, check_numbers
 
 def run(args) -> int:
     from mitsnerf.errors import UsageError
-    from mitsnerf.novel import ViewRequest, render_run
+    from mitsnerf.runs.novel import ViewRequest, render_run
     from mitsnerf.outputs import check_output_dir
 
     if args.size and len(args.size) > 2:

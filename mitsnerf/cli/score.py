@@ -10,8 +10,8 @@ from mitsnerf.cli.common import add_dataset_options, open_dataset, options_confi
 def run(args) -> int:
     from mitsnerf.bench.tables import QUALITY, markdown_table, scene_rows
     from mitsnerf.data.atomic import atomic_write_json
-    from mitsnerf.evaluate import EvalConfig
-    from mitsnerf.external import renders_folder, score_renders
+    from mitsnerf.train.evaluate import EvalConfig
+    from mitsnerf.runs.external import renders_folder, score_renders
     from mitsnerf.outputs import check_output_file
 
     renders = renders_folder(Path(args.renders))

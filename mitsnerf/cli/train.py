@@ -20,7 +20,7 @@ def _fresh_settings(args) -> tuple[str, dict, object]:
     """``(method, method overrides, EvalConfig)`` of a new run, checked before anything runs."""
     from mitsnerf.config import apply_overrides, from_dict
     from mitsnerf.errors import UsageError
-    from mitsnerf.evaluate import EvalConfig
+    from mitsnerf.train.evaluate import EvalConfig
     from mitsnerf.methods import METHODS
 
     if not args.dataset:
@@ -62,8 +62,8 @@ def _check_outside_dataset(out: Path, dataset: Path) -> None:
 
 
 def run(args) -> int:
-    from mitsnerf.run import fit, resume_run
-    from mitsnerf.run_dir import claim_run_dir
+    from mitsnerf.runs.fit import fit, resume_run
+    from mitsnerf.runs.directory import claim_run_dir
     from mitsnerf.train import TrainConfig
 
     train_values = given(args, TRAIN_OPTIONS)
@@ -110,7 +110,7 @@ def _lr_help() -> str:
 
 
 def add_parser(sub) -> None:
-    from mitsnerf.evaluate import EvalConfig
+    from mitsnerf.train.evaluate import EvalConfig
     from mitsnerf.train import TrainConfig
 
     p = sub.add_parser("train", help="fit a method to a dataset and evaluate it on the test views")

@@ -83,7 +83,7 @@ class _Loop:
         self.start_step, self.rays, self.loss, self.lr = state.step, 0, math.nan, base_lr
 
     def state(self) -> TrainState:
-        from mitsnerf.checkpoint import optimizer_snapshot
+        from mitsnerf.train.checkpoint import optimizer_snapshot
 
         return TrainState(optimizer_snapshot(self.opt), self.step, self.clock.seconds(), list(self.history),
                           self.monitor.state(), dict(self.model.extra_state()))
@@ -151,7 +151,7 @@ def train(model: Model, data: PixelData, config: TrainConfig, base_lr: float, *,
     """Optimise ``model`` on ``data`` for ``config.steps`` steps; returns (result, optimiser).
 
     ``state`` continues an earlier run (a checkpoint's). ``checkpointer``
-    (:class:`mitsnerf.checkpoint.Checkpointer`) writes the state every ``checkpoint_every``
+    (:class:`mitsnerf.train.checkpoint.Checkpointer`) writes the state every ``checkpoint_every``
     steps while healthy, at the end, and when interrupted (SIGINT, SIGTERM, SIGHUP: then
     :class:`mitsnerf.errors.Interrupted` is raised with the continue-with message).
 

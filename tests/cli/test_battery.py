@@ -169,7 +169,7 @@ def deleted_cached_image(ctx) -> None:
 def edited_checkpoint(change: Callable) -> Callable:
     """A copy of the run whose checkpoint ``change(ckpt, ctx)`` edited (as another version or a hand would)."""
     def setup(ctx) -> None:
-        from mitsnerf.checkpoint import load_checkpoint, save_checkpoint
+        from mitsnerf.train.checkpoint import load_checkpoint, save_checkpoint
 
         path = copy_run(ctx) / "checkpoint.npz"
         ckpt = load_checkpoint(path)
@@ -247,7 +247,7 @@ def absent(pattern: str) -> Callable:
 def only_checkpoint(name: str, step: int) -> Callable:
     """``ctx.tmp / name`` holds the checkpoint of ``step`` and nothing else (no temporary, no half a run)."""
     def check(ctx, before) -> None:
-        from mitsnerf.checkpoint import load_checkpoint
+        from mitsnerf.train.checkpoint import load_checkpoint
 
         assert sorted(p.name for p in (ctx.tmp / name).iterdir()) == ["checkpoint.npz"]
         assert load_checkpoint(ctx.tmp / name / "checkpoint.npz").step == step
@@ -580,7 +580,7 @@ def test_a_full_disk_is_one_line_and_other_os_errors_are_bugs():
 
 def test_a_locked_run_directory_is_refused_naming_the_holder(world, tmp_path, capsys):
     from mitsnerf.outputs import exclusive_lock
-    from mitsnerf.run_dir import lock_path
+    from mitsnerf.runs.directory import lock_path
 
     run = tmp_path / "r"
     with exclusive_lock(lock_path(run), wait=False, what=run):
@@ -613,12 +613,12 @@ def test_a_generate_waiting_for_another_says_for_whom(world, tmp_path, capsys):
 
 
 def test_a_value_error_from_the_package_is_a_bug_and_keeps_its_traceback(world, tmp_path, monkeypatch):
-    import mitsnerf.run
+    import mitsnerf.runs.fit
 
     def broken(*args, **kwargs):
         raise ValueError("an internal invariant failed")
 
-    monkeypatch.setattr(mitsnerf.run, "fit", broken)
+    monkeypatch.setattr(mitsnerf.runs.fit, "fit", broken)
     with pytest.raises(ValueError, match="internal invariant"):
         main([*cli_args(TRAIN, SimpleNamespace(world=world)), "--out", str(tmp_path / "r")])
 

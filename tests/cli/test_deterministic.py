@@ -26,7 +26,7 @@ def test_deterministic_training_is_bit_identical_and_runs_on_one_thread(method, 
     import drjit as dr
 
     from mitsnerf.data.dataset import load_dataset
-    from mitsnerf.run import fit
+    from mitsnerf.runs.fit import fit
     from mitsnerf.train import TrainConfig
 
     dataset = load_dataset(world.dataset)

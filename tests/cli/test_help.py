@@ -6,7 +6,7 @@ import pytest
 
 from mitsnerf.cli import main
 from mitsnerf.config import option_spec
-from mitsnerf.evaluate import EvalConfig
+from mitsnerf.train.evaluate import EvalConfig
 from mitsnerf.methods import METHODS
 from mitsnerf.train import TrainConfig
 

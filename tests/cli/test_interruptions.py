@@ -50,7 +50,7 @@ def wait_for(path: Path, proc: subprocess.Popen, timeout: float = 60.0) -> None:
 def wait_for_step(checkpoint: Path, proc: subprocess.Popen, step: int, timeout: float = 120.0) -> None:
     """Until the checkpoint (replaced atomically each step) holds ``step`` or a later one; a signal sent
     then lands in training however slowly the child or this process are scheduled."""
-    from mitsnerf.checkpoint import load_checkpoint
+    from mitsnerf.train.checkpoint import load_checkpoint
 
     wait_for(checkpoint, proc, timeout)
     end = time.monotonic() + timeout
@@ -80,7 +80,7 @@ def _params(run: Path) -> dict:
 def _interrupt(world, fast, run: Path, signum: int) -> int:
     """Train into ``run``, send ``signum`` after the first checkpoint, check what the signal leaves;
     returns the checkpoint's step."""
-    from mitsnerf.checkpoint import load_checkpoint
+    from mitsnerf.train.checkpoint import load_checkpoint
 
     proc = spawn(["train", str(world.dataset), "--out", str(run), "--steps", "30", *fast])
     wait_for(run / "checkpoint.npz", proc)
@@ -157,7 +157,7 @@ def test_a_stopped_sweep_continues_the_cell_in_flight_from_its_checkpoint(world,
     assert code == 143, err
     assert "Traceback" not in err and "run the same command again to resume" in err.strip().splitlines()[-1]
     assert not (cell / "result.json").exists() and (cell / "in_flight.json").is_file()
-    from mitsnerf.checkpoint import load_checkpoint
+    from mitsnerf.train.checkpoint import load_checkpoint
 
     step = load_checkpoint(cell / "run" / "checkpoint.npz").step
 
@@ -186,7 +186,7 @@ def test_a_stopped_generate_leaves_nothing_that_looks_complete(world, tmp_path):
 def test_a_resume_runs_the_log_hook_again_on_the_entry_a_signal_stopped_it_on(world, tmp_path):
     from mitsnerf.data.dataset import load_dataset
     from mitsnerf.errors import Interrupted
-    from mitsnerf.run import fit
+    from mitsnerf.runs.fit import fit
     from mitsnerf.train import TrainConfig
 
     overrides = {"network": {"width": 8, "depth": 1, "head_width": 8, "features": 4}, "n_samples": 8}
@@ -208,20 +208,20 @@ def test_a_resume_runs_the_log_hook_again_on_the_entry_a_signal_stopped_it_on(wo
 
 def test_a_signal_while_evaluating_keeps_the_trained_checkpoint_and_the_resume_only_evaluates(world, tmp_path,
                                                                                               monkeypatch, capsys):
-    import mitsnerf.run
+    import mitsnerf.runs.fit
 
     run = tmp_path / "run"
-    evaluate = mitsnerf.run.evaluate_run
+    evaluate = mitsnerf.runs.fit.evaluate_run
 
     def stopped(*args, **kwargs):
         raise KeyboardInterrupt
 
-    monkeypatch.setattr(mitsnerf.run, "evaluate_run", stopped)
+    monkeypatch.setattr(mitsnerf.runs.fit, "evaluate_run", stopped)
     assert main(["train", str(world.dataset), "--out", str(run), "--steps", "3", *world.nerf]) == 130
     assert capsys.readouterr().err.strip().splitlines()[-1] == (
         f"mitsnerf: interrupted; stopped by SIGINT while evaluating; checkpoint of step 3 saved to "
         f"{run / 'checkpoint.npz'}; continue with mitsnerf train --resume --out {run}")
-    monkeypatch.setattr(mitsnerf.run, "evaluate_run", evaluate)
+    monkeypatch.setattr(mitsnerf.runs.fit, "evaluate_run", evaluate)
     assert main(["train", "--resume", "--out", str(run)]) == 0
     metrics = json.loads((run / "metrics.json").read_text())
     assert metrics["steps"] == 3 and metrics["rays_per_s"] is None  # no step ran in the session that evaluated
@@ -230,7 +230,7 @@ def test_a_signal_while_evaluating_keeps_the_trained_checkpoint_and_the_resume_o
 
 def test_a_signal_that_an_import_turned_into_another_error_still_exits_as_the_signal(world, tmp_path, monkeypatch,
                                                                                     capsys):
-    import mitsnerf.run
+    import mitsnerf.runs.fit
     from mitsnerf.errors import Interrupted
 
     def import_stopped(*args, **kwargs):
@@ -239,7 +239,7 @@ def test_a_signal_that_an_import_turned_into_another_error_still_exits_as_the_si
         except Interrupted as exc:
             raise ImportError("initialization failed") from exc  # what a C extension's import makes of it
 
-    monkeypatch.setattr(mitsnerf.run, "fit", import_stopped)
+    monkeypatch.setattr(mitsnerf.runs.fit, "fit", import_stopped)
     assert main(["train", str(world.dataset), "--out", str(tmp_path / "r"), *world.nerf]) == 143
     assert capsys.readouterr().err.strip().splitlines()[-1] == "mitsnerf: interrupted; stopped by SIGTERM"
 
@@ -247,7 +247,7 @@ def test_a_signal_that_an_import_turned_into_another_error_still_exits_as_the_si
 def test_training_saves_its_checkpoint_when_a_library_wraps_the_signal_in_another_error(world, tmp_path):
     from mitsnerf.data.dataset import load_dataset
     from mitsnerf.errors import Interrupted
-    from mitsnerf.run import fit
+    from mitsnerf.runs.fit import fit
     from mitsnerf.train import TrainConfig
 
     def wrapped_at_4(entry, model):
@@ -363,10 +363,10 @@ def test_a_sweep_stopped_after_its_last_cell_says_how_to_write_the_tables(world,
 def test_a_signal_while_the_last_checkpoint_is_written_writes_it_again_and_says_so(world, tmp_path, monkeypatch):
     """Without --checkpoint-every the checkpoint at the end is the only one: a signal while it is written
     (or while the bar closes) is inside the trainer's watch, so the step is saved and the line says so."""
-    from mitsnerf.checkpoint import Checkpointer, load_checkpoint
+    from mitsnerf.train.checkpoint import Checkpointer, load_checkpoint
     from mitsnerf.data.dataset import load_dataset
     from mitsnerf.errors import Interrupted
-    from mitsnerf.run import fit
+    from mitsnerf.runs.fit import fit
     from mitsnerf.train import TrainConfig
 
     save, calls = Checkpointer.save, []
@@ -388,7 +388,7 @@ def test_a_signal_while_the_last_checkpoint_is_written_writes_it_again_and_says_
 def test_a_pool_sweep_stopped_by_sigterm_stops_its_cells_in_flight_at_their_checkpoint(world, tmp_path):
     """SIGTERM reaches the driver alone (``timeout``, ``kill``): the cells training in pool workers get it
     too, save their checkpoint and stop; before, the stopped driver waited for each to train to its end."""
-    from mitsnerf.checkpoint import load_checkpoint
+    from mitsnerf.train.checkpoint import load_checkpoint
 
     config = tmp_path / "b.toml"
     config.write_text(BENCH.replace("SPEC", str(world.spec)).replace("steps = 80", "steps = 4000"))

@@ -6,9 +6,9 @@ import mitsuba as mi
 import numpy as np
 import pytest
 
-from mitsnerf.checkpoint import capture, restore_optimizer
+from mitsnerf.train.checkpoint import capture, restore_optimizer
 from mitsnerf.errors import DatasetError
-from mitsnerf.evaluate import render_views, stack_rgb
+from mitsnerf.train.evaluate import render_views, stack_rgb
 from mitsnerf.math.box import UNIT_BOX
 from mitsnerf.math.metrics import psnr
 from mitsnerf.methods.base import SceneInfo
@@ -33,7 +33,7 @@ def _mean_psnr(model, images, cameras) -> float:
 @pytest.fixture(scope="module")
 def tiny(tmp_path_factory):
     from mitsnerf.data.dataset import load_dataset
-    from mitsnerf.run import scene_info
+    from mitsnerf.runs.fit import scene_info
     from mitsnerf.generate import generate_dataset
     from mitsnerf.scene.spec import parse_scene
 

@@ -14,7 +14,7 @@ from mitsnerf import generate as gen
 from mitsnerf import scoring
 from mitsnerf.data.dataset import load_dataset
 from mitsnerf.data.images import read_exr, read_png
-from mitsnerf.external import score_renders
+from mitsnerf.runs.external import score_renders
 from mitsnerf.math.color import srgb_to_linear
 from mitsnerf.math.rays import camera_rays_numpy
 from mitsnerf.render.background import ConstantBackground, make_background, pixel_background

@@ -3,7 +3,7 @@
 ``fit`` is what ``mitsnerf train`` and every benchmark cell call. A run directory holds
 ``config.json``, ``params.npz``, ``history.json``, ``metrics.json``, the rendered test views
 (``test/r_*.exr`` linear with opacity, ``.png`` sRGB previews) and ``checkpoint.npz``
-(:mod:`mitsnerf.checkpoint`); it is written inside a temporary directory and renamed when
+(:mod:`mitsnerf.train.checkpoint`); it is written inside a temporary directory and renamed when
 complete. While training, the directory holds only the latest checkpoint (every
 ``checkpoint_every`` steps, when interrupted, and the last good one after a NaN or diverging
 loss), which ``fit(..., resume=True)`` / :func:`resume_run` continue from and :func:`load_run`
@@ -22,7 +22,7 @@ from typing import Any, Callable, Mapping
 import numpy as np
 
 from mitsnerf import env, scoring
-from mitsnerf.checkpoint import CHECKPOINT_FILE, Checkpointer, load_checkpoint, restore_optimizer
+from mitsnerf.train.checkpoint import CHECKPOINT_FILE, Checkpointer, load_checkpoint, restore_optimizer
 from mitsnerf.config import from_dict, to_dict
 from mitsnerf.data.arrays import read_npz
 from mitsnerf.data.atomic import atomic_dir, atomic_write_json
@@ -30,14 +30,14 @@ from mitsnerf.data.dataset import Dataset, load_dataset
 from mitsnerf.data.verify import verify_dataset
 from mitsnerf.data.images import write_exr, write_png
 from mitsnerf.errors import DatasetError, DiskFullError, OutputError, UsageError
-from mitsnerf.evaluate import EvalConfig, render_views, stack_rgb
+from mitsnerf.train.evaluate import EvalConfig, render_views, stack_rgb
 from mitsnerf.math.box import Box
 from mitsnerf.methods import METHODS, get_method
 from mitsnerf.fields.protocols import DensityField
 from mitsnerf.methods.base import HasField, Model, ParameterShapeError, SceneInfo, num_parameters
 from mitsnerf.render.background import make_background
 from mitsnerf.render.camera import Rendered
-from mitsnerf.run_dir import RUN_FILES, remove_run_files
+from mitsnerf.runs.directory import RUN_FILES, remove_run_files
 from mitsnerf.train import PixelData, TrainConfig, TrainResult, TrainState, make_optimizer, train
 from mitsnerf.train.checkpointing import interrupted_message
 from mitsnerf.train.threads import one_thread
@@ -217,14 +217,14 @@ def fit(
     ``reference``: the test views' :class:`mitsnerf.scoring.Reference` if the caller has it
     (else built here); ``oracle``: the oracle's test metrics at the same footprint, for the
     error budget. With ``out_dir``, checkpoints go to ``out_dir/checkpoint.npz`` (a fresh run
-    first removes an old run's files there, :func:`mitsnerf.run_dir.remove_run_files`); ``resume=True`` continues from it instead, which must be of
+    first removes an old run's files there, :func:`mitsnerf.runs.directory.remove_run_files`); ``resume=True`` continues from it instead, which must be of
     the same method, method settings and training settings (except :data:`RESUMABLE_CHANGES`).
     ``on_log(entry, model)`` runs after each history entry, off the training clock (e.g. a
     held-out curve, :class:`mitsnerf.bench.worker.CurveRecorder`); a resumed run calls it again on
     the checkpoint's last entry when that is the checkpoint's step (a signal may have stopped it
     there), so it must do nothing the second time for an entry it finished. ``deterministic``: train on one
     thread (:mod:`mitsnerf.train.threads`), recorded in the run config so a resume does too.
-    The caller holds the run directory (:func:`mitsnerf.run_dir.claim_run_dir`).
+    The caller holds the run directory (:func:`mitsnerf.runs.directory.claim_run_dir`).
     """
     train_views = dataset.views("train")
     ref = reference or scoring.reference(dataset, "test")
@@ -286,7 +286,7 @@ def save_parameters(path: Path, params: Mapping[str, Any]) -> None:
 def write_run(run: RunResult, dataset: Dataset, out_dir: Path, test_names) -> None:
     """Write the run into ``out_dir``, renamed into place whole (:func:`mitsnerf.data.atomic.atomic_dir`).
 
-    Entries of an existing ``out_dir`` that a run does not write (:data:`mitsnerf.run_dir.RUN_FILES`:
+    Entries of an existing ``out_dir`` that a run does not write (:data:`mitsnerf.runs.directory.RUN_FILES`:
     renders, exports, a user's notes) are carried into the new directory (hard links, else copies),
     so rewriting a run loses nothing else that was there.
     """

@@ -181,7 +181,7 @@ def _write_export(paths: dict[str, Path], sigma: np.ndarray, color: np.ndarray, 
 def export_run(run_dir: Path, out_dir: Path | None = None, resolution: int = 64,
                direction: Sequence[float] | None = None, n_directions: int = DEFAULT_DIRECTIONS) -> dict[str, Path]:
     """Export the field of the run in ``run_dir`` (default ``OUT = RUN/export``)."""
-    from mitsnerf.run import load_run
+    from mitsnerf.runs.fit import load_run
 
     model, dataset, config = load_run(Path(run_dir))
     out_dir = Path(out_dir) if out_dir is not None else Path(run_dir) / "export"

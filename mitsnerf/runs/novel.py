@@ -278,7 +278,7 @@ def render_run(run_dir: Path, out_dir: Path, request: ViewRequest = ViewRequest(
     from tqdm.auto import tqdm
 
     from mitsnerf.math.color import linear_to_srgb
-    from mitsnerf.run import load_run
+    from mitsnerf.runs.fit import load_run
 
     model, dataset, config = load_run(Path(run_dir))
     cams, stems, pixel_center = cameras_for(request, dataset)

@@ -18,7 +18,7 @@ other files, no run       refused          refused                 refused
 
 An interrupted run is a ``checkpoint.npz`` without ``metrics.json``; a finished one has
 ``metrics.json``. Entries a run does not write (renders, exports, notes) are kept by every
-rewrite of the directory (:func:`mitsnerf.run.write_run`).
+rewrite of the directory (:func:`mitsnerf.runs.fit.write_run`).
 """
 
 from __future__ import annotations
@@ -30,11 +30,11 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Iterator
 
-from mitsnerf.checkpoint import CHECKPOINT_FILE
+from mitsnerf.train.checkpoint import CHECKPOINT_FILE
 from mitsnerf.errors import OutputError
 from mitsnerf.outputs import check_output_dir, exclusive_lock
 
-#: What a run writes in its directory (:func:`mitsnerf.run.write_run`); a fresh run removes these.
+#: What a run writes in its directory (:func:`mitsnerf.runs.fit.write_run`); a fresh run removes these.
 RUN_FILES = ("config.json", "params.npz", "history.json", "metrics.json", CHECKPOINT_FILE, "test")
 
 
@@ -125,7 +125,7 @@ def claim_run_dir(path: str | os.PathLike, *, resume: bool = False, force: bool 
     """Check that ``path`` can be written, take its lock (refused at once if another process holds
     it), then check what it holds (:func:`check_run_dir`) and hold the lock for the block. Yields the
     state. A run started over (``--force``) removes the old one's files only when training starts
-    (:func:`mitsnerf.run.fit`), so a refusal on the way (a bad dataset) loses nothing."""
+    (:func:`mitsnerf.runs.fit.fit`), so a refusal on the way (a bad dataset) loses nothing."""
     path = Path(path)
     check_renamable(path, option)
     check_output_dir(path, option, replaced=True)
