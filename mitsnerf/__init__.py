@@ -13,7 +13,7 @@ import sys as _sys
 from mitsnerf import _llvm
 from mitsnerf import env as _env
 
-__version__ = "0.1.0"
+__version__ = _env.package_version()
 
 try:
     _env.prepare()

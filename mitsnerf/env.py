@@ -145,6 +145,22 @@ def _why_unusable(variant: str) -> str:
     return ""
 
 
+def package_version() -> str:
+    """mitsnerf's version, from the installed package's metadata (pyproject.toml is its one source);
+    ``"0+unknown"`` for a checkout imported from PYTHONPATH without being installed (the provenance's
+    ``commit`` says which code it is then).
+
+    >>> package_version() != ""
+    True
+    """
+    from importlib import metadata
+
+    try:
+        return metadata.version("mitsnerf")
+    except metadata.PackageNotFoundError:
+        return "0+unknown"
+
+
 @lru_cache(maxsize=1)
 def git_commit() -> str:
     """The commit of the checkout mitsnerf runs from ('+dirty' if modified), or 'unknown'."""
@@ -169,14 +185,12 @@ def provenance() -> dict[str, object]:
     import mitsuba as mi
     import numpy as np
 
-    from mitsnerf import __version__
-
     try:
         llvm = ".".join(str(v) for v in dr.detail.llvm_version())
     except Exception:  # no LLVM backend (CUDA-only machine)
         llvm = None
     return {
-        "mitsnerf": __version__,
+        "mitsnerf": package_version(),
         "commit": git_commit(),
         "variant": mi.variant(),
         "mitsuba": mi.__version__,

@@ -82,6 +82,62 @@ def upward_imports(root: Path = ROOT) -> list[str]:
     return found
 
 
+def import_graph(root: Path = ROOT) -> dict[str, set[str]]:
+    """``{module: the mitsnerf modules it imports}`` over every module under ``root`` (lazy imports too)."""
+    return {module_name(path): {target for target, _ in imports_of(path)} - {module_name(path)}
+            for path in sorted(root.rglob("*.py"))}
+
+
+def import_cycles(graph: dict[str, set[str]]) -> list[list[str]]:
+    """The strongly connected components of more than one module (Tarjan): each is a cycle of imports,
+    whether its modules sit in one layer or not.
+
+    >>> import_cycles({"a": {"b"}, "b": {"c"}, "c": {"a"}, "d": {"a"}})
+    [['a', 'b', 'c']]
+    """
+    index: dict[str, int] = {}
+    low: dict[str, int] = {}
+    stack: list[str] = []
+    cycles: list[list[str]] = []
+
+    def visit(v: str) -> None:
+        index[v] = low[v] = len(index)
+        stack.append(v)
+        for w in sorted(graph.get(v, ())):
+            if w not in index:
+                visit(w)
+                low[v] = min(low[v], low[w])
+            elif w in stack:
+                low[v] = min(low[v], index[w])
+        if low[v] == index[v]:
+            component = []
+            while True:
+                w = stack.pop()
+                component.append(w)
+                if w == v:
+                    break
+            if len(component) > 1:
+                cycles.append(sorted(component))
+
+    for v in sorted(graph):
+        if v not in index:
+            visit(v)
+    return cycles
+
+
+def test_no_import_cycles():
+    assert import_cycles(import_graph()) == []
+
+
+def test_the_check_finds_a_planted_cycle_inside_one_layer():
+    graph = import_graph()
+    graph["mitsnerf.verify.cases"] = graph["mitsnerf.verify.cases"] | {"mitsnerf.verify.scenarios"}
+    assert import_cycles(import_graph()) == []
+    (cycle,) = import_cycles(graph)
+    assert {"mitsnerf.verify.cases", "mitsnerf.verify.scenarios"} <= set(cycle)
+    assert layer_of("mitsnerf.verify.cases") == layer_of("mitsnerf.verify.scenarios")  # the layer check cannot
+
+
 def test_no_module_imports_from_a_higher_layer():
     assert upward_imports() == []
 

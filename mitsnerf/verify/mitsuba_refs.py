@@ -25,13 +25,16 @@ from __future__ import annotations
 
 import time
 from dataclasses import dataclass
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from mitsnerf.math.box import UNIT_BOX
 from mitsnerf.math.camera import Camera
 from mitsnerf.scene.to_mitsuba import medium_box
+
+if TYPE_CHECKING:
+    from mitsnerf.verify.cases import VolpathScenario
 
 
 def constant_environment(radiance) -> dict[str, Any]:
@@ -144,3 +147,17 @@ def render_reference(scene_description: dict[str, Any], camera: Camera, spp: int
     scene = mi.load_dict(scene_description)
     o, d = camera.pixel_rays()
     return sample_rays(scene, o, d, spp, seed).reshaped(camera.height, camera.width)
+
+
+def emitters_of(s: VolpathScenario) -> dict[str, dict]:
+    """The Mitsuba emitters of a volpath scenario: its environment and its directional light."""
+    from mitsnerf.verify.cases import environment_bitmap
+
+    emitters: dict[str, dict] = {}
+    if s.environment == "constant":
+        emitters["environment"] = constant_environment(s.env_radiance)
+    elif s.environment == "envmap":
+        emitters["environment"] = envmap_environment(environment_bitmap())
+    if s.sun_direction is not None:
+        emitters["sun"] = directional_light(s.sun_direction, s.sun_irradiance)
+    return emitters

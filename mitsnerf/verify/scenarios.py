@@ -43,20 +43,6 @@ class PreparedScenario:
     ray_length: np.ndarray  # (H, W): L = t_f - t_n of each pixel's ray (independent float64 slab test)
 
 
-def emitters_of(s: C.VolpathScenario) -> dict[str, dict]:
-    """The Mitsuba emitters of a scenario: its environment and its directional light."""
-    from mitsnerf.verify import mitsuba_refs as M
-
-    emitters: dict[str, dict] = {}
-    if s.environment == "constant":
-        emitters["environment"] = M.constant_environment(s.env_radiance)
-    elif s.environment == "envmap":
-        emitters["environment"] = M.envmap_environment(C.environment_bitmap())
-    if s.sun_direction is not None:
-        emitters["sun"] = M.directional_light(s.sun_direction, s.sun_irradiance)
-    return emitters
-
-
 def prepare_scenario(s: C.VolpathScenario, quality: C.Quality) -> PreparedScenario:
     """Render the volpath reference of ``s`` (the slow part) and build the matching field."""
     import mitsuba as mi
@@ -67,7 +53,7 @@ def prepare_scenario(s: C.VolpathScenario, quality: C.Quality) -> PreparedScenar
     from mitsnerf.verify.sources import SOURCE_BUILDERS
 
     sigma_t, albedo = C.scenario_grids(s, quality.resolution)
-    scene = mi.load_dict(M.scene_dict(sigma_t, albedo, emitters_of(s), s.max_depth))
+    scene = mi.load_dict(M.scene_dict(sigma_t, albedo, M.emitters_of(s), s.max_depth))
     camera = quality.camera()
     o, d = camera.pixel_rays()
     spp = max(16, int(round(quality.spp * s.spp_factor)))

@@ -107,11 +107,10 @@ def in_scattered_source(scenario, sigma_t, albedo, scene, quality):
     from mitsnerf.oracle.source import inner_max_depth
     from mitsnerf.scene.spec import DirectionalLight
     from mitsnerf.verify import mitsuba_refs as M
-    from mitsnerf.verify.scenarios import emitters_of
 
     depth = inner_max_depth(scenario.max_depth)
     inner = None if depth is None else (
-        scene if depth == scenario.max_depth else mi.load_dict(M.scene_dict(sigma_t, albedo, emitters_of(scenario), depth)))
+        scene if depth == scenario.max_depth else mi.load_dict(M.scene_dict(sigma_t, albedo, M.emitters_of(scenario), depth)))
     albedo_grid = albedo if np.ndim(albedo) else np.full(sigma_t.shape + (3,), float(albedo), np.float32)
     lights = [DirectionalLight(direction=scenario.sun_direction, irradiance=scenario.sun_irradiance)]
     return PointSource(inner, GridField.from_arrays(sigma_t, UNIT_BOX, color=albedo_grid), lights, UNIT_BOX,
