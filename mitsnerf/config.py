@@ -51,9 +51,10 @@ import sys
 import textwrap
 import types
 import typing
+from collections.abc import Mapping
 from numbers import Integral, Real
 from pathlib import Path
-from typing import Any, Mapping
+from typing import Any
 
 from mitsnerf.errors import SpecError
 

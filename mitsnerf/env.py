@@ -119,7 +119,9 @@ def set_variant(variant: str | None = None, source: str = "variant") -> str:
     if not variant:
         variant, source = default_variant(), VARIANT_ENV if os.environ.get(VARIANT_ENV) else source
     if variant not in SUPPORTED_VARIANTS:
-        raise EnvironmentError_(f"{source}: {variant!r} is not supported; choose one of {', '.join(SUPPORTED_VARIANTS)}")
+        raise EnvironmentError_(
+            f"{source}: {variant!r} is not supported; choose one of {', '.join(SUPPORTED_VARIANTS)}"
+        )
     why = _why_unusable(variant)
     if why:
         usable = ", ".join(usable_variants()) or "none"

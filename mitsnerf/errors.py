@@ -79,7 +79,7 @@ class DiskFullError(OutputError):
         super().__init__(path, None, f"disk full ({reason}){doing}; {kept}")
 
     @classmethod
-    def of(cls, exc: BaseException) -> "DiskFullError | None":
+    def of(cls, exc: BaseException) -> DiskFullError | None:
         """``exc`` as a DiskFullError (an OSError of :data:`DISK_FULL_ERRNOS`: its file, else unnamed), or None."""
         if isinstance(exc, DiskFullError):
             return exc

@@ -24,8 +24,9 @@ from __future__ import annotations
 import os
 import sys
 import time
+from collections.abc import Mapping, Sequence
 from pathlib import Path
-from typing import Any, Mapping, Sequence
+from typing import Any
 
 import numpy as np
 
@@ -205,7 +206,9 @@ def _cache_state(final: Path, digest: str, hashes: bool) -> str:
     try:
         verify_dataset(load_dataset(final), hashes=hashes)
     except DatasetError as exc:
-        print(f"mitsnerf: the cached dataset fails verification: {exc}; rendering it again", file=sys.stderr, flush=True)
+        print(
+            f"mitsnerf: the cached dataset fails verification: {exc}; rendering it again", file=sys.stderr, flush=True
+        )
         return "broken"
     return "ok"
 

@@ -31,8 +31,8 @@ import errno
 import fcntl
 import os
 import secrets
+from collections.abc import Callable, Iterator
 from pathlib import Path
-from typing import Callable, Iterator
 
 from mitsnerf.errors import OutputError
 

@@ -34,8 +34,9 @@ independent pairs of renders.
 from __future__ import annotations
 
 import math
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
-from typing import Any, Callable, Sequence
+from typing import Any
 
 import numpy as np
 
@@ -220,7 +221,11 @@ def composite_agreement(full: np.ndarray, full_ref: np.ndarray, medium: np.ndarr
     total = float(w.sum())
     if total <= 0:
         return {"z_mean": None, "ratio": None, "ratio_sd": None, "passed": bool(np.all(d == 0)), "pixels": int(d.size)}
-    z, ratio, sd = float(d.sum() / math.sqrt(total)), float((d**2).sum() / total), math.sqrt(3 * float((w**2).sum())) / total
+    z, ratio, sd = (
+        float(d.sum() / math.sqrt(total)),
+        float((d**2).sum() / total),
+        math.sqrt(3 * float((w**2).sum())) / total,
+    )
     return {"z_mean": z, "ratio": ratio, "ratio_sd": sd, "passed": abs(z) < 4 and ratio < 1 + 4 * sd,
             "pixels": int(d.size)}
 
@@ -255,7 +260,8 @@ def _slices(grid: np.ndarray) -> dict[str, np.ndarray]:
 
 def density_scores(fn: Density | None, sigma_t: np.ndarray, box: Box,
                    resolution: int = 0) -> tuple[dict[str, Any], dict[str, np.ndarray]]:
-    """Learned (``fn``) against true density on the voxel centres of an ``R^3`` grid over ``box`` (0: the true grid's R).
+    """Learned (``fn``) against true density on the voxel centres of an ``R^3`` grid over ``box`` (0: the true
+    grid's R).
 
     Returns ``(scores, slices)``: ``density_rel_l1``, ``density_rel_l2``, ``density_psnr``,
     ``density_resolution`` (None values and ``density_note`` when ``fn`` is None), and the

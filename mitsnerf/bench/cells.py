@@ -19,9 +19,10 @@ from __future__ import annotations
 
 import hashlib
 import json
+from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Mapping
+from typing import Any
 
 RESULT_FILE = "result.json"
 ARTEFACTS_FILE = "artefacts.npz"
@@ -144,7 +145,11 @@ def read_record(directory: Path, name: str = RESULT_FILE) -> dict | None:
 def is_done(cell: Cell) -> bool:
     """True when the cell's ``result.json`` exists for the same config hash and code version."""
     record = read_record(cell.path)
-    return bool(record) and record.get("config_hash") == cell.config_hash and record.get("code_version") == cell.code_version
+    return (
+        bool(record)
+        and record.get("config_hash") == cell.config_hash
+        and record.get("code_version") == cell.code_version
+    )
 
 
 def write_result(cell: Cell, record: Mapping[str, Any], artefacts: bytes | None) -> Path:

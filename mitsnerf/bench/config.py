@@ -1,4 +1,5 @@
-"""Benchmark configurations (TOML; the shipped ones: ``mitsnerf/bench/configs/*.toml``) as frozen, validated dataclasses.
+"""Benchmark configurations (TOML; the shipped ones: ``mitsnerf/bench/configs/*.toml``) as frozen, validated
+dataclasses.
 
 ```toml
 name = "default"                 # default: the file's stem
@@ -44,16 +45,27 @@ from __future__ import annotations
 import dataclasses
 import os
 import warnings
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Mapping
+from typing import Any
 
-from mitsnerf.config import (INTERNAL, as_spec_error, deep_merge, from_dict, named_files, param, read_toml, search_dirs,
-                             source_field, to_dict)
+from mitsnerf.config import (
+    INTERNAL,
+    as_spec_error,
+    deep_merge,
+    from_dict,
+    named_files,
+    param,
+    read_toml,
+    search_dirs,
+    source_field,
+    to_dict,
+)
 from mitsnerf.errors import SpecError
-from mitsnerf.train.evaluate import EvalConfig
 from mitsnerf.methods import METHODS
 from mitsnerf.oracle.cache import OracleConfig
+from mitsnerf.train.evaluate import EvalConfig
 
 #: Environment variable listing a user's benchmark config directories (``os.pathsep``-separated),
 #: searched before the shipped configs (``mitsnerf bench --config DIR`` adds to it).
@@ -147,15 +159,18 @@ class BenchConfig:
     methods: tuple[MethodRun, ...] = param((), doc='[[methods]] tables, or "all" (with [method_settings.NAME]); '
                                                     'may be left out when [[external]] entries are given')
     seeds: tuple[int, ...] = param((0,), lo=0, doc="training seeds; every cell runs once per seed")
-    scene: Mapping[str, Any] = param(default_factory=dict,
-                                     doc="dotted SceneSpec.with_overrides keys applied to every scene (before --quick's)")
+    scene: Mapping[str, Any] = param(
+        default_factory=dict, doc="dotted SceneSpec.with_overrides keys applied to every scene (before --quick's)"
+    )
     train: Mapping[str, Any] = param(default_factory=dict)
     """Training settings shared by every method (a method's own ``train`` wins)."""
     eval: EvalConfig = param(default_factory=EvalConfig, doc="what is measured besides the test PSNR")
     quick: QuickProfile = param(default_factory=QuickProfile, doc="the --quick profile")
     oracle: OracleConfig = param(default_factory=OracleConfig,
                                  doc="the emission-absorption oracle of each dataset (the ceiling row)")
-    external: tuple[ExternalRun, ...] = param((), doc="[[external]] tables: other tools' renders, scored beside the methods")
+    external: tuple[ExternalRun, ...] = param(
+        (), doc="[[external]] tables: other tools' renders, scored beside the methods"
+    )
     description: str = param("", doc="one line")
     source: str | None = source_field()
     methods_all: bool = field(default=False, compare=False, metadata={INTERNAL: True})
@@ -194,7 +209,10 @@ class BenchConfig:
         layers = [(part, self.train)] if part == "train" else []
         layers.append((f"{own}.{part}", getattr(method, part)))
         if quick:
-            layers += [(f"quick.{part}", getattr(self.quick, part)), (f"{own}.quick.{part}", getattr(method.quick, part))]
+            layers += [
+                (f"quick.{part}", getattr(self.quick, part)),
+                (f"{own}.quick.{part}", getattr(method.quick, part)),
+            ]
         return layers
 
     def method_settings(self, method: MethodRun, quick: bool) -> tuple[dict, dict]:
@@ -242,7 +260,8 @@ def benchmarks_dir() -> Path:
 
 
 def benchmark_dirs() -> list[Path]:
-    """Where benchmark names are looked up, first match first: ``$MITSNERF_BENCHMARKS``'s directories, then the shipped ones."""
+    """Where benchmark names are looked up, first match first: ``$MITSNERF_BENCHMARKS``'s directories, then the
+    shipped ones."""
     return search_dirs(BENCHMARKS_ENV, SHIPPED)
 
 
@@ -268,7 +287,9 @@ def _expand(raw: dict, source: str) -> dict:
             methods.append({**entry, "name": name})
         raw["methods"] = methods
     elif settings is not None:
-        raise SpecError(source, "method_settings", 'only with methods = "all" (give settings in each [[methods]] table)')
+        raise SpecError(
+            source, "method_settings", 'only with methods = "all" (give settings in each [[methods]] table)'
+        )
     elif isinstance(raw.get("methods"), str):
         raise SpecError(source, "methods", f'a list of [[methods]] tables or "all", got {raw["methods"]!r}')
     if isinstance(raw.get("scenes"), str):

@@ -24,7 +24,8 @@ import os
 import signal
 import sys
 import traceback
-from typing import Any, Callable, Sequence
+from collections.abc import Callable, Sequence
+from typing import Any
 
 from mitsnerf.bench.cells import Cell
 
@@ -186,7 +187,9 @@ def check_options(executor: str, workers: int = 0, threads: int = 0, address: st
     if executor == "sequential" and workers > 1:
         raise UsageError("--workers", "the sequential executor runs one cell at a time (use --executor pool or ray)")
     if executor == "ray" and not ray_available():
-        raise UsageError("--executor ray", "Ray is not installed; pip install 'mitsnerf[ray]' (or: pip install 'ray[default]')")
+        raise UsageError(
+            "--executor ray", "Ray is not installed; pip install 'mitsnerf[ray]' (or: pip install 'ray[default]')"
+        )
 
 
 def run_cells(executor: str, cells: Sequence[Cell], on_done: OnDone, on_error: OnError, *, progress: bool = True,

@@ -8,9 +8,10 @@ trains, so a bad renders folder stops the run at once with one error line.
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Sequence
+from typing import Any
 
 import numpy as np
 
@@ -64,7 +65,9 @@ def plan_externals(config: BenchConfig, quick: bool, cells: Sequence) -> list[Ex
     return entries
 
 
-def score_external(entry: ExternalEntry, report_view: int = 0, oracle=None) -> tuple[dict[str, Any], dict[str, np.ndarray]]:
+def score_external(
+    entry: ExternalEntry, report_view: int = 0, oracle=None
+) -> tuple[dict[str, Any], dict[str, np.ndarray]]:
     """``(record, artefacts)`` of one entry, shaped as a cell's (:mod:`mitsnerf.bench.cells`); ``oracle``:
     the dataset's (:class:`mitsnerf.oracle.cache.Oracle`, the cells'), else whatever is cached."""
     from mitsnerf import env

@@ -16,8 +16,8 @@ second index up.
 
 from __future__ import annotations
 
+from collections.abc import Mapping, Sequence
 from pathlib import Path
-from typing import Mapping, Sequence
 
 import numpy as np
 
@@ -70,8 +70,10 @@ def _floor(records: Sequence[dict], key: str) -> float | None:
 def psnr_time(scene: str, records: Sequence[dict], methods: Sequence[str], path: Path) -> Path:
     fig = _figure(10, 4)
     colours = _colours(methods)
-    for ax, key, title, floor_key in ((fig.add_subplot(1, 2, 1), "psnr", "whole image", "noise_floor_psnr"),
-                                      (fig.add_subplot(1, 2, 2), "psnr_medium", "medium pixels", "noise_floor_psnr_medium")):
+    for ax, key, title, floor_key in (
+        (fig.add_subplot(1, 2, 1), "psnr", "whole image", "noise_floor_psnr"),
+        (fig.add_subplot(1, 2, 2), "psnr_medium", "medium pixels", "noise_floor_psnr_medium"),
+    ):
         ceiling = _floor(records, floor_key.replace("noise_floor_psnr", "oracle_psnr_test"))
         if ceiling is not None:
             ax.axhline(ceiling, color="tab:red", ls=":", lw=1.5, label="oracle (EA ceiling)")
@@ -109,7 +111,13 @@ def per_view(scene: str, records: Sequence[dict], methods: Sequence[str], path: 
     floor = next((r["metrics"].get("noise_floor_psnr_per_view") for r in records
                   if r["metrics"].get("noise_floor_psnr_per_view")), None)
     if floor:
-        ax.plot(np.arange(len(floor)), [np.nan if v is None else v for v in floor], "k--", lw=1, label="ref agreement (two GT renders)")
+        ax.plot(
+            np.arange(len(floor)),
+            [np.nan if v is None else v for v in floor],
+            "k--",
+            lw=1,
+            label="ref agreement (two GT renders)",
+        )
     ceiling = next(((r.get("oracle") or {}).get("psnr_test_per_view") for r in records
                     if (r.get("oracle") or {}).get("psnr_test_per_view")), None)
     if ceiling:
@@ -252,9 +260,17 @@ def scene_figures(scene: str, records: Sequence[dict], methods: Sequence[str], a
     figures = [
         ("Held-out PSNR against training time", psnr_time(scene, records, methods, out_dir / f"psnr_time_{scene}.png")),
         ("Test PSNR per view", per_view(scene, records, methods, out_dir / f"per_view_{scene}.png")),
-        ("Error budget: medium PSNR against the oracle and the noise floor",
-         error_budget(scene, records, methods, out_dir / f"error_budget_{scene}.png")),
-        ("Ground truth, renders and error maps", image_grid(scene, records, methods, artefacts, out_dir / f"images_{scene}.png")),
-        ("Density: true and learned", density_slices(scene, records, methods, artefacts, out_dir / f"density_{scene}.png")),
+        (
+            "Error budget: medium PSNR against the oracle and the noise floor",
+            error_budget(scene, records, methods, out_dir / f"error_budget_{scene}.png"),
+        ),
+        (
+            "Ground truth, renders and error maps",
+            image_grid(scene, records, methods, artefacts, out_dir / f"images_{scene}.png"),
+        ),
+        (
+            "Density: true and learned",
+            density_slices(scene, records, methods, artefacts, out_dir / f"density_{scene}.png"),
+        ),
     ]
     return [(caption, p) for caption, p in figures if p is not None]

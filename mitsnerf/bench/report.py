@@ -5,10 +5,21 @@ from __future__ import annotations
 import base64
 import html
 import json
+from collections.abc import Sequence
 from pathlib import Path
-from typing import Any, Sequence
+from typing import Any
 
-from mitsnerf.bench.tables import BEST, COST, QUALITY, Column, _cell_text, best_values, cost_columns, is_best, legend, reference_lines
+from mitsnerf.bench.tables import (
+    BEST,
+    QUALITY,
+    Column,
+    _cell_text,
+    best_values,
+    cost_columns,
+    is_best,
+    legend,
+    reference_lines,
+)
 
 STYLE = """
 body { font-family: sans-serif; margin: 2em; color: #222; }
@@ -63,11 +74,21 @@ def write_report(path: Path, *, title: str, per_scene: Sequence[dict], average: 
         parts.append("<h2>Failed cells</h2><ul>" + "".join(
             f"<li>{html.escape(f['key'])}: {html.escape(f.get('error', ''))}</li>" for f in failed) + "</ul>")
     cost = cost_columns(per_scene)
-    parts += ["<h2>Quality per scene</h2>", html_table(per_scene, QUALITY, "scene", best), _lines(reference_lines(per_scene)),
-              "<h2>Cost per scene</h2>", html_table(per_scene, cost, "scene", best)]
+    parts += [
+        "<h2>Quality per scene</h2>",
+        html_table(per_scene, QUALITY, "scene", best),
+        _lines(reference_lines(per_scene)),
+        "<h2>Cost per scene</h2>",
+        html_table(per_scene, cost, "scene", best),
+    ]
     if len({r["scene"] for r in per_scene}) > 1:
-        parts += ["<h2>Quality averaged over scenes</h2>", html_table(average, QUALITY, None, best),
-                  _lines(reference_lines(average)), "<h2>Cost averaged over scenes</h2>", html_table(average, cost, None, best)]
+        parts += [
+            "<h2>Quality averaged over scenes</h2>",
+            html_table(average, QUALITY, None, best),
+            _lines(reference_lines(average)),
+            "<h2>Cost averaged over scenes</h2>",
+            html_table(average, cost, None, best),
+        ]
     parts += ["<h2>Columns</h2>", _lines([line[2:] for line in legend(QUALITY + cost).splitlines()], "ul")]
     for scene, figs in figures.items():
         parts.append(f"<h2>Scene {html.escape(scene)}</h2>")

@@ -21,22 +21,42 @@ cell trains (:mod:`mitsnerf.bench.external`), and appear in every output as ``NA
 
 from __future__ import annotations
 
-import json
 import os
 import sys
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Callable
+from typing import Any
 
 import numpy as np
 
 from mitsnerf import env
-from mitsnerf.bench.cells import (ARTEFACTS_FILE, ERROR_FILE, Cell, SceneData, cell_dir, code_version, is_done,
-                                  read_record, write_error, write_result)
+from mitsnerf.bench.cells import (
+    ARTEFACTS_FILE,
+    ERROR_FILE,
+    Cell,
+    SceneData,
+    cell_dir,
+    code_version,
+    is_done,
+    read_record,
+    write_error,
+    write_result,
+)
 from mitsnerf.bench.config import BenchConfig
-from mitsnerf.bench.tables import (ORACLE, average_rows, best_rules, cell_row, compact_report, csv_keys, csv_table,
-                                   markdown_report,
-                                   oracle_row, scene_rows, with_oracle_rows)
+from mitsnerf.bench.tables import (
+    ORACLE,
+    average_rows,
+    best_rules,
+    cell_row,
+    compact_report,
+    csv_keys,
+    csv_table,
+    markdown_report,
+    oracle_row,
+    scene_rows,
+    with_oracle_rows,
+)
 from mitsnerf.config import from_dict, to_dict
 from mitsnerf.data.atomic import atomic_write_json, atomic_write_text
 from mitsnerf.errors import SpecError, signal_cause
@@ -150,7 +170,9 @@ def _scene_specs(config: BenchConfig, quick: bool) -> list:
         specs.append(spec)
     names = [s.name for s in specs]
     if len(set(names)) != len(names):
-        raise SpecError(config.source, "scenes", f"two specs share a name ({', '.join(names)}); results are keyed by name")
+        raise SpecError(
+            config.source, "scenes", f"two specs share a name ({', '.join(names)}); results are keyed by name"
+        )
     return specs
 
 
@@ -277,7 +299,14 @@ def write_outputs(config: BenchConfig, options: BenchOptions, cells: list[Cell],
     atomic_write_text(files["table.csv"], csv_table(per_scene, csv_keys(per_scene)))
     atomic_write_text(files["average.csv"], csv_table(average, csv_keys(average)))
     cell_rows = [cell_row(r) for r in records]
-    atomic_write_text(files["cells.csv"], csv_table(cell_rows, ["scene", "method", "seed"] + [k for k in csv_keys(cell_rows) if k not in ("scene", "method", "seed", "seeds", "note")]))
+    atomic_write_text(
+        files["cells.csv"],
+        csv_table(
+            cell_rows,
+            ["scene", "method", "seed"]
+            + [k for k in csv_keys(cell_rows) if k not in ("scene", "method", "seed", "seeds", "note")],
+        ),
+    )
     provenance = env.provenance()
     config_data = {"name": config.name, "description": config.description, "quick": options.quick,
                    "cells": [c.identity() for c in cells]}

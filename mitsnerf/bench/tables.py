@@ -18,7 +18,8 @@ import csv
 import io
 import math
 import re
-from typing import Any, Iterable, Sequence
+from collections.abc import Iterable, Sequence
+from typing import Any
 
 Column = tuple[str, str, int]
 """(key, header, decimals)."""
@@ -116,8 +117,7 @@ MEANINGS: dict[str, str] = {
                         "X dB on medium pixels (measured, not decisive)",
     "note": "failed cells, the oracle's settings, why a density figure is missing",
 }
-BOLD = ("bold: every value equal to the column's best at the displayed precision (per scene; ties are all bold); "
-        "figures are means over seeds")
+BOLD = "bold: the column's best at the displayed precision, per scene, ties all bold; figures are means over seeds"
 
 
 def legend(columns: Sequence[Column]) -> str:
@@ -126,7 +126,7 @@ def legend(columns: Sequence[Column]) -> str:
     >>> print(legend([("psnr_test_medium", "PSNR medium", 2), ("gap_to_oracle", "gap to oracle", 2)]))
     - PSNR medium: PSNR of the test views on the pixels whose ray crosses the true medium (linear, clipped)
     - gap to oracle: oracle medium PSNR minus the row's (dB; 0: as good as the ceiling)
-    - bold: every value equal to the column's best at the displayed precision (per scene; ties are all bold); figures are means over seeds
+    - bold: the column's best at the displayed precision, per scene, ties all bold; figures are means over seeds
     """
     lines = []
     for _, header, _ in columns:
@@ -158,7 +158,8 @@ def _cell_text(row: dict, key: str, digits: int) -> str:
     """A table cell: the formatted value; a ceiling row's method reads ``oracle (ceiling)``; a budget reads
     ``N steps`` (``N steps or seconds`` with a seconds cap).
 
-    >>> _cell_text({"budget": "steps", "steps": 800}, "budget", 0), _cell_text({"method": "oracle", "ceiling": True}, "method", 0)
+    >>> oracle = {"method": "oracle", "ceiling": True}
+    >>> _cell_text({"budget": "steps", "steps": 800}, "budget", 0), _cell_text(oracle, "method", 0)
     ('800 steps', 'oracle (ceiling)')
     """
     text = _fmt(row.get(key), digits)
@@ -206,7 +207,8 @@ def markdown_table(rows: Sequence[dict], columns: Sequence[Column], best: dict[s
     ``best`` maps a key to ``"max"`` or ``"min"``: the best value in that column is bold
     (within each group of rows sharing ``row[group]`` when ``group`` is given).
 
-    >>> print(markdown_table([{"m": "a", "p": 30.0}, {"m": "b", "p": 31.5}], [("m", "method", 0), ("p", "PSNR", 2)], {"p": "max"}))
+    >>> rows, columns = [{"m": "a", "p": 30.0}, {"m": "b", "p": 31.5}], [("m", "method", 0), ("p", "PSNR", 2)]
+    >>> print(markdown_table(rows, columns, {"p": "max"}))
     | method | PSNR |
     |---|---|
     | a | 30.00 |
@@ -323,9 +325,12 @@ def reference_lines(rows: Sequence[dict], group: str = "scene") -> list[str]:
     """Per group of ``rows`` (a scene, or the mean over scenes): how well its two reference renders agree on
     medium pixels, what a perfect model would score, and the oracle (the ceiling).
 
-    >>> reference_lines([{"scene": "cloud", "method": "oracle", "ceiling": True, "psnr_test_medium": 44.82,
-    ...                   "noise_floor_psnr_medium": 43.97}])
-    ['cloud: two reference renders agree to 43.97 dB (medium pixels): a perfect model would score about 46.98 dB; the oracle scores 44.82 dB.']
+    >>> (line,) = reference_lines([{"scene": "cloud", "method": "oracle", "ceiling": True, "psnr_test_medium": 44.82,
+    ...                             "noise_floor_psnr_medium": 43.97}])
+    >>> for part in line.split("; "):
+    ...     print(part)
+    cloud: two reference renders agree to 43.97 dB (medium pixels): a perfect model would score about 46.98 dB
+    the oracle scores 44.82 dB.
     """
     lines = []
     for name in dict.fromkeys(r.get(group) for r in rows):
@@ -333,9 +338,12 @@ def reference_lines(rows: Sequence[dict], group: str = "scene") -> list[str]:
         floor = next((r["noise_floor_psnr_medium"] for r in members if _is_number(r.get("noise_floor_psnr_medium"))),
                      None)
         oracle = next((r["psnr_test_medium"] for r in members if r.get("ceiling")), None)
-        text = (f"two reference renders agree to {_fmt(floor, 2)} dB (medium pixels): a perfect model would score about "
-                f"{_fmt(floor + PERFECT_DB, 2)} dB" if _is_number(floor) else
-                "no reference agreement measured (render.noise_floor = false)")
+        text = (
+            f"two reference renders agree to {_fmt(floor, 2)} dB (medium pixels): a perfect model would score about "
+            f"{_fmt(floor + PERFECT_DB, 2)} dB"
+            if _is_number(floor)
+            else "no reference agreement measured (render.noise_floor = false)"
+        )
         lines.append(f"{name}: {text}" + (f"; the oracle scores {_fmt(oracle, 2)} dB." if _is_number(oracle) else "."))
     return lines
 
@@ -364,11 +372,30 @@ def markdown_report(per_scene: Sequence[dict], average: Sequence[dict], best: di
     """The Markdown written as ``table.md``: every column, quality and cost, per scene and averaged."""
     best = BEST if best is None else best
     cost = cost_columns(per_scene)
-    parts = ["## Quality per scene", "", markdown_table(per_scene, QUALITY, best, group="scene"), "",
-             *reference_lines(per_scene), "", "## Cost per scene", "", markdown_table(per_scene, cost, best, group="scene")]
+    parts = [
+        "## Quality per scene",
+        "",
+        markdown_table(per_scene, QUALITY, best, group="scene"),
+        "",
+        *reference_lines(per_scene),
+        "",
+        "## Cost per scene",
+        "",
+        markdown_table(per_scene, cost, best, group="scene"),
+    ]
     if len({r["scene"] for r in per_scene}) > 1:
-        parts += ["", "## Quality averaged over scenes", "", markdown_table(average, QUALITY, best), "",
-                  *reference_lines(average), "", "## Cost averaged over scenes", "", markdown_table(average, cost, best)]
+        parts += [
+            "",
+            "## Quality averaged over scenes",
+            "",
+            markdown_table(average, QUALITY, best),
+            "",
+            *reference_lines(average),
+            "",
+            "## Cost averaged over scenes",
+            "",
+            markdown_table(average, cost, best),
+        ]
     parts += ["", legend(QUALITY + cost)]
     return "\n".join(parts)
 

@@ -9,7 +9,6 @@ The fit's own run directory (``cell/run``) is written by the worker where it run
 from __future__ import annotations
 
 import io
-import math
 import os
 import platform
 import sys
@@ -160,10 +159,10 @@ def _resumable(cell: Cell) -> bool:
 def _fit(cell: Cell, dataset, train_config, evalc, curve: CurveRecorder, ref, oracle: dict | None, progress: bool):
     """:func:`mitsnerf.runs.fit.fit` into ``CELL/run``, claimed (locked); an interrupted run of the cell is
     continued. Returns ``(run, step resumed from or None)``."""
-    from mitsnerf.train.checkpoint import CHECKPOINT_FILE, load_checkpoint
     from mitsnerf.data.atomic import atomic_write_json
-    from mitsnerf.runs.fit import fit
     from mitsnerf.runs.directory import claim_run_dir
+    from mitsnerf.runs.fit import fit
+    from mitsnerf.train.checkpoint import CHECKPOINT_FILE, load_checkpoint
 
     run_dir = cell.path / "run"
     resume = _resumable(cell)
@@ -194,9 +193,9 @@ def run_cell(cell: Cell, *, progress: bool = False, threads: int = 0, executor: 
     import drjit as dr
 
     from mitsnerf.config import from_dict
-    from mitsnerf.train.evaluate import EvalConfig
     from mitsnerf.scoring import reference
     from mitsnerf.train import TrainConfig
+    from mitsnerf.train.evaluate import EvalConfig
 
     if threads:
         dr.set_thread_count(int(threads))

@@ -27,11 +27,15 @@ class _Parser(argparse.ArgumentParser):
 def build_parser() -> argparse.ArgumentParser:
     parser = _Parser(
         prog="mitsnerf",
-        description="Mitsuba 3 ground truth for participating media, Dr.Jit NeRFs fitted to it, and the benchmarks between them.",
+        description="Mitsuba 3 ground truth for participating media, Dr.Jit NeRFs fitted to it, and the benchmarks "
+        "between them.",
     )
     parser.add_argument("--debug", action="store_true",
                         help="show the traceback of a user error too (bad input, data, output location)")
-    parser.add_argument("--variant", help="Mitsuba variant (default: $MITSNERF_VARIANT, else cuda_ad_rgb if a GPU is usable, else llvm_ad_rgb)")
+    parser.add_argument(
+        "--variant",
+        help="Mitsuba variant (default: $MITSNERF_VARIANT, else cuda_ad_rgb if a GPU is usable, else llvm_ad_rgb)",
+    )
     sub = parser.add_subparsers(dest="command", required=True)
     for command in COMMANDS:
         command.add_parser(sub)
@@ -39,7 +43,8 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 COMMANDS = (env, scenes, methods, generate, train, score, render, export, bench, check)
-"""The command modules, each with ``add_parser(subparsers)`` and ``run(args)``; in the order ``mitsnerf --help`` lists them."""
+"""The command modules, each with ``add_parser(subparsers)`` and ``run(args)``; in the order ``mitsnerf --help``
+lists them."""
 
 
 #: OSErrors of the machine rather than of the code (full disk, read-only or forbidden place), reported in

@@ -16,7 +16,9 @@ def run(args) -> int:
     from mitsnerf.outputs import check_output_dir
 
     if args.deterministic and args.cpus_per_cell not in (0, 1):
-        raise UsageError("--deterministic", f"runs each cell on one thread; --cpus-per-cell {args.cpus_per_cell} contradicts it")
+        raise UsageError(
+            "--deterministic", f"runs each cell on one thread; --cpus-per-cell {args.cpus_per_cell} contradicts it"
+        )
     options = BenchOptions(
         quick=args.quick,
         data_root=Path(args.data) if args.data else default_data_root(),
@@ -37,8 +39,11 @@ def run(args) -> int:
     print(f"\n{len(result.computed)} cells run, {len(result.skipped)} already done -> {result.out_root} "
           f"({', '.join(sorted(p for p in result.files if '/' not in p))})")
     if result.failed:
-        print(f"mitsnerf: {len(result.failed)} cells failed: " + "; ".join(f"{f['key']}: {f['error']}" for f in result.failed),
-              file=sys.stderr)
+        print(
+            f"mitsnerf: {len(result.failed)} cells failed: "
+            + "; ".join(f"{f['key']}: {f['error']}" for f in result.failed),
+            file=sys.stderr,
+        )
         return 1
     return 0
 

@@ -23,7 +23,9 @@ def run(args) -> int:
         print(format_mutations(report), flush=True)
         failed = [r.name for r in report.clean if r.passed is False]
         if failed:
-            print(f"mitsnerf check: {len(failed)} case(s) failed without a mutation: {', '.join(failed)}", file=sys.stderr)
+            print(
+                f"mitsnerf check: {len(failed)} case(s) failed without a mutation: {', '.join(failed)}", file=sys.stderr
+            )
         if report.escaped:
             print(f"mitsnerf check: {len(report.escaped)} mutation(s) caught by no case: {', '.join(report.escaped)}",
                   file=sys.stderr)
@@ -42,9 +44,11 @@ def run(args) -> int:
 
 
 def add_parser(sub) -> None:
-    p = sub.add_parser("check", help="verify the integrator against Mitsuba's volpath, closed forms and finite differences",
-                       description="Run the verification cases (mitsnerf.verify) and print a table; "
-                                   "exit status 1 if any case fails.")
+    p = sub.add_parser(
+        "check",
+        help="verify the integrator against Mitsuba's volpath, closed forms and finite differences",
+        description="Run the verification cases (mitsnerf.verify) and print a table; exit status 1 if any case fails.",
+    )
     from mitsnerf.verify.cases import QUALITIES
 
     sizes = "; ".join(f"{q.name}: {q.width}x{q.width} images, Mitsuba references at {q.spp} spp times each case's "

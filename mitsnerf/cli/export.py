@@ -9,8 +9,8 @@ from mitsnerf.cli.common import check_numbers
 
 
 def run(args) -> int:
-    from mitsnerf.runs.export import MAX_RESOLUTION, export_run
     from mitsnerf.outputs import check_output_dir
+    from mitsnerf.runs.export import MAX_RESOLUTION, export_run
 
     check_numbers([("--resolution", args.resolution, lambda v: 1 <= v <= MAX_RESOLUTION,
                      f"in [1, {MAX_RESOLUTION}] (an R^3 grid: R = {MAX_RESOLUTION} already writes 32 GiB)"),

@@ -9,8 +9,8 @@ from mitsnerf.cli.common import NO_PROGRESS_HELP, check_numbers
 
 def run(args) -> int:
     from mitsnerf.errors import UsageError
-    from mitsnerf.runs.novel import ViewRequest, render_run
     from mitsnerf.outputs import check_output_dir
+    from mitsnerf.runs.novel import ViewRequest, render_run
 
     if args.size and len(args.size) > 2:
         raise UsageError("--size", f"give W or W H, got {len(args.size)} numbers")

@@ -10,9 +10,9 @@ from mitsnerf.cli.common import add_dataset_options, open_dataset, options_confi
 def run(args) -> int:
     from mitsnerf.bench.tables import QUALITY, markdown_table, scene_rows
     from mitsnerf.data.atomic import atomic_write_json
-    from mitsnerf.train.evaluate import EvalConfig
-    from mitsnerf.runs.external import renders_folder, score_renders
     from mitsnerf.outputs import check_output_file
+    from mitsnerf.runs.external import renders_folder, score_renders
+    from mitsnerf.train.evaluate import EvalConfig
 
     renders = renders_folder(Path(args.renders))
     out = Path(args.out) if args.out else renders / "scores.json"
@@ -45,7 +45,9 @@ def add_parser(sub) -> None:
                                    "its test/ renders.")
     p.add_argument("dataset", help="dataset directory (mitsnerf generate output, NeRF-synthetic or instant-ngp)")
     p.add_argument("renders", help="folder of the renders of the test views, or a run directory (its test/)")
-    p.add_argument("--density", metavar="GRID", help="sigma_t on a grid over the dataset's box: .npy [z, y, x] or Mitsuba .vol")
+    p.add_argument(
+        "--density", metavar="GRID", help="sigma_t on a grid over the dataset's box: .npy [z, y, x] or Mitsuba .vol"
+    )
     p.add_argument("--name", help="the row's name (default: the renders folder's name)")
     p.add_argument("--format", choices=("png", "exr"), help="read only these images (needed when both are there)")
     p.add_argument("--exr-alpha", choices=("premultiplied", "straight", "ignore"),

@@ -4,8 +4,15 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from mitsnerf.cli.common import add_config_options, add_dataset_options, given, NO_PROGRESS_HELP, open_dataset, options_config, parse_overrides
-
+from mitsnerf.cli.common import (
+    NO_PROGRESS_HELP,
+    add_config_options,
+    add_dataset_options,
+    given,
+    open_dataset,
+    options_config,
+    parse_overrides,
+)
 
 DEFAULT_METHOD = "ngp"
 """What ``mitsnerf train DIR`` fits with no ``--method``: a few minutes on a 2-core CPU."""
@@ -20,8 +27,8 @@ def _fresh_settings(args) -> tuple[str, dict, object]:
     """``(method, method overrides, EvalConfig)`` of a new run, checked before anything runs."""
     from mitsnerf.config import apply_overrides, from_dict
     from mitsnerf.errors import UsageError
-    from mitsnerf.train.evaluate import EvalConfig
     from mitsnerf.methods import METHODS
+    from mitsnerf.train.evaluate import EvalConfig
 
     if not args.dataset:
         raise UsageError("train", "name a DATASET directory (or pass --resume to continue the run in --out)")
@@ -40,10 +47,21 @@ def _fresh_settings(args) -> tuple[str, dict, object]:
 def _check_resume_flags(args) -> None:
     from mitsnerf.errors import UsageError
 
-    fixed = [flag for flag, value in (("--method", args.method), ("--set", args.set), ("--batch-rays", args.batch_rays),
-                                       ("--lr", args.lr), ("--seed", args.seed), ("--box", args.box),
-                                       ("--footprint", args.footprint), ("--no-pixel-jitter", args.pixel_jitter is not None),
-                                       ("--deterministic", args.deterministic)) if value not in (None, False)]
+    fixed = [
+        flag
+        for flag, value in (
+            ("--method", args.method),
+            ("--set", args.set),
+            ("--batch-rays", args.batch_rays),
+            ("--lr", args.lr),
+            ("--seed", args.seed),
+            ("--box", args.box),
+            ("--footprint", args.footprint),
+            ("--no-pixel-jitter", args.pixel_jitter is not None),
+            ("--deterministic", args.deterministic),
+        )
+        if value not in (None, False)
+    ]
     if args.force:
         raise UsageError("--force", "starts the run over; --resume continues it: pass one of them")
     if fixed:
@@ -62,8 +80,8 @@ def _check_outside_dataset(out: Path, dataset: Path) -> None:
 
 
 def run(args) -> int:
-    from mitsnerf.runs.fit import fit, resume_run
     from mitsnerf.runs.directory import claim_run_dir
+    from mitsnerf.runs.fit import fit, resume_run
     from mitsnerf.train import TrainConfig
 
     train_values = given(args, TRAIN_OPTIONS)
@@ -110,8 +128,8 @@ def _lr_help() -> str:
 
 
 def add_parser(sub) -> None:
-    from mitsnerf.train.evaluate import EvalConfig
     from mitsnerf.train import TrainConfig
+    from mitsnerf.train.evaluate import EvalConfig
 
     p = sub.add_parser("train", help="fit a method to a dataset and evaluate it on the test views")
     p.add_argument("dataset", nargs="?", help="dataset directory (mitsnerf generate output or NeRF-synthetic); "

@@ -11,7 +11,7 @@ zipfile's ``BadZipFile``.
 >>> read_npz(d / "b.npz", "checkpoint")
 Traceback (most recent call last):
 ...
-mitsnerf.errors.DatasetError: ...b.npz: not a readable checkpoint: not a numpy .npz archive (truncated, or another kind of file)
+mitsnerf.errors.DatasetError: ...b.npz: not a readable checkpoint: not a numpy .npz archive (truncated, or ...
 """
 
 from __future__ import annotations

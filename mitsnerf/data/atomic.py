@@ -29,9 +29,10 @@ import os
 import secrets
 import shutil
 import time
+from collections.abc import Iterator, Sequence
 from contextlib import contextmanager
 from pathlib import Path
-from typing import Any, Iterator, Sequence
+from typing import Any
 
 from mitsnerf.errors import DiskFullError
 
@@ -179,7 +180,9 @@ def atomic_dir(final: str | os.PathLike, overwrite: bool = False) -> Iterator[Pa
             os.rename(tmp, final)
     except BaseException as exc:
         _remove(tmp)
-        full = _disk_full(exc, final, f"{final} is left as it was" if final.exists() else f"{final} was not created", tmp)
+        full = _disk_full(
+            exc, final, f"{final} is left as it was" if final.exists() else f"{final} was not created", tmp
+        )
         if full is None:
             raise
         raise full from exc

@@ -15,8 +15,9 @@ import json
 import os
 import shutil
 import sys
+from collections.abc import Iterator
 from pathlib import Path
-from typing import Any, Iterator
+from typing import Any
 
 from mitsnerf.data.atomic import clean_stale_temps
 from mitsnerf.outputs import exclusive_lock

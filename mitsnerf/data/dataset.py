@@ -229,7 +229,9 @@ class Dataset:
         return Views(images, alpha if all_alpha else None, tuple(cameras), _view_names(file_paths),
                      float(meta["pixel_center"]))
 
-    def _to_linear(self, path: Path, img: np.ndarray, premultiplied: bool = False) -> tuple[np.ndarray, np.ndarray | None]:
+    def _to_linear(
+        self, path: Path, img: np.ndarray, premultiplied: bool = False
+    ) -> tuple[np.ndarray, np.ndarray | None]:
         """Linear RGB ``(H, W, 3)`` and alpha ``(H, W)`` or None, per the module's rules."""
         rgb = img[..., :3]
         a = img[..., 3] if img.shape[2] == 4 else None
@@ -325,7 +327,9 @@ def load_dataset(
     if not splits:
         raise DatasetError(root, None, "no transforms_*.json or transforms.json: not a NeRF-synthetic or "
                                        "instant-ngp style dataset")
-    tpath = root / (SINGLE_FILE if _single_file(root) else f"transforms_{'train' if 'train' in splits else splits[0]}.json")
+    tpath = root / (
+        SINGLE_FILE if _single_file(root) else f"transforms_{'train' if 'train' in splits else splits[0]}.json"
+    )
     top = read_json(tpath)
     if not isinstance(top, dict):
         raise DatasetError(tpath, None, f"must hold a JSON object, got {type(top).__name__}")

@@ -58,7 +58,7 @@ class GridField:
     box: Box
 
     @classmethod
-    def from_arrays(cls, sigma_t, box: Box, color=(0.0, 0.0, 0.0)) -> "GridField":
+    def from_arrays(cls, sigma_t, box: Box, color=(0.0, 0.0, 0.0)) -> GridField:
         import mitsuba as mi
 
         sigma_tex = _texture(mi.Texture3f, mi.TensorXf, sigma_t, 1)

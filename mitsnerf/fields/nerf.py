@@ -34,7 +34,6 @@ their gradients in their own order.
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Any
 
 import drjit as dr
 import drjit.nn as nn
@@ -198,7 +197,7 @@ class NeRFField:
     box: Box
 
     @classmethod
-    def create(cls, config: NeRFConfig, TensorXf, box: Box, seed: int = 0, head: bool = True) -> "NeRFField":
+    def create(cls, config: NeRFConfig, TensorXf, box: Box, seed: int = 0, head: bool = True) -> NeRFField:
         """A field of a freshly initialised network; ``head=False``: density only (:meth:`density`)."""
         return cls(config, build_network(config, TensorXf, seed, head), box)
 

@@ -27,7 +27,8 @@ direction; ``sh_degree`` 1-3 remain for anisotropic media or foreign data.
 
 The MLPs are point-major tensor products (:mod:`mitsnerf.fields.mlp`), the fastest
 path measured on the LLVM backend, or ``drjit.nn`` cooperative vectors on the same parameters
-(``network_path``; ``auto``: tensors, :func:`mitsnerf.fields.mlp.network_path`). The hash table is one flat Float array kept by the
+(``network_path``; ``auto``: tensors, :func:`mitsnerf.fields.mlp.network_path`). The hash table is one flat Float
+array kept by the
 field (``encoding.data``), apart from the MLPs: ``drjit.nn`` does not pack it.
 Its size matters on this CPU: forward + backward of 16 levels measured 10 ms per
 2^16 points with 2^15 entries per level, 80 ms with 2^16 (the scattered
@@ -38,13 +39,20 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import Any
 
 import drjit as dr
 import drjit.nn as nn
 
 from mitsnerf.config import check_fields, param
-from mitsnerf.fields.mlp import NETWORK_PATHS, column, dense_apply, dense_apply_coop, dense_init, network_path, rows_tensor
+from mitsnerf.fields.mlp import (
+    NETWORK_PATHS,
+    column,
+    dense_apply,
+    dense_apply_coop,
+    dense_init,
+    network_path,
+    rows_tensor,
+)
 from mitsnerf.fields.sh import MAX_DEGREE, num_coefficients, sh_basis
 from mitsnerf.math.activations import sigmoid
 from mitsnerf.math.box import Box
@@ -197,5 +205,8 @@ class NGPField:
             return type(x)(*(sigmoid(c_k) * self.config.c_max for c_k in c)), self._sigma(out[0])
         out = self._density_mlp(x)
         sh_rows = rows_tensor(self.TensorXf, sh, width)
-        c = sigmoid(dense_apply(self.params, "color.", n_color, dr.concat([out[:, 1:], sh_rows], axis=1))) * self.config.c_max
+        c = (
+            sigmoid(dense_apply(self.params, "color.", n_color, dr.concat([out[:, 1:], sh_rows], axis=1)))
+            * self.config.c_max
+        )
         return type(x)(column(c, 0), column(c, 1), column(c, 2)), self._sigma(column(out, 0))

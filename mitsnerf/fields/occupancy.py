@@ -47,15 +47,15 @@ from __future__ import annotations
 
 import math
 import sys
+from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Any, Callable
+from typing import Any
 
 import drjit as dr
 import numpy as np
 
 from mitsnerf.config import check_fields, param
 from mitsnerf.math.box import Box
-
 
 _STREAM = 0x9E3779B97F4A7C15
 
@@ -246,7 +246,8 @@ def eval_masked(field: Callable[[Any, Any], tuple[Any, Any]], x, d, mask, pad: b
     >>> import mitsuba as mi
     >>> from mitsnerf.env import set_variant; _ = set_variant("llvm_ad_rgb")
     >>> f = lambda x, d: (mi.Array3f(1.0, 2.0, 3.0) + 0.0 * x.x, x.x + 10.0)
-    >>> rgb, sigma = eval_masked(f, mi.Array3f([1.0, 2.0, 3.0], 0, 0), mi.Array3f(0, 0, 1), mi.Bool([True, False, True]))
+    >>> x, d = mi.Array3f([1.0, 2.0, 3.0], 0, 0), mi.Array3f(0, 0, 1)
+    >>> rgb, sigma = eval_masked(f, x, d, mi.Bool([True, False, True]))
     >>> sigma, rgb.y
     ([11, 0, 13], [2, 0, 2])
     """

@@ -85,14 +85,16 @@ class VoxelField:
         self.box = box
         self.n_coeffs = num_coefficients(config.sh_degree)
         if sh.shape[-1] != 3 * self.n_coeffs:
-            raise ValueError(f"sh grid has {sh.shape[-1]} channels, expected 3 x {self.n_coeffs} for degree {config.sh_degree}")
+            raise ValueError(
+                f"sh grid has {sh.shape[-1]} channels, expected 3 x {self.n_coeffs} for degree {config.sh_degree}"
+            )
         self.sigma_raw = sigma_raw
         self.sh = sh
         self._sigma_tex = _texture(mi.Texture3f, sigma_raw)
         self._sh_tex = _texture(mi.Texture3f, sh)
 
     @classmethod
-    def create(cls, config: VoxelFieldConfig, resolution: int, TensorXf, box: Box) -> "VoxelField":
+    def create(cls, config: VoxelFieldConfig, resolution: int, TensorXf, box: Box) -> VoxelField:
         """Uniform grids: density ``sigma_init`` everywhere, SH coefficients 0 (grey ``c_max / 2``)."""
         r = int(resolution)
         sigma_raw = dr.full(TensorXf, config.raw_sigma_init, (r, r, r, 1))
@@ -103,7 +105,7 @@ class VoxelField:
     def resolution(self) -> int:
         return int(self.sigma_raw.shape[0])
 
-    def with_grids(self, sigma_raw=None, sh=None) -> "VoxelField":
+    def with_grids(self, sigma_raw=None, sh=None) -> VoxelField:
         """The same field over new grid tensors (e.g. the optimiser's, or upsampled ones)."""
         return VoxelField(
             self.config,

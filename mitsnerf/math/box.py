@@ -24,8 +24,9 @@ every run. The conventions around it live here and nowhere else:
 from __future__ import annotations
 
 import math
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
-from typing import Any, Callable, Sequence
+from typing import Any
 
 import drjit as dr
 import numpy as np
@@ -63,7 +64,7 @@ class Box:
         object.__setattr__(self, "hi", hi)
 
     @classmethod
-    def cube(cls, half: float, centre: Sequence[float] = (0.0, 0.0, 0.0)) -> "Box":
+    def cube(cls, half: float, centre: Sequence[float] = (0.0, 0.0, 0.0)) -> Box:
         """The cube of half side ``half`` around ``centre``.
 
         >>> Box.cube(1.5).hi
@@ -73,7 +74,7 @@ class Box:
         return cls(tuple(v - half for v in c), tuple(v + half for v in c))
 
     @classmethod
-    def from_list(cls, value: Any) -> "Box":
+    def from_list(cls, value: Any) -> Box:
         """A box from ``[[x0, y0, z0], [x1, y1, z1]]`` (the form datasets and runs record).
 
         >>> Box.from_list([[-1, -1, -1], [1, 1, 1]]).size
@@ -99,7 +100,7 @@ class Box:
         """Length of the box's diagonal (the longest chord)."""
         return math.sqrt(sum(s * s for s in self.size))
 
-    def scaled(self, factor: float) -> "Box":
+    def scaled(self, factor: float) -> Box:
         """The box scaled by ``factor`` about the world origin.
 
         >>> Box().scaled(3.0).lo

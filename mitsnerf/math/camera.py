@@ -59,7 +59,7 @@ class Camera:
         object.__setattr__(self, "c2w", c2w)
 
     @classmethod
-    def from_fov(cls, c2w, width: int, height: int, fov_x_deg: float) -> "Camera":
+    def from_fov(cls, c2w, width: int, height: int, fov_x_deg: float) -> Camera:
         """Centred camera with horizontal field of view ``fov_x_deg`` (square pixels)."""
         if not 0.0 < fov_x_deg < 180.0:
             raise ValueError(f"fov_x must be in (0, 180) degrees, got {fov_x_deg}")

@@ -162,13 +162,13 @@ def density_error(learned, true) -> dict[str, float]:
     >>> round(e["rel_l1"], 6), round(e["rel_l2"], 6), round(e["psnr"], 4)  # mse = 0.25 * 21 / 4
     (0.5, 0.5, 10.8602)
     """
-    l = np.asarray(learned, dtype=np.float64)
+    s = np.asarray(learned, dtype=np.float64)
     t = np.asarray(true, dtype=np.float64)
-    if l.shape != t.shape:
-        raise ValueError(f"grids differ in shape: {l.shape} vs {t.shape}")
+    if s.shape != t.shape:
+        raise ValueError(f"grids differ in shape: {s.shape} vs {t.shape}")
     if t.size == 0 or not np.any(t):
         raise ValueError("the true grid is empty or all zero: relative errors are undefined")
-    diff = l - t
+    diff = s - t
     return {
         "rel_l1": float(np.abs(diff).sum() / np.abs(t).sum()),
         "rel_l2": float(np.linalg.norm(diff.ravel()) / np.linalg.norm(t.ravel())),

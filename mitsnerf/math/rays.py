@@ -18,8 +18,9 @@ Rays are stored flat: view-major, then row-major (``index = (v H + row) W + col`
 from __future__ import annotations
 
 import sys
+from collections.abc import Sequence
 from dataclasses import dataclass
-from typing import Any, Sequence
+from typing import Any
 
 import drjit as dr
 import numpy as np
@@ -115,7 +116,9 @@ class PixelRays:
         rot = np.stack([c.c2w[:3, :3] for c in cameras]).reshape(len(cameras), 9)
         self._rot = [Float(np.ascontiguousarray(rot[:, k], np.float32)) for k in range(9)]
         self._origin = self.Array3f(*(Float(np.array([c.origin[a] for c in cameras], np.float32)) for a in range(3)))
-        self._intr = [Float(np.array([getattr(c, k) for c in cameras], np.float32)) for k in ("fl_x", "fl_y", "cx", "cy")]
+        self._intr = [
+            Float(np.array([getattr(c, k) for c in cameras], np.float32)) for k in ("fl_x", "fl_y", "cx", "cy")
+        ]
 
     @property
     def size(self) -> int:

@@ -12,7 +12,6 @@ from __future__ import annotations
 
 import drjit as dr
 
-
 QUADRATURES = ("seed", "midpoint")
 """The quadrature rules of :func:`stratified_t`: the seed's rule (the default) and the exact midpoint rule."""
 

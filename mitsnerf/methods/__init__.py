@@ -8,7 +8,6 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from types import MappingProxyType
-from typing import Any
 
 from mitsnerf.methods.mitsuba_inverse import MitsubaInverseConfig, MitsubaInverseModel
 from mitsnerf.methods.nerf import NeRFMethodConfig, NeRFModel
@@ -26,11 +25,19 @@ class MethodEntry:
 
 METHODS = MappingProxyType(
     {
-        "nerf": MethodEntry("nerf", NeRFMethodConfig, NeRFModel, "positional-encoding MLPs, coarse + importance samples"),
-        "mitsuba-inverse": MethodEntry("mitsuba-inverse", MitsubaInverseConfig, MitsubaInverseModel,
-                                       "sigma_t/albedo grids through Mitsuba's prbvolpath, coarse to fine"),
+        "nerf": MethodEntry(
+            "nerf", NeRFMethodConfig, NeRFModel, "positional-encoding MLPs, coarse + importance samples"
+        ),
+        "mitsuba-inverse": MethodEntry(
+            "mitsuba-inverse",
+            MitsubaInverseConfig,
+            MitsubaInverseModel,
+            "sigma_t/albedo grids through Mitsuba's prbvolpath, coarse to fine",
+        ),
         "ngp": MethodEntry("ngp", NGPMethodConfig, NGPModel, "hash-grid encoding, tiny MLPs, occupancy-grid skipping"),
-        "voxel": MethodEntry("voxel", VoxelMethodConfig, VoxelModel, "dense density + SH grid, TV prior, coarse to fine"),
+        "voxel": MethodEntry(
+            "voxel", VoxelMethodConfig, VoxelModel, "dense density + SH grid, TV prior, coarse to fine"
+        ),
     }
 )
 

@@ -22,8 +22,9 @@ model whose learned medium can be queried (``field()``; with ``density(x)`` the 
 from __future__ import annotations
 
 from abc import ABC, abstractmethod
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field, replace
-from typing import Any, Callable, ClassVar, Mapping, Protocol, runtime_checkable
+from typing import Any, ClassVar, Protocol, runtime_checkable
 
 import drjit as dr
 
@@ -138,7 +139,7 @@ class Model(ABC):
         """Non-parameter state to checkpoint (numpy-convertible)."""
         return {}
 
-    def load_extra_state(self, state: Mapping) -> None:
+    def load_extra_state(self, state: Mapping) -> None:  # noqa: B027 (a hook: most models have no extra state)
         """Restore what :meth:`extra_state` returned."""
 
 

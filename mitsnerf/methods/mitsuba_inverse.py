@@ -33,8 +33,9 @@ come from emission-absorption quadrature of the current ``sigma_t`` grid over th
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from dataclasses import dataclass
-from typing import Any, Mapping
+from typing import Any
 
 import drjit as dr
 import mitsuba as mi
@@ -43,9 +44,9 @@ import numpy as np
 from mitsnerf.config import check_fields, param
 from mitsnerf.errors import DatasetError
 from mitsnerf.fields.grid import GridField
+from mitsnerf.methods.base import SceneInfo, StepLoss, ViewModel
 from mitsnerf.render.camera import Rendered, render_view
 from mitsnerf.render.volume import render_rays
-from mitsnerf.methods.base import SceneInfo, StepLoss, ViewModel
 
 SIGMA_T_SUFFIX = "interior_medium.sigma_t.data"
 ALBEDO_SUFFIX = "interior_medium.albedo.data"
@@ -113,8 +114,12 @@ class MitsubaInverseModel(ViewModel):
 
         spec_data = (scene.manifest or {}).get("spec")
         if not spec_data:
-            raise DatasetError(None, "manifest.json: spec", "mitsuba-inverse needs a dataset made by 'mitsnerf generate' "
-                                                             "(its spec gives the lights and the medium's placement)")
+            raise DatasetError(
+                None,
+                "manifest.json: spec",
+                "mitsuba-inverse needs a dataset made by 'mitsnerf generate' "
+                "(its spec gives the lights and the medium's placement)",
+            )
         self.config = config
         self.box = scene.box
         self.spec = parse_scene(spec_data, "manifest.json: spec")
@@ -195,7 +200,9 @@ class MitsubaInverseModel(ViewModel):
         if data is None or data.images is None or not data.cameras:
             raise ValueError("mitsuba-inverse trains on whole views: PixelData.from_views gives them")
         if abs(data.pixel_center - 0.5) > 1e-9:
-            raise ValueError(f"mitsuba-inverse renders with Mitsuba's pixel centres (+0.5), the data has {data.pixel_center}")
+            raise ValueError(
+                f"mitsuba-inverse renders with Mitsuba's pixel centres (+0.5), the data has {data.pixel_center}"
+            )
         n_views = len(data.cameras)
         v = self.config.views_per_step
         u = np.asarray(rng.random(mi.Float, 2 * v), dtype=np.float64)

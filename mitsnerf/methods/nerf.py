@@ -36,8 +36,9 @@ view direction (:mod:`mitsnerf.fields.nerf`: on the isotropic media generated he
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from dataclasses import dataclass
-from typing import Any, Literal, Mapping
+from typing import Any, Literal
 
 import drjit as dr
 import drjit.nn as nn
@@ -85,7 +86,7 @@ class NeRFMethodConfig:
         check_fields(self)
 
     @classmethod
-    def single_pass(cls, n_samples: int = 64, **kwargs) -> "NeRFMethodConfig":
+    def single_pass(cls, n_samples: int = 64, **kwargs) -> NeRFMethodConfig:
         """One network, ``n_samples`` stratified samples, no fine pass.
 
         >>> NeRFMethodConfig.single_pass().n_importance
@@ -179,7 +180,8 @@ class NeRFModel(OccupancyModel):
         return self.networks
 
     def set_parameters(self, values: Mapping[str, Any]) -> None:
-        """New values of the networks' weights, each of the shape the config builds (the networks never change shape)."""
+        """New values of the networks' weights, each of the shape the config builds (the networks never change
+        shape)."""
         check_shapes(self.networks, values)
         self.networks.update(values)
 

@@ -11,8 +11,9 @@ every ``occupancy.update_every`` steps.
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from dataclasses import dataclass
-from typing import Any, Mapping
+from typing import Any
 
 import mitsuba as mi
 

@@ -10,7 +10,8 @@ a resumed run updates exactly as an uninterrupted one) and checkpointed with the
 
 from __future__ import annotations
 
-from typing import Any, Mapping
+from collections.abc import Mapping
+from typing import Any
 
 import drjit as dr
 import mitsuba as mi

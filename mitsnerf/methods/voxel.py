@@ -19,10 +19,10 @@ entries (their Adam state restarts). The settings are :class:`VoxelMethodConfig`
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from dataclasses import dataclass
-from typing import Any, Mapping
+from typing import Any
 
-import drjit as dr
 import mitsuba as mi
 
 from mitsnerf.config import check_fields, param
@@ -72,7 +72,8 @@ class VoxelMethodConfig:
         doublings = (self.resolution // self.initial_resolution).bit_length() - 1
         if self.initial_resolution << doublings != self.resolution:
             raise ValueError(
-                f"resolution: must be initial_resolution ({self.initial_resolution}) times a power of 2, got {self.resolution}"
+                f"resolution: must be initial_resolution ({self.initial_resolution}) times a power of 2, "
+                f"got {self.resolution}"
             )
         if len(self.upsample_steps) != doublings:
             raise ValueError(
@@ -117,7 +118,9 @@ class VoxelModel(OccupancyModel):
         sh = values[SH_KEY] if SH_KEY in values else None
         if sigma is not None or sh is not None:
             field = self.base_field
-            _check_grids(field.sigma_raw if sigma is None else sigma, field.sh if sh is None else sh, field.sh.shape[-1])
+            _check_grids(
+                field.sigma_raw if sigma is None else sigma, field.sh if sh is None else sh, field.sh.shape[-1]
+            )
             self.base_field = self.base_field.with_grids(sigma, sh)
 
     @property

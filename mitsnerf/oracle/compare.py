@@ -16,10 +16,10 @@ and each channel's image mean (what sees a small error shared by all pixels).
 
 from __future__ import annotations
 
-import math
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from statistics import NormalDist
-from typing import Any, Sequence
+from typing import Any
 
 import drjit as dr
 import numpy as np
@@ -28,7 +28,6 @@ from mitsnerf.math.box import Box
 from mitsnerf.math.composite import weights
 from mitsnerf.oracle.source import delta_radiance, mean_radiance
 from mitsnerf.render.volume import render_rays, sample_rays
-
 
 ROUNDING = 1e-5
 """Relative rounding allowed between two float32 renders (added to the standard error)."""

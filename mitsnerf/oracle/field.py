@@ -17,8 +17,9 @@ background, no delta term) gives ``C_eps = sum_v a_pv eps_v se_v`` with ``E[C_ep
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass
-from typing import Any, Sequence
+from typing import Any
 
 import numpy as np
 
@@ -47,7 +48,7 @@ class OracleField:
     delta: GridField | None
 
     @classmethod
-    def from_grids(cls, sigma_t: np.ndarray, albedo, mc: np.ndarray, delta: np.ndarray | None, box: Box) -> "OracleField":
+    def from_grids(cls, sigma_t: np.ndarray, albedo, mc: np.ndarray, delta: np.ndarray | None, box: Box) -> OracleField:
         """Grids ``[z, y, x(, 3)]``: ``albedo`` (R, R, R, 3) or an RGB tuple; ``delta`` None for none."""
         def colour(grid):
             return GridField.from_arrays(np.zeros(grid.shape[:3], np.float32), box, color=grid)

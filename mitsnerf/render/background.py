@@ -8,9 +8,10 @@ Mitsuba's own ``envmap`` emitter so the lookup is exactly what ``volpath`` saw.
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Mapping
+from typing import Any
 
 import drjit as dr
 
@@ -71,7 +72,9 @@ def make_background(desc: Mapping[str, Any] | None, root: Path | None = None):
                 "type": "envmap",
                 "bitmap": mi.Bitmap(read_exr(path)[..., :3]),
                 "scale": float(desc.get("scale", 1.0)),
-                "to_world": mi.ScalarTransform4f(desc.get("to_world", [[1, 0, 0, 0], [0, 1, 0, 0], [0, 0, 1, 0], [0, 0, 0, 1]])),
+                "to_world": mi.ScalarTransform4f(
+                    desc.get("to_world", [[1, 0, 0, 0], [0, 1, 0, 0], [0, 0, 1, 0], [0, 0, 0, 1]])
+                ),
             }
         )
         return EnvmapBackground(emitter)

@@ -13,8 +13,9 @@ which converges to the box-filtered pixel Mitsuba's film records (``rfilter = bo
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Any, Callable
+from typing import Any
 
 import drjit as dr
 import numpy as np

@@ -17,7 +17,8 @@ reference the verification checks; a test holds the two equal.
 
 from __future__ import annotations
 
-from typing import Any, Callable
+from collections.abc import Callable
+from typing import Any
 
 import drjit as dr
 

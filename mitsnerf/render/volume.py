@@ -13,8 +13,9 @@ composited (:func:`mitsnerf.math.composite.composite`) with the background behin
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Any, Callable
+from typing import Any
 
 import drjit as dr
 
@@ -22,7 +23,6 @@ from mitsnerf.fields.protocols import Field
 from mitsnerf.math.box import Box
 from mitsnerf.math.composite import Composite, composite
 from mitsnerf.math.sampling import stratified_t
-
 
 
 @dataclass(frozen=True)

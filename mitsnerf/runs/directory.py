@@ -26,13 +26,13 @@ from __future__ import annotations
 import contextlib
 import json
 import os
+from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Iterator
 
-from mitsnerf.train.checkpoint import CHECKPOINT_FILE
 from mitsnerf.errors import OutputError
 from mitsnerf.outputs import check_output_dir, exclusive_lock
+from mitsnerf.train.checkpoint import CHECKPOINT_FILE
 
 #: What a run writes in its directory (:func:`mitsnerf.runs.fit.write_run`); a fresh run removes these.
 RUN_FILES = ("config.json", "params.npz", "history.json", "metrics.json", CHECKPOINT_FILE, "test")

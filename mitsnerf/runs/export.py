@@ -35,7 +35,8 @@ and ``hi``; below the unit box ``[-0.5, 0.5]^3`` of mitsnerf's own scenes)::
     import mitsuba as mi
     mi.set_variant("llvm_ad_rgb")
     lo, hi = [-0.5] * 3, [0.5] * 3
-    grid = lambda name: {"type": "gridvolume", "filename": f"OUT/{name}", "accel": False,  # no fp16 interpolation on CUDA
+    # accel False: no reduced-precision interpolation on CUDA
+    grid = lambda name: {"type": "gridvolume", "filename": f"OUT/{name}", "accel": False,
                          "to_world": mi.ScalarTransform4f().translate(lo).scale([b - a for a, b in zip(lo, hi)])}
     scene = mi.load_dict({
         "type": "scene",
@@ -54,8 +55,9 @@ and ``hi``; below the unit box ``[-0.5, 0.5]^3`` of mitsnerf's own scenes)::
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from pathlib import Path
-from typing import Any, Sequence
+from typing import Any
 
 import numpy as np
 
@@ -63,8 +65,8 @@ from mitsnerf import env
 from mitsnerf.data.atomic import atomic_files, atomic_write_bytes, atomic_write_json
 from mitsnerf.data.vol import write_vol
 from mitsnerf.errors import DatasetError
-from mitsnerf.methods.base import HasField
 from mitsnerf.math.box import Box
+from mitsnerf.methods.base import HasField
 
 DEFAULT_DIRECTIONS = 16
 #: The largest grid resolution ``R`` exported: ``R^3`` voxels, each 8 float32 values in the files and
@@ -145,7 +147,8 @@ def export_field(
     box: Box | None = None,
     info: dict[str, Any] | None = None,
 ) -> dict[str, Path]:
-    """Sample ``field`` over ``box`` and write the files of the module docstring to ``out_dir``; returns them by name."""
+    """Sample ``field`` over ``box`` and write the files of the module docstring to ``out_dir``; returns them by
+    name."""
     if box is None:
         raise ValueError("export_field: the scene box the field lives in is needed")
     dirs = np.asarray(direction, dtype=np.float64) if direction is not None else fibonacci_directions(n_directions)

@@ -50,9 +50,10 @@ it as PNG), others against the manifest's.
 from __future__ import annotations
 
 import re
+from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Sequence
+from typing import Any
 
 import numpy as np
 
@@ -201,7 +202,9 @@ def read_renders(dataset: Dataset, folder: Path, fmt: str | None = None, split: 
         bad = ~np.isfinite(img)
         if bad.any():
             r, c, _ = np.argwhere(bad)[0]
-            raise DatasetError(path, None, f"{int(bad.sum())} non-finite pixel values (NaN/inf), first at row {r}, column {c}")
+            raise DatasetError(
+                path, None, f"{int(bad.sum())} non-finite pixel values (NaN/inf), first at row {r}, column {c}"
+            )
         if background is None and img.shape[2] == 4 and (img[..., 3] < 1).any():
             bg = make_background(dataset.background, dataset.root)
             background = pixel_background(bg, views.cameras, views.pixel_center).astype(np.float32)
@@ -254,7 +257,9 @@ PNG_FLOOR = "8-bit sRGB PNG: test_ref quantised as a PNG against test"
 EXR_FLOOR = "linear float: test_ref against test (the manifest's)"
 
 
-def _floor_of_format(dataset: Dataset, ref: scoring.Reference, paths: Sequence[Path]) -> tuple[scoring.Reference, str | None]:
+def _floor_of_format(
+    dataset: Dataset, ref: scoring.Reference, paths: Sequence[Path]
+) -> tuple[scoring.Reference, str | None]:
     """``ref`` with the noise floor of the renders' format, and what that floor is: renders that are all PNG
     are held against :func:`mitsnerf.scoring.png_noise_floor` (8-bit quantisation costs dB no tool can win
     back), others against the manifest's floor; ``(ref, None)`` without a floor."""

@@ -15,31 +15,32 @@ from __future__ import annotations
 import json
 import os
 import shutil
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Callable, Mapping
+from typing import Any
 
 import numpy as np
 
 from mitsnerf import env, scoring
-from mitsnerf.train.checkpoint import CHECKPOINT_FILE, Checkpointer, load_checkpoint, restore_optimizer
 from mitsnerf.config import from_dict, to_dict
 from mitsnerf.data.arrays import read_npz
 from mitsnerf.data.atomic import atomic_dir, atomic_write_json
 from mitsnerf.data.dataset import Dataset, load_dataset
-from mitsnerf.data.verify import verify_dataset
 from mitsnerf.data.images import write_exr, write_png
+from mitsnerf.data.verify import verify_dataset
 from mitsnerf.errors import DatasetError, DiskFullError, OutputError, UsageError
-from mitsnerf.train.evaluate import EvalConfig, render_views, stack_rgb
+from mitsnerf.fields.protocols import DensityField
 from mitsnerf.math.box import Box
 from mitsnerf.methods import METHODS, get_method
-from mitsnerf.fields.protocols import DensityField
 from mitsnerf.methods.base import HasField, Model, ParameterShapeError, SceneInfo, num_parameters
 from mitsnerf.render.background import make_background
 from mitsnerf.render.camera import Rendered
 from mitsnerf.runs.directory import RUN_FILES, remove_run_files
 from mitsnerf.train import PixelData, TrainConfig, TrainResult, TrainState, make_optimizer, train
+from mitsnerf.train.checkpoint import CHECKPOINT_FILE, Checkpointer, load_checkpoint, restore_optimizer
 from mitsnerf.train.checkpointing import interrupted_message
+from mitsnerf.train.evaluate import EvalConfig, render_views, stack_rgb
 from mitsnerf.train.threads import one_thread
 
 
@@ -121,8 +122,12 @@ def _check_resumable(saved: Mapping[str, Any], current: Mapping[str, Any], where
         raise DatasetError(where, "method", f"the checkpoint is of {saved.get('method')!r}, not {current['method']!r}")
     old = saved.get("method_config") or {}
     if old != current["method_config"]:
-        diff = sorted(k for k in set(old) | set(current["method_config"]) if old.get(k) != current["method_config"].get(k))
-        raise DatasetError(where, "method_config", f"differs from the checkpoint's in {', '.join(diff)}; resume with the same settings")
+        diff = sorted(
+            k for k in set(old) | set(current["method_config"]) if old.get(k) != current["method_config"].get(k)
+        )
+        raise DatasetError(
+            where, "method_config", f"differs from the checkpoint's in {', '.join(diff)}; resume with the same settings"
+        )
     for key, value in current["train"].items():
         was = (saved.get("train") or {}).get(key)
         if key not in RESUMABLE_CHANGES and was != value:
@@ -137,9 +142,14 @@ def _check_same_dataset(saved: Mapping[str, Any], dataset: Dataset, run_dir: Pat
     now, now_hash = str(Path(dataset.root).resolve()), (dataset.manifest or {}).get("hash")
     same = was_hash == now_hash if (was_hash and now_hash) else was == now
     if not same:
-        tag = lambda h: f" (manifest hash {h[:12]})" if h else ""
-        raise UsageError("--resume", f"the run in {run_dir} trained on {was}{tag(was_hash)}, not on {now}{tag(now_hash)}; "
-                                     "resume it on its own dataset (leave DATASET out), or train a new run elsewhere")
+        def tag(h: str | None) -> str:
+            return f" (manifest hash {h[:12]})" if h else ""
+
+        raise UsageError(
+            "--resume",
+            f"the run in {run_dir} trained on {was}{tag(was_hash)}, not on {now}{tag(now_hash)}; "
+            "resume it on its own dataset (leave DATASET out), or train a new run elsewhere",
+        )
 
 
 def run_method(config: Mapping[str, Any], where: Path) -> str:
@@ -217,7 +227,8 @@ def fit(
     ``reference``: the test views' :class:`mitsnerf.scoring.Reference` if the caller has it
     (else built here); ``oracle``: the oracle's test metrics at the same footprint, for the
     error budget. With ``out_dir``, checkpoints go to ``out_dir/checkpoint.npz`` (a fresh run
-    first removes an old run's files there, :func:`mitsnerf.runs.directory.remove_run_files`); ``resume=True`` continues from it instead, which must be of
+    first removes an old run's files there, :func:`mitsnerf.runs.directory.remove_run_files`); ``resume=True``
+    continues from it instead, which must be of
     the same method, method settings and training settings (except :data:`RESUMABLE_CHANGES`).
     ``on_log(entry, model)`` runs after each history entry, off the training clock (e.g. a
     held-out curve, :class:`mitsnerf.bench.worker.CurveRecorder`); a resumed run calls it again on
@@ -236,8 +247,16 @@ def fit(
     if state is not None and on_log is not None and state.history and state.history[-1].get("step") == state.step:
         on_log(state.history[-1], model)  # a signal may have stopped the hook on the checkpoint's own entry
     with one_thread(deterministic):
-        result, _ = train(model, data, train_config, config.lr, state=state, progress=progress,
-                          checkpointer=checkpointer, on_log=None if on_log is None else (lambda entry: on_log(entry, model)))
+        result, _ = train(
+            model,
+            data,
+            train_config,
+            config.lr,
+            state=state,
+            progress=progress,
+            checkpointer=checkpointer,
+            on_log=None if on_log is None else (lambda entry: on_log(entry, model)),
+        )
     try:
         run = evaluate_run(model, method, run_config, result, dataset, ref, eval_config, oracle)
         if out_dir is not None:
@@ -266,7 +285,9 @@ def evaluate_run(model: Model, method: str, run_config: dict, result: TrainResul
     train_views = dataset.views("train")
     n = min(eval_config.train_eval_views, len(train_views.cameras))
     train_renders, _ = render_views(model, train_views.cameras[:n], pixel_center=train_views.pixel_center, footprint=k)
-    scores["psnr_train"] = scoring.image_scores(stack_rgb(train_renders), train_views.images[:n], with_ssim=False)["psnr_test"]
+    scores["psnr_train"] = scoring.image_scores(stack_rgb(train_renders), train_views.images[:n], with_ssim=False)[
+        "psnr_test"
+    ]
     return RunResult(method, run_config, result, scores, renders, slices, num_parameters(model.parameters()),
                      seconds, model)
 
@@ -293,7 +314,9 @@ def write_run(run: RunResult, dataset: Dataset, out_dir: Path, test_names) -> No
     out_dir = Path(out_dir)
     out_dir.parent.mkdir(parents=True, exist_ok=True)
     with atomic_dir(out_dir, overwrite=True) as tmp:
-        atomic_write_json(tmp / "config.json", {**run.config, "provenance": env.provenance()})  # the dataset's absolute path
+        atomic_write_json(
+            tmp / "config.json", {**run.config, "provenance": env.provenance()}
+        )  # the dataset's absolute path
         if (out_dir / CHECKPOINT_FILE).is_file():  # the final checkpoint fit() wrote there
             shutil.copy2(out_dir / CHECKPOINT_FILE, tmp / CHECKPOINT_FILE)
         save_parameters(tmp / "params.npz", run.model.parameters())
@@ -302,8 +325,11 @@ def write_run(run: RunResult, dataset: Dataset, out_dir: Path, test_names) -> No
         (tmp / "test").mkdir()
         for name, rendered in zip(test_names, run.renders):
             stem = Path(name).name
-            write_exr(tmp / "test" / f"{stem}.exr", np.concatenate([rendered.rgb, rendered.opacity[..., None]], axis=-1),
-                      alpha="opacity")
+            write_exr(
+                tmp / "test" / f"{stem}.exr",
+                np.concatenate([rendered.rgb, rendered.opacity[..., None]], axis=-1),
+                alpha="opacity",
+            )
             write_png(tmp / "test" / f"{stem}.png", rendered.rgb)
         _carry_over(out_dir, tmp)
 
@@ -385,7 +411,9 @@ def load_run(run_dir: Path) -> tuple[Model, Dataset, dict]:
 
         where = run_dir / "params.npz"
         if not (run_dir / "config.json").is_file() or not where.is_file():
-            raise DatasetError(run_dir, None, "neither checkpoint.npz nor config.json + params.npz: not a run directory")
+            raise DatasetError(
+                run_dir, None, "neither checkpoint.npz nor config.json + params.npz: not a run directory"
+            )
         config_where = run_dir / "config.json"
         config = read_json(config_where)
         params = read_npz(where, "parameter file")

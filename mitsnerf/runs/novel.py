@@ -39,16 +39,17 @@ from __future__ import annotations
 import importlib.util
 import io
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Sequence
 
 import numpy as np
 
 from mitsnerf import env
 from mitsnerf.data.atomic import atomic_path, atomic_write_bytes, atomic_write_json
 from mitsnerf.data.images import write_exr, write_png
-from mitsnerf.math.camera import Camera, look_at as look_at_matrix
+from mitsnerf.math.camera import Camera
+from mitsnerf.math.camera import look_at as look_at_matrix
 
 MIN_OPACITY = 1e-4
 """Depth is reported only where the opacity exceeds this."""
@@ -287,7 +288,13 @@ def render_run(run_dir: Path, out_dir: Path, request: ViewRequest = ViewRequest(
     calls = previous_calls(out_dir / "render.json")
     out_dir.mkdir(parents=True, exist_ok=True)
     written, frames = [], []
-    for cam, stem in tqdm(list(zip(cams, stems)), desc="render", unit="view", disable=True if not progress or len(cams) < 2 else None, leave=False):
+    for cam, stem in tqdm(
+        list(zip(cams, stems)),
+        desc="render",
+        unit="view",
+        disable=True if not progress or len(cams) < 2 else None,
+        leave=False,
+    ):
         rendered = model.render_view(cam, pixel_center=pixel_center, footprint=footprint)
         written += write_views(out_dir, stem, rendered)
         frames.append(linear_to_srgb(np.clip(rendered.rgb, 0.0, 1.0)))

@@ -1,4 +1,5 @@
-"""Scene specifications: TOML files (the library: ``mitsnerf/scene/library/NAME.toml``) parsed into frozen, validated dataclasses.
+"""Scene specifications: TOML files (the library: ``mitsnerf/scene/library/NAME.toml``) parsed into frozen,
+validated dataclasses.
 
 A spec names a volume (a :mod:`mitsnerf.volumes` family, its grid and optical thickness), the
 lights, a camera rig and the render settings; see ``docs/conventions.md`` ("Scene specs") for
@@ -31,13 +32,23 @@ import math
 import os
 import re
 import typing
+from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
 from types import MappingProxyType
-from typing import Any, ClassVar, Mapping, Union
+from typing import Any, ClassVar
 
-from mitsnerf.config import (from_dict, named_files, param, plain, read_toml, search_dirs, source_field, to_dict,
-                             with_overrides)
+from mitsnerf.config import (
+    from_dict,
+    named_files,
+    param,
+    plain,
+    read_toml,
+    search_dirs,
+    source_field,
+    to_dict,
+    with_overrides,
+)
 from mitsnerf.errors import SpecError
 
 #: The world's up axis (Z-up). Rigs' "upper half" and the sky's zenith are +Z.
@@ -189,7 +200,7 @@ class PointLight(LightSpec):
 
 
 #: A light of any kind: a table picks its kind by its ``type`` key.
-Light = Union[ConstantLight, SkyLight, DirectionalLight, PointLight]
+Light = ConstantLight | SkyLight | DirectionalLight | PointLight
 #: The light kinds by TOML ``type``.
 LIGHT_TYPES: dict[str, type[LightSpec]] = {c.type: c for c in typing.get_args(Light)}
 
@@ -304,7 +315,7 @@ class SceneSpec:
     @property
     def environment(self) -> LightSpec | None:
         """The environment light (constant or sky) that camera rays see, or None."""
-        return next((l for l in self.lights if l.is_environment), None)
+        return next((light for light in self.lights if light.is_environment), None)
 
     def to_dict(self) -> dict[str, Any]:
         """Plain data (TOML/JSON types) that :func:`parse_scene` turns back into an equal spec.
@@ -316,7 +327,7 @@ class SceneSpec:
             del data["world"]
         return data
 
-    def with_overrides(self, overrides: Mapping[str, Any]) -> "SceneSpec":
+    def with_overrides(self, overrides: Mapping[str, Any]) -> SceneSpec:
         """A copy with dotted fields replaced (``{"cameras.width": 16, "lights.0.radiance": [1, 1, 1]}``),
         validated again. Integer path parts index the ``lights`` list."""
         return with_overrides(self, overrides, f"{self.source or '<spec>'} (with overrides)")

@@ -81,7 +81,9 @@ def medium_box(sigma_t: np.ndarray, albedo, box: Box) -> dict[str, Any]:
     """
     import mitsuba as mi
 
-    albedo_entry: Any = float(albedo) if np.ndim(albedo) == 0 else grid_volume(np.asarray(albedo, dtype=np.float32), box)
+    albedo_entry: Any = (
+        float(albedo) if np.ndim(albedo) == 0 else grid_volume(np.asarray(albedo, dtype=np.float32), box)
+    )
     return {
         "type": "cube",
         "to_world": mi.ScalarTransform4f().translate(list(box.centre)).scale([0.5 * s for s in box.size]),

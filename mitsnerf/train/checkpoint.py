@@ -49,9 +49,10 @@ from __future__ import annotations
 import io
 import json
 import os
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Mapping
+from typing import Any
 
 import numpy as np
 
@@ -249,10 +250,14 @@ def restore_optimizer(opt, ckpt: Checkpoint, where: str | os.PathLike | None = N
 
     info = ckpt.optimizer
     if info.get("type") != type(opt).__name__:
-        raise DatasetError(where, "optimizer.type", f"checkpoint has {info.get('type')}, the run uses {type(opt).__name__}")
+        raise DatasetError(
+            where, "optimizer.type", f"checkpoint has {info.get('type')}, the run uses {type(opt).__name__}"
+        )
     for name in _ADAM_HYPER:
         if name in info and info[name] != getattr(opt, name):
-            raise DatasetError(where, f"optimizer.{name}", f"checkpoint has {info[name]!r}, the run uses {getattr(opt, name)!r}")
+            raise DatasetError(
+                where, f"optimizer.{name}", f"checkpoint has {info[name]!r}, the run uses {getattr(opt, name)!r}"
+            )
     saved, current = set(info["params"]), set(opt.keys())
     if saved != current:
         raise DatasetError(where, "params", f"checkpoint holds {sorted(saved)}, the model has {sorted(current)}")

@@ -21,9 +21,9 @@ import _thread
 import signal
 import sys
 import threading
+from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
-from typing import Iterator
 
 from mitsnerf.errors import Interrupted
 

@@ -2,8 +2,9 @@
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass
-from typing import Any, Sequence
+from typing import Any
 
 import drjit as dr
 import mitsuba as mi
@@ -27,7 +28,7 @@ class PixelData:
     pixel_center: float = 0.5
 
     @classmethod
-    def from_views(cls, images: np.ndarray, cameras: Sequence[Camera], pixel_center: float = 0.5) -> "PixelData":
+    def from_views(cls, images: np.ndarray, cameras: Sequence[Camera], pixel_center: float = 0.5) -> PixelData:
         """``images`` (V, H, W, 3) linear RGB with one camera each."""
         if len(images) != len(cameras):
             raise ValueError(f"{len(images)} images but {len(cameras)} cameras")

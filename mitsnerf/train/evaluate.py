@@ -9,8 +9,8 @@ point (for foreign data made by point sampling). Every result records its ``foot
 from __future__ import annotations
 
 import time
+from collections.abc import Sequence
 from dataclasses import dataclass
-from typing import Sequence
 
 import numpy as np
 

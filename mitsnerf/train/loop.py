@@ -13,8 +13,9 @@ returns written into the optimiser. Every ``log_every`` steps a history entry (`
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import Any, Callable
+from typing import Any
 
 import drjit as dr
 import drjit.opt  # noqa: F401  (makes dr.opt available)
@@ -113,7 +114,9 @@ class _Loop:
             model.set_parameters(opt)
         self.step, self.rays, self.loss, self.lr = step + 1, self.rays + out.rays, loss, lr
         self.monitor.add(loss)
-        entry = self.log_entry(loss, out.mse) if self.step % config.log_every == 0 or self.step == config.steps else None
+        entry = (
+            self.log_entry(loss, out.mse) if self.step % config.log_every == 0 or self.step == config.steps else None
+        )
         self.snapshot = self.state()
         if entry is not None and self.on_log is not None:
             with self.clock.paused():

@@ -10,8 +10,15 @@ class Progress:
     def __init__(self, name: str, steps: int, start: int, enabled: bool) -> None:
         from tqdm.auto import tqdm
 
-        self.bar = tqdm(total=steps, initial=start, disable=None if enabled else True, desc=f"train {name}", unit="step",
-                        dynamic_ncols=True, leave=False)
+        self.bar = tqdm(
+            total=steps,
+            initial=start,
+            disable=None if enabled else True,
+            desc=f"train {name}",
+            unit="step",
+            dynamic_ncols=True,
+            leave=False,
+        )
 
     def step(self) -> None:
         self.bar.update(1)

@@ -9,8 +9,8 @@ to run (and resumed runs equal straight ones), at the cost of the other cores.
 
 from __future__ import annotations
 
+from collections.abc import Iterator
 from contextlib import contextmanager
-from typing import Iterator
 
 
 @contextmanager

@@ -162,7 +162,8 @@ EXPECTED_ORDERS = {"order_exit0": 2.0, "order_linear": 1.0, "coef_linear": 1.0, 
 
 
 def run_closed_form(case: ClosedFormCase) -> ClosedFormResult:
-    """All three checks for both rules; a failure is any formula off by more than ``case.rtol`` or an order off by ``order_tol``."""
+    """All three checks for both rules; a failure is any formula off by more than ``case.rtol`` or an order off by
+    ``order_tol``."""
     start = time.perf_counter()
     errors = []
     for quadrature in ("seed", "midpoint"):

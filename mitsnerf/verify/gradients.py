@@ -34,8 +34,9 @@ the difference quotient matches AD to 1e-8.
 from __future__ import annotations
 
 import time
+from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Any, Callable
+from typing import Any
 
 import drjit as dr
 import numpy as np
@@ -103,7 +104,9 @@ def make_problem(case: GradientCase, quality: Quality) -> tuple[Any, Callable[[A
     albedo_np = procedural_albedo(GRID_RESOLUTION)
     if case.parameter == "sigma_t_grid":
         color = mi.TensorXf(albedo_np)
-        return mi.TensorXf(sigma_np[..., None]), lambda theta: image_of(GridField.from_arrays(theta, UNIT_BOX, color=color))
+        return mi.TensorXf(sigma_np[..., None]), lambda theta: image_of(
+            GridField.from_arrays(theta, UNIT_BOX, color=color)
+        )
     if case.parameter == "color_grid":
         return mi.TensorXf(albedo_np), lambda theta: image_of(GridField.from_arrays(sigma_np, UNIT_BOX, color=theta))
     if case.parameter == "nerf_weights":
@@ -171,7 +174,10 @@ def check_gradients(case: GradientCase, quality: Quality) -> GradientResult:
 
     def central(direction: np.ndarray, eps: float) -> float:
         with dr.suspend_grad():
-            plus, minus = loss64(image_fn(tensor(base + eps * direction))), loss64(image_fn(tensor(base - eps * direction)))
+            plus, minus = (
+                loss64(image_fn(tensor(base + eps * direction))),
+                loss64(image_fn(tensor(base - eps * direction))),
+            )
         return (plus - minus) / (2 * eps)
 
     theta = tensor(base)

@@ -98,7 +98,7 @@ class Reference:
     n: int
     seconds: float
 
-    def reshaped(self, *shape: int) -> "Reference":
+    def reshaped(self, *shape: int) -> Reference:
         return Reference(self.mean.reshape(*shape, 3), self.var.reshape(*shape, 3), self.n, self.seconds)
 
 

@@ -3,7 +3,8 @@
 Written again in numpy, sharing nothing with the package's sampling (``stratified_t``),
 the render path's box clipping (``Box.intersect``, Dr.Jit) or compositing (``composite``), so a
 bug there cannot reach it; the box is clipped by the float64 numpy slab test
-``Box.intersect_numpy``, which only scoring uses besides. Only the field (the content under test's input, not its quadrature) is evaluated
+``Box.intersect_numpy``, which only scoring uses besides. Only the field (the content under test's input, not its
+quadrature) is evaluated
 through Dr.Jit, at the same sample positions. Per ray, with ``[t_n, t_f]`` the ray's part of
 the box ``[-0.5, 0.5]^3`` (docs/conventions.md) and ``h = (t_f - t_n) / N``::
 
@@ -25,14 +26,17 @@ the box ``[-0.5, 0.5]^3`` (docs/conventions.md) and ``h = (t_f - t_n) / N``::
 
 from __future__ import annotations
 
-from typing import Any, Callable
+from collections.abc import Callable
+from typing import Any
 
 import numpy as np
 
 from mitsnerf.math.box import UNIT_BOX
 
 
-def sample_distances(t_n: np.ndarray, t_f: np.ndarray, n: int, quadrature: str = "seed") -> tuple[np.ndarray, np.ndarray]:
+def sample_distances(
+    t_n: np.ndarray, t_f: np.ndarray, n: int, quadrature: str = "seed"
+) -> tuple[np.ndarray, np.ndarray]:
     """Stratum midpoints ``t`` (R, N) and interval lengths ``delta`` (R, N) of the rule ``quadrature``."""
     h = (t_f - t_n)[:, None] / n
     t = t_n[:, None] + (np.arange(n) + 0.5) * h

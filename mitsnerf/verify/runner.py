@@ -16,9 +16,9 @@ from __future__ import annotations
 
 import tempfile
 import time
+from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Callable, Iterable
 
 import numpy as np
 
@@ -86,9 +86,18 @@ def _family_result(name: str, checks: str, o: S.Outcome, artifacts: Artifacts | 
     evidence = (f"mean z {f.z_mean:+.1f}" if f.mean_rejected_any else
                 f"{f.n_rejected} px" if f.n_rejected else f"rel. mean {worst.rel_mean_error:.1e}")
     return CaseResult(
-        name, checks, o.reference, f"rel. mean {f.rel_mean_error:.1e} (<= {bound:g}), mean z {f.z_mean:+.2f}", f.max_abs_z,
-        f"{f.n_rejected_all}/{f.n_tests}", f.passed, o.seconds, detail,
-        o.note, evidence)
+        name,
+        checks,
+        o.reference,
+        f"rel. mean {f.rel_mean_error:.1e} (<= {bound:g}), mean z {f.z_mean:+.2f}",
+        f.max_abs_z,
+        f"{f.n_rejected_all}/{f.n_tests}",
+        f.passed,
+        o.seconds,
+        detail,
+        o.note,
+        evidence,
+    )
 
 
 # --------------------------------------------------------------------------- deterministic cases
@@ -230,9 +239,13 @@ class Suite:
     def jobs(self) -> list[tuple[str, Callable[[], CaseResult]]]:
         """``(name, run)`` of every case, in table order."""
         q, a = self.quality, self.artifacts
-        jobs: list[tuple[str, Callable[[], CaseResult]]] = [(C.CLOSED_FORM.name, lambda: closed_form_case(C.CLOSED_FORM))]
-        jobs += [(s.name, lambda s=s: _family_result(s.name, "integrator", S.evaluate_scenario(self.scenario(s.name)), a))
-                 for s in C.SCENARIOS]
+        jobs: list[tuple[str, Callable[[], CaseResult]]] = [
+            (C.CLOSED_FORM.name, lambda: closed_form_case(C.CLOSED_FORM))
+        ]
+        jobs += [
+            (s.name, lambda s=s: _family_result(s.name, "integrator", S.evaluate_scenario(self.scenario(s.name)), a))
+            for s in C.SCENARIOS
+        ]
         t = C.TRAINING_PATH
         jobs += [(t.name, lambda: _family_result(t.name, "training path",
                                                  S.evaluate_training_path(t, self.scenario(t.scenario)), a))]
@@ -262,7 +275,9 @@ def _wanted(only: Iterable[str] | None) -> set[str] | None:
     if wanted:
         unknown = wanted - set(C.ALL_CASE_NAMES)
         if unknown:
-            raise UsageError("--case", f"unknown case(s) {', '.join(sorted(unknown))}; known: {', '.join(C.ALL_CASE_NAMES)}")
+            raise UsageError(
+                "--case", f"unknown case(s) {', '.join(sorted(unknown))}; known: {', '.join(C.ALL_CASE_NAMES)}"
+            )
     return wanted
 
 
@@ -374,7 +389,8 @@ def format_table(results: list[CaseResult], alpha: float | None = None) -> str:
 def count_line(results: list[CaseResult]) -> str:
     """The summary a check run ends with: ``N passed, M failed`` (records, neither passed nor failed, are not counted).
 
-    >>> count_line([CaseResult("a", "c", "r", "e", None, "-", True, 0.1), CaseResult("b", "c", "r", "e", None, "-", None, 0.1)])
+    >>> passed, recorded = (CaseResult(n, "c", "r", "e", None, "-", ok, 0.1) for n, ok in (("a", True), ("b", None)))
+    >>> count_line([passed, recorded])
     '1 passed, 0 failed'
     """
     passed = sum(r.passed is True for r in results)

@@ -47,9 +47,9 @@ def prepare_scenario(s: C.VolpathScenario, quality: C.Quality) -> PreparedScenar
     """Render the volpath reference of ``s`` (the slow part) and build the matching field."""
     import mitsuba as mi
 
+    from mitsnerf.math.box import UNIT_BOX
     from mitsnerf.render.background import EnvmapBackground
     from mitsnerf.verify import mitsuba_refs as M
-    from mitsnerf.math.box import UNIT_BOX
     from mitsnerf.verify.sources import SOURCE_BUILDERS
 
     sigma_t, albedo = C.scenario_grids(s, quality.resolution)

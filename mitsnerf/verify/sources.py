@@ -20,8 +20,9 @@ the field ``(x, d) -> (c, sigma_t)``. A new kind of source (say, an in-scattered
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Any, Callable
+from typing import Any
 
 import drjit as dr
 import numpy as np
@@ -109,8 +110,15 @@ def in_scattered_source(scenario, sigma_t, albedo, scene, quality):
     from mitsnerf.verify import mitsuba_refs as M
 
     depth = inner_max_depth(scenario.max_depth)
-    inner = None if depth is None else (
-        scene if depth == scenario.max_depth else mi.load_dict(M.scene_dict(sigma_t, albedo, M.emitters_of(scenario), depth)))
+    inner = (
+        None
+        if depth is None
+        else (
+            scene
+            if depth == scenario.max_depth
+            else mi.load_dict(M.scene_dict(sigma_t, albedo, M.emitters_of(scenario), depth))
+        )
+    )
     albedo_grid = albedo if np.ndim(albedo) else np.full(sigma_t.shape + (3,), float(albedo), np.float32)
     lights = [DirectionalLight(direction=scenario.sun_direction, irradiance=scenario.sun_irradiance)]
     return PointSource(inner, GridField.from_arrays(sigma_t, UNIT_BOX, color=albedo_grid), lights, UNIT_BOX,

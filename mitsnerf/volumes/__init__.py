@@ -28,8 +28,9 @@ mitsnerf.errors.SpecError: octaves: must be an integer >= 1, got 0
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from types import MappingProxyType
-from typing import Any, Mapping
+from typing import Any
 
 from mitsnerf.config import from_dict
 from mitsnerf.volumes import blobs, cloud, lattice, nebula, plume, shell

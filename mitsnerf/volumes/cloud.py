@@ -31,7 +31,13 @@ import numpy as np
 from mitsnerf.config import param
 from mitsnerf.volumes import params as common
 from mitsnerf.volumes.base import (
-    MARGIN, Family, VolumeGrids, constant_albedo, finish, smoothstep, voxels_in_ball,
+    MARGIN,
+    Family,
+    VolumeGrids,
+    constant_albedo,
+    finish,
+    smoothstep,
+    voxels_in_ball,
 )
 from mitsnerf.volumes.noise import NOISE_BOUND, GradientNoise, fbm
 

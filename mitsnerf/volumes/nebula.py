@@ -26,7 +26,13 @@ import numpy as np
 from mitsnerf.config import param
 from mitsnerf.volumes import params as common
 from mitsnerf.volumes.base import (
-    MARGIN, Family, VolumeGrids, finish, smoothstep, voxel_centres, voxels_in_ball,
+    MARGIN,
+    Family,
+    VolumeGrids,
+    finish,
+    smoothstep,
+    voxel_centres,
+    voxels_in_ball,
 )
 from mitsnerf.volumes.noise import GradientNoise, fbm
 
@@ -57,7 +63,9 @@ class Params:
     def __post_init__(self) -> None:
         common.check_fbm(self)
         if len(self.palette) < 2:
-            raise ValueError(f"palette: must be a list of at least 2 RGB colours in [0, 1], got {[list(c) for c in self.palette]}")
+            raise ValueError(
+                f"palette: must be a list of at least 2 RGB colours in [0, 1], got {[list(c) for c in self.palette]}"
+            )
         common.check_edge_softness(self)
 
 

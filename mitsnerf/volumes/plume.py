@@ -33,7 +33,13 @@ import numpy as np
 from mitsnerf.config import param
 from mitsnerf.volumes import params as common
 from mitsnerf.volumes.base import (
-    MARGIN, Family, VolumeGrids, constant_albedo, finish, smoothstep, voxel_centres,
+    MARGIN,
+    Family,
+    VolumeGrids,
+    constant_albedo,
+    finish,
+    smoothstep,
+    voxel_centres,
 )
 from mitsnerf.volumes.noise import NOISE_BOUND, GradientNoise, fbm
 
