@@ -5,7 +5,7 @@ VENV   ?= .venv
 PY     := $(VENV)/bin/python
 STAMP  := $(VENV)/.mitsnerf-installed
 
-.PHONY: setup bench test test-slow check clean
+.PHONY: setup bench lint test test-slow check clean
 
 setup: $(STAMP)
 
@@ -19,7 +19,12 @@ $(STAMP): pyproject.toml scripts/ensure_llvm.sh Makefile
 bench: setup
 	$(VENV)/bin/mitsnerf bench $(ARGS)
 
-test: setup
+# ruff and mypy on the package first (pyproject.toml configures both), then the tests.
+lint: setup
+	$(PY) -m ruff check mitsnerf
+	$(PY) -m mypy
+
+test: lint
 	$(PY) -m pytest -q -m "not slow" $(ARGS)
 
 test-slow: setup

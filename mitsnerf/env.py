@@ -17,6 +17,7 @@ import os
 import platform
 import subprocess
 import warnings
+from collections.abc import Mapping, MutableMapping
 from functools import lru_cache
 from pathlib import Path
 
@@ -49,18 +50,18 @@ def cuda_device_count() -> int:
     return 0
 
 
-def prepare(environ: dict[str, str] | None = None) -> tuple[str, int] | None:
+def prepare(environ: MutableMapping[str, str] | None = None) -> tuple[str, int] | None:
     """Make drjit safe to import: point it at a libLLVM >= 16.
 
     Returns ``(path, version)`` of the library chosen, or None when none is usable
     but a CUDA device is (then drjit is kept from loading an old LLVM at all).
     Raises :class:`mitsnerf._llvm.LLVMError` when neither is available.
     """
-    environ = os.environ if environ is None else environ
+    env: MutableMapping[str, str] = os.environ if environ is None else environ
     try:
-        return _llvm.configure(environ)
+        return _llvm.configure(env)
     except _llvm.LLVMError:
-        wants_llvm = environ.get(VARIANT_ENV, "").startswith("llvm")
+        wants_llvm = env.get(VARIANT_ENV, "").startswith("llvm")
         if wants_llvm or cuda_device_count() == 0:
             raise
         warnings.warn(
@@ -69,14 +70,13 @@ def prepare(environ: dict[str, str] | None = None) -> tuple[str, int] | None:
             stacklevel=2,
         )
         # A path that does not exist keeps drjit from loading an LLVM that would abort it.
-        environ["DRJIT_LIBLLVM_PATH"] = "/nonexistent/libLLVM-disabled.so"
+        env["DRJIT_LIBLLVM_PATH"] = "/nonexistent/libLLVM-disabled.so"
         return None
 
 
-def default_variant(environ: dict[str, str] | None = None) -> str:
+def default_variant(environ: Mapping[str, str] | None = None) -> str:
     """The variant to use when the caller names none (see module docstring)."""
-    environ = os.environ if environ is None else environ
-    requested = environ.get(VARIANT_ENV)
+    requested = (os.environ if environ is None else environ).get(VARIANT_ENV)
     if requested:
         return requested
     return "cuda_ad_rgb" if cuda_device_count() > 0 else "llvm_ad_rgb"

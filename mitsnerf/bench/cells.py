@@ -146,7 +146,8 @@ def is_done(cell: Cell) -> bool:
     """True when the cell's ``result.json`` exists for the same config hash and code version."""
     record = read_record(cell.path)
     return (
-        bool(record)
+        record is not None
+        and bool(record)
         and record.get("config_hash") == cell.config_hash
         and record.get("code_version") == cell.code_version
     )

@@ -63,7 +63,7 @@ def _floor(records: Sequence[dict], key: str) -> float | None:
     for r in records:
         value = (r.get("metrics") or {}).get(key)
         if value is not None:
-            return value
+            return float(value)
     return None
 
 
@@ -222,8 +222,8 @@ def error_budget(scene: str, records: Sequence[dict], methods: Sequence[str], pa
     the axes (clear of the lines, whatever they cross); None without medium scores."""
     from matplotlib.transforms import blended_transform_factory
 
-    values = {m: [r["metrics"].get("psnr_test_medium") for r in records if r["method"] == m] for m in methods}
-    values = {m: float(np.mean([v for v in vs if v is not None])) for m, vs in values.items()
+    per_seed = {m: [r["metrics"].get("psnr_test_medium") for r in records if r["method"] == m] for m in methods}
+    values = {m: float(np.mean([v for v in vs if v is not None])) for m, vs in per_seed.items()
               if any(v is not None for v in vs)}
     if not values:
         return None

@@ -257,8 +257,8 @@ def oracle_rows(records: list[dict], scenes: list[str]) -> list[dict]:
     rows = []
     for scene in scenes:
         summary = next((r["oracle"] for r in records if r["scene"] == scene and r.get("oracle")), None)
-        oracle = load_oracle(Path(summary["path"])) if summary else None
-        if oracle is not None:
+        oracle = load_oracle(Path(summary["path"])) if summary is not None else None
+        if summary is not None and oracle is not None:
             rows.append(oracle_row(scene, oracle.metrics(summary["footprint"]), oracle.info))
     return rows
 
@@ -267,8 +267,9 @@ def collect(cells: list[Cell]) -> tuple[list[dict], list[dict]]:
     """``(records, failures)`` on disk for ``cells`` (matching config hash and code version)."""
     records, failed = [], []
     for cell in cells:
-        if is_done(cell):
-            records.append(read_record(cell.path))
+        record = read_record(cell.path) if is_done(cell) else None
+        if record is not None:
+            records.append(record)
             continue
         err = read_record(cell.path, ERROR_FILE)
         if err and err.get("config_hash") == cell.config_hash and err.get("code_version") == cell.code_version:
@@ -441,4 +442,6 @@ def _stopped(exc: BaseException, saved: str):
     from mitsnerf.train.checkpointing import signal_number
 
     stop = signal_cause(exc)
+    if stop is None:
+        raise AssertionError("_stopped is only called for a signal") from exc
     return Interrupted(signal_number(stop), (f"{stop}; " if str(stop) else "") + saved)

@@ -128,7 +128,7 @@ def legend(columns: Sequence[Column]) -> str:
     - gap to oracle: oracle medium PSNR minus the row's (dB; 0: as good as the ceiling)
     - bold: the column's best at the displayed precision, per scene, ties all bold; figures are means over seeds
     """
-    lines = []
+    lines: list[str] = []
     for _, header, _ in columns:
         key = "s to X dB medium" if header.startswith("s to ") else header
         if key in MEANINGS and not any(line.startswith(f"- {key}:") for line in lines):
@@ -340,8 +340,8 @@ def reference_lines(rows: Sequence[dict], group: str = "scene") -> list[str]:
         oracle = next((r["psnr_test_medium"] for r in members if r.get("ceiling")), None)
         text = (
             f"two reference renders agree to {_fmt(floor, 2)} dB (medium pixels): a perfect model would score about "
-            f"{_fmt(floor + PERFECT_DB, 2)} dB"
-            if _is_number(floor)
+            f"{_fmt(float(floor) + PERFECT_DB, 2)} dB"
+            if floor is not None and _is_number(floor)
             else "no reference agreement measured (render.noise_floor = false)"
         )
         lines.append(f"{name}: {text}" + (f"; the oracle scores {_fmt(oracle, 2)} dB." if _is_number(oracle) else "."))

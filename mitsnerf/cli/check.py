@@ -6,6 +6,14 @@ import sys
 from pathlib import Path
 
 
+def _case_line(r) -> None:
+    print(f"  {r.name}: {r.status} ({r.seconds:.1f} s)", file=sys.stderr, flush=True)
+
+
+def _mutation_line(label: str, r) -> None:
+    print(f"  {label}: {r.name}: {r.status} ({r.seconds:.1f} s)", file=sys.stderr, flush=True)
+
+
 def run(args) -> int:
     from mitsnerf.outputs import check_output_dir
     from mitsnerf.verify.cases import QUALITIES
@@ -15,9 +23,7 @@ def run(args) -> int:
         check_output_dir(Path(args.out), "--out")
     alpha = QUALITIES[args.quality].alpha
     if args.mutations:
-        progress = None if args.no_progress else (
-            lambda label, r: print(f"  {label}: {r.name}: {r.status} ({r.seconds:.1f} s)", file=sys.stderr, flush=True))
-        report = run_mutations(args.quality, only=args.case, progress=progress)
+        report = run_mutations(args.quality, only=args.case, progress=None if args.no_progress else _mutation_line)
         print(format_table(report.clean, alpha))
         print()
         print(format_mutations(report), flush=True)
@@ -32,9 +38,7 @@ def run(args) -> int:
         sys.stderr.flush()
         print(count_line(report.clean))  # last, alone on its line
         return 0 if report.passed else 1
-    progress = None if args.no_progress else (
-        lambda r: print(f"  {r.name}: {r.status} ({r.seconds:.1f} s)", file=sys.stderr, flush=True))
-    results = run_checks(args.quality, out=args.out, only=args.case, progress=progress)
+    results = run_checks(args.quality, out=args.out, only=args.case, progress=None if args.no_progress else _case_line)
     print(format_table(results, alpha), flush=True)
     failed = [r.name for r in results if r.passed is False]
     if failed:

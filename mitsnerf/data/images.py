@@ -31,6 +31,7 @@ import io
 import os
 import sys
 import tempfile
+import typing
 from collections.abc import Iterator
 from contextlib import contextmanager, redirect_stderr, redirect_stdout
 from pathlib import Path
@@ -72,7 +73,7 @@ def _library_output_to_buffer() -> Iterator[dict[str, str]]:
     captured: dict[str, str] = {}
     py_out, py_err = io.StringIO(), io.StringIO()
     saved: dict[int, int] = {}
-    bufs: dict[int, object] = {}
+    bufs: dict[int, typing.IO[bytes]] = {}
     try:
         for stream in (sys.stdout, sys.stderr):
             if stream is not None:

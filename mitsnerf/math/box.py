@@ -34,6 +34,12 @@ import numpy as np
 Vec3 = tuple[float, float, float]
 
 
+def _triple(values) -> Vec3:
+    """Three numbers as a :data:`Vec3` (float)."""
+    x, y, z = values
+    return float(x), float(y), float(z)
+
+
 def _vec3(name: str, value: Sequence[float]) -> Vec3:
     v = np.asarray(value, dtype=np.float64)
     if v.shape != (3,) or not np.all(np.isfinite(v)):
@@ -71,7 +77,7 @@ class Box:
         (1.5, 1.5, 1.5)
         """
         c = _vec3("box centre", centre)
-        return cls(tuple(v - half for v in c), tuple(v + half for v in c))
+        return cls(_triple(v - half for v in c), _triple(v + half for v in c))
 
     @classmethod
     def from_list(cls, value: Any) -> Box:
@@ -89,11 +95,11 @@ class Box:
 
     @property
     def size(self) -> Vec3:
-        return tuple(b - a for a, b in zip(self.lo, self.hi))
+        return _triple(b - a for a, b in zip(self.lo, self.hi))
 
     @property
     def centre(self) -> Vec3:
-        return tuple(0.5 * (a + b) for a, b in zip(self.lo, self.hi))
+        return _triple(0.5 * (a + b) for a, b in zip(self.lo, self.hi))
 
     @property
     def diagonal(self) -> float:
@@ -106,7 +112,7 @@ class Box:
         >>> Box().scaled(3.0).lo
         (-1.5, -1.5, -1.5)
         """
-        return Box(tuple(factor * v for v in self.lo), tuple(factor * v for v in self.hi))
+        return Box(_triple(factor * v for v in self.lo), _triple(factor * v for v in self.hi))
 
     # -- coordinates (numpy arrays (..., 3) or Dr.Jit Array3f) -------------------------
 
@@ -164,7 +170,8 @@ class Box:
     def voxel_axes(self, resolution: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """World coordinates of the voxel centres along x, y and z, each float64 (R,)."""
         u = (np.arange(resolution, dtype=np.float64) + 0.5) / resolution
-        return tuple(lo + u * s for lo, s in zip(self.lo, self.size))
+        x, y, z = (lo + u * s for lo, s in zip(self.lo, self.size))
+        return x, y, z
 
     def voxel_centres(self, resolution: int) -> np.ndarray:
         """World positions (R, R, R, 3) of the voxel centres, indexed ``[z, y, x]``, last axis (x, y, z).

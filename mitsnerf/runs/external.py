@@ -135,7 +135,7 @@ def match_renders(folder: Path, names: Sequence[str], fmt: str | None = None) ->
     if len(files) != len(names):
         raise DatasetError(folder, None, f"{len(files)} images for {len(names)} test frames (matched by order: "
                                          f"no file is named after a test frame such as {names[0]})")
-    numbered = {}
+    numbered: dict = {}
     for stem, path in files.items():
         found = _NUMBER.search(stem)
         if found is None:

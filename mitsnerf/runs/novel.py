@@ -64,7 +64,7 @@ def orbit_cameras(
     width: int,
     height: int,
     fov_x_deg: float,
-    target: Sequence[float] = (0.0, 0.0, 0.0),
+    target: Sequence[float] | np.ndarray = (0.0, 0.0, 0.0),
     start_azimuth_deg: float = 0.0,
 ) -> list[Camera]:
     """``n`` cameras evenly spaced in azimuth around the vertical axis through ``target``.
@@ -78,12 +78,12 @@ def orbit_cameras(
     if not radius > 0:
         raise ValueError(f"radius: must be > 0, got {radius}")
     e = math.radians(elevation_deg)
-    target = np.asarray(target, dtype=np.float64)
+    centre = np.asarray(target, dtype=np.float64)
     cams = []
     for k in range(n):
         phi = math.radians(start_azimuth_deg + 360.0 * k / n)
-        pos = target + radius * np.array([math.cos(e) * math.cos(phi), math.cos(e) * math.sin(phi), math.sin(e)])
-        cams.append(Camera.from_fov(look_at_matrix(pos, target), width, height, fov_x_deg))
+        pos = centre + radius * np.array([math.cos(e) * math.cos(phi), math.cos(e) * math.sin(phi), math.sin(e)])
+        cams.append(Camera.from_fov(look_at_matrix(pos, centre), width, height, fov_x_deg))
     return cams
 
 

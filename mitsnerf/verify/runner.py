@@ -14,6 +14,7 @@ functions) and reports which cases catch each.
 
 from __future__ import annotations
 
+import functools
 import tempfile
 import time
 from collections.abc import Callable, Iterable
@@ -155,6 +156,7 @@ def plugin_case(case: C.PluginCase, quality: C.Quality, artifacts: Artifacts | N
     start = time.perf_counter()
     register()
     camera = quality.camera()
+    field: GridField | NeRFField
     if case.field == "grid":
         r = quality.resolution
         field = GridField.from_arrays(C.exit_heavy_sigma_t(r, 8.0), UNIT_BOX, color=C.procedural_albedo(r))
@@ -231,6 +233,9 @@ class Suite:
     artifacts: Artifacts | None = None
     prepared: dict[str, S.PreparedScenario] = field(default_factory=dict)
 
+    def _scenario_result(self, name: str) -> CaseResult:
+        return _family_result(name, "integrator", S.evaluate_scenario(self.scenario(name)), self.artifacts)
+
     def scenario(self, name: str) -> S.PreparedScenario:
         if name not in self.prepared:
             self.prepared[name] = S.prepare_scenario(next(s for s in C.SCENARIOS if s.name == name), self.quality)
@@ -242,16 +247,13 @@ class Suite:
         jobs: list[tuple[str, Callable[[], CaseResult]]] = [
             (C.CLOSED_FORM.name, lambda: closed_form_case(C.CLOSED_FORM))
         ]
-        jobs += [
-            (s.name, lambda s=s: _family_result(s.name, "integrator", S.evaluate_scenario(self.scenario(s.name)), a))
-            for s in C.SCENARIOS
-        ]
+        jobs += [(s.name, functools.partial(self._scenario_result, s.name)) for s in C.SCENARIOS]
         t = C.TRAINING_PATH
         jobs += [(t.name, lambda: _family_result(t.name, "training path",
                                                  S.evaluate_training_path(t, self.scenario(t.scenario)), a))]
         jobs += [(C.JITTER.name, lambda: jitter_case(C.JITTER, q))]
-        jobs += [(g.name, lambda g=g: gradient_case(g, q)) for g in C.GRADIENT_CASES]
-        jobs += [(p.name, lambda p=p: plugin_case(p, q, a)) for p in C.PLUGIN_CASES]
+        jobs += [(g.name, functools.partial(gradient_case, g, q)) for g in C.GRADIENT_CASES]
+        jobs += [(p.name, functools.partial(plugin_case, p, q, a)) for p in C.PLUGIN_CASES]
         f = C.MITSUBA_FURNACE
         jobs += [(f.name, lambda: _family_result(f.name, "Mitsuba", S.mitsuba_furnace(f, q), a))]
         jobs += [(C.FURNACE_DEPTHS.name, lambda: furnace_depths(C.FURNACE_DEPTHS, q))]
