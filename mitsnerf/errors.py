@@ -13,6 +13,15 @@ import os
 from pathlib import Path
 
 
+def unknown(kind: str, name: object, known) -> str:
+    """How every registry refuses a name it does not have: ``unknown KIND 'NAME' (known: A, B)``.
+
+    >>> unknown("method", "nope", ["nerf", "ngp"])
+    "unknown method 'nope' (known: nerf, ngp)"
+    """
+    return f"unknown {kind} {name!r} (known: {', '.join(known) or 'none'})"
+
+
 class MitsnerfError(Exception):
     """Base class: a problem with the user's input or environment, not a bug."""
 

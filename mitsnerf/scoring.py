@@ -351,11 +351,11 @@ class Reference:
 
 def load_true_sigma_t(root) -> np.ndarray | None:
     """The ground-truth ``sigma_t`` grid of a generated dataset (None for foreign data)."""
-    from pathlib import Path
 
     from mitsnerf.data.arrays import read_npy
+    from mitsnerf.data.dataset import true_grid_path
 
-    path = Path(root) / "volume" / "sigma_t.npy"
+    path = true_grid_path(root)
     if not path.exists():
         return None
     return read_npy(path, "numpy grid")

@@ -62,7 +62,7 @@ from mitsnerf.config import (
     source_field,
     to_dict,
 )
-from mitsnerf.errors import SpecError
+from mitsnerf.errors import SpecError, unknown
 from mitsnerf.methods import METHODS
 from mitsnerf.oracle.cache import OracleConfig
 from mitsnerf.train.evaluate import EvalConfig
@@ -97,7 +97,7 @@ class MethodRun:
 
     def __post_init__(self) -> None:
         if self.name not in METHODS:
-            raise ValueError(f"name: unknown method {self.name!r} (known: {', '.join(sorted(METHODS))})")
+            raise ValueError(f"name: {unknown('method', self.name, sorted(METHODS))}")
         if not self.label:
             object.__setattr__(self, "label", self.name)
         if "/" in self.label or self.label.startswith("."):
@@ -217,7 +217,8 @@ class BenchConfig:
 
     def method_settings(self, method: MethodRun, quick: bool) -> tuple[dict, dict]:
         """``(method config, train settings)`` of ``method``: its :meth:`setting_layers` merged."""
-        config, train = ({}, {})
+        config: dict = {}
+        train: dict = {}
         for _, table in self.setting_layers(method, quick, "config"):
             config = deep_merge(config, table)
         for _, table in self.setting_layers(method, quick, "train"):

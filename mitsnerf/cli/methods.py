@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from mitsnerf.errors import unknown
+
 
 def run(args) -> int:
     from mitsnerf.config import doc_table
@@ -13,7 +15,7 @@ def run(args) -> int:
             print(f"{name:16s} {entry.description}")
         return 0
     if args.name not in METHODS:
-        raise SpecError(None, "NAME", f"unknown method {args.name!r} (known: {', '.join(METHODS)})")
+        raise SpecError(None, "NAME", unknown("method", args.name, sorted(METHODS)))
     entry = METHODS[args.name]
     print(f"{entry.name}: {entry.description}\n\n{doc_table(entry.config_type, nested=True)}\n\n"
           f"Set with: mitsnerf train DATASET --method {entry.name} --set KEY=VALUE "

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from mitsnerf.cli.common import (
     NO_PROGRESS_HELP,
@@ -13,6 +14,10 @@ from mitsnerf.cli.common import (
     options_config,
     parse_overrides,
 )
+from mitsnerf.errors import unknown
+
+if TYPE_CHECKING:
+    from mitsnerf.train.evaluate import EvalConfig
 
 DEFAULT_METHOD = "ngp"
 """What ``mitsnerf train DIR`` fits with no ``--method``: a few minutes on a 2-core CPU."""
@@ -23,7 +28,7 @@ TRAIN_OPTIONS = ("steps", "seconds", "batch_rays", "seed", "checkpoint_every", "
 declarations."""
 
 
-def _fresh_settings(args) -> tuple[str, dict, object]:
+def _fresh_settings(args) -> tuple[str, dict, EvalConfig]:
     """``(method, method overrides, EvalConfig)`` of a new run, checked before anything runs."""
     from mitsnerf.config import apply_overrides, from_dict
     from mitsnerf.errors import UsageError
@@ -34,7 +39,7 @@ def _fresh_settings(args) -> tuple[str, dict, object]:
         raise UsageError("train", "name a DATASET directory (or pass --resume to continue the run in --out)")
     method = DEFAULT_METHOD if args.method is None else args.method
     if method not in METHODS:
-        raise UsageError("--method", f"unknown method {method!r} (known: {', '.join(sorted(METHODS))})")
+        raise UsageError("--method", unknown("method", method, sorted(METHODS)))
     overrides = apply_overrides({}, parse_overrides(args.set), "--set")
     if args.lr is not None:
         options_config(METHODS[method].config_type, {"lr": args.lr})

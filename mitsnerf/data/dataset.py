@@ -51,6 +51,16 @@ from mitsnerf.math.color import srgb_to_linear
 
 COLOR_SPACES = ("srgb", "linear")
 _IMAGE_SUFFIXES = (".exr", ".png")
+
+
+def true_grid_path(root: str | Path, name: str = "sigma_t") -> Path:
+    """Where a mitsnerf dataset keeps its true grid ``name`` (``sigma_t``, ``albedo``): ``ROOT/volume/NAME.npy``,
+    indexed ``[z, y, x]`` (docs/conventions.md).
+
+    >>> true_grid_path("data/cloud-0123").as_posix()
+    'data/cloud-0123/volume/sigma_t.npy'
+    """
+    return Path(root) / "volume" / f"{name}.npy"
 #: instant-ngp's one transforms file, and the hold-out rule its splits are drawn by.
 SINGLE_FILE = "transforms.json"
 HOLDOUT = 8
@@ -193,7 +203,8 @@ class Dataset:
         file_paths, cameras, meta = read_transforms(tpath, self.pixel_center, image_size_of=size_of)
         if self.single_file:
             file_paths, cameras = _held_out(tpath, split, file_paths, cameras)
-        images = alpha = None
+        images: Any = None  # (V, H, W, 3) and (V, H, W), allocated at the first view's size
+        alpha: Any = None
         all_alpha = True
         first: tuple[Path, int, int] | None = None
         for i, (fp, cam) in enumerate(zip(file_paths, cameras)):

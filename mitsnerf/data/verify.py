@@ -32,7 +32,7 @@ import numpy as np
 
 from mitsnerf.data.arrays import read_npy
 from mitsnerf.data.cache import sha256_file
-from mitsnerf.data.dataset import Dataset
+from mitsnerf.data.dataset import Dataset, true_grid_path
 from mitsnerf.errors import DatasetError
 
 REGENERATE = "regenerate it (mitsnerf generate SCENE --force)"
@@ -118,7 +118,7 @@ def check_grids(root: Path, manifest: dict) -> None:
     """The true grids of a mitsnerf dataset: readable, the manifest's resolution, in range."""
     r = _resolution(root, manifest)
     for name, hi, shape in (("sigma_t", None, (r, r, r)), ("albedo", 1.0, (r, r, r, 3))):
-        path = root / "volume" / f"{name}.npy"
+        path = true_grid_path(root, name)
         problem = grid_problem(read_npy(path, f"{name} grid"), lo=0.0, hi=hi, shape=shape)
         if problem is not None:
             raise DatasetError(path, None, problem)

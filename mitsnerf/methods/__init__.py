@@ -9,6 +9,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 from types import MappingProxyType
 
+from mitsnerf.errors import unknown
 from mitsnerf.methods.mitsuba_inverse import MitsubaInverseConfig, MitsubaInverseModel
 from mitsnerf.methods.nerf import NeRFMethodConfig, NeRFModel
 from mitsnerf.methods.ngp import NGPMethodConfig, NGPModel
@@ -46,4 +47,4 @@ def get_method(name: str) -> MethodEntry:
     try:
         return METHODS[name]
     except KeyError:
-        raise KeyError(f"unknown method {name!r}; known: {', '.join(sorted(METHODS))}") from None
+        raise KeyError(unknown("method", name, sorted(METHODS))) from None

@@ -93,14 +93,15 @@ class Oracle:
 
 def _grids(dataset) -> tuple[Any, np.ndarray, np.ndarray] | None:
     """``(spec, sigma_t, albedo)`` of a generated dataset; None for foreign data (no spec or grids)."""
+    from mitsnerf.data.dataset import true_grid_path
     from mitsnerf.scene.spec import parse_scene
 
     spec_data = (dataset.manifest or {}).get("spec")
-    volume = Path(dataset.root) / "volume"
-    if not spec_data or not (volume / "sigma_t.npy").is_file() or not (volume / "albedo.npy").is_file():
+    sigma_t, albedo = (true_grid_path(dataset.root, name) for name in ("sigma_t", "albedo"))
+    if not spec_data or not sigma_t.is_file() or not albedo.is_file():
         return None
     spec = parse_scene(spec_data, Path(dataset.root) / "manifest.json")
-    return spec, np.load(volume / "sigma_t.npy"), np.load(volume / "albedo.npy")
+    return spec, np.load(sigma_t), np.load(albedo)
 
 
 def estimate_source(spec, sigma_t: np.ndarray, albedo: np.ndarray, box, config: OracleConfig):
@@ -133,7 +134,7 @@ def error_split(oracle: np.ndarray, var: np.ndarray, ref, test_ref: np.ndarray |
         return {}
     masks = ref.masks
     total = _medium_mean(np.square(oracle - ref.images).mean(-1), masks)
-    out = {"mse_medium": total, "mc_var_medium": _medium_mean(var.mean(-1), masks)}
+    out: dict[str, Any] = {"mse_medium": total, "mc_var_medium": _medium_mean(var.mean(-1), masks)}
     # the pooled medium PSNR the oracle would score without its own Monte Carlo noise
     out["psnr_medium_without_mc"] = float(-10.0 * np.log10(max(total - out["mc_var_medium"], 1e-30)))
     if test_ref is not None:
@@ -226,7 +227,10 @@ def ensure_oracle(dataset, config: OracleConfig, footprint: int,
         if found is not None:
             return found
         clean_stale_temps(path.parent, min_age_s=0.0)
-        info, scores, arrays = compute_oracle(dataset, config, footprint, log)
+        computed = compute_oracle(dataset, config, footprint, log)
+        if computed is None:  # checked above: the dataset has its grids
+            raise AssertionError(f"{dataset.root}: grids found, yet no oracle computed")
+        info, scores, arrays = computed
         info["key"] = oracle_key(str(dataset.manifest.get("hash")), config, footprint)
         with atomic_dir(path, overwrite=True) as tmp:
             for name, array in arrays.items():

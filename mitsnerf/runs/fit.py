@@ -29,7 +29,7 @@ from mitsnerf.data.atomic import atomic_dir, atomic_write_json
 from mitsnerf.data.dataset import Dataset, load_dataset
 from mitsnerf.data.images import write_exr, write_png
 from mitsnerf.data.verify import verify_dataset
-from mitsnerf.errors import DatasetError, DiskFullError, OutputError, UsageError
+from mitsnerf.errors import DatasetError, DiskFullError, OutputError, UsageError, unknown
 from mitsnerf.fields.protocols import DensityField
 from mitsnerf.math.box import Box
 from mitsnerf.methods import METHODS, get_method
@@ -160,7 +160,7 @@ def run_method(config: Mapping[str, Any], where: Path) -> str:
     if method is None:
         raise DatasetError(where, "method", "missing: the run does not say which method trained it")
     if method not in METHODS:
-        raise DatasetError(where, "method", f"unknown method {method!r} (known: {', '.join(sorted(METHODS))})")
+        raise DatasetError(where, "method", unknown("method", method, sorted(METHODS)))
     return method
 
 

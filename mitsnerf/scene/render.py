@@ -48,13 +48,14 @@ def split_spp(spec: SceneSpec, split: str) -> int:
 
 def write_volume(directory: Path, spec: SceneSpec, sigma_t: np.ndarray, albedo: np.ndarray, box: Box) -> None:
     """The true grids under ``directory/volume/`` (``.npy`` and Mitsuba ``.vol``), and the sky's bitmap."""
+    from mitsnerf.data.dataset import true_grid_path
     from mitsnerf.data.images import write_exr
     from mitsnerf.data.vol import write_vol
 
-    vol = directory / "volume"
+    vol = true_grid_path(directory).parent
     vol.mkdir()
-    np.save(vol / "sigma_t.npy", sigma_t)
-    np.save(vol / "albedo.npy", albedo)
+    np.save(true_grid_path(directory, "sigma_t"), sigma_t)
+    np.save(true_grid_path(directory, "albedo"), albedo)
     write_vol(vol / "sigma_t.vol", sigma_t, box.lo, box.hi)
     write_vol(vol / "albedo.vol", albedo, box.lo, box.hi)
     if isinstance(spec.environment, SkyLight):

@@ -49,7 +49,7 @@ from mitsnerf.config import (
     to_dict,
     with_overrides,
 )
-from mitsnerf.errors import SpecError
+from mitsnerf.errors import SpecError, unknown
 
 #: The world's up axis (Z-up). Rigs' "upper half" and the sky's zenith are +Z.
 UP = (0.0, 0.0, 1.0)
@@ -109,8 +109,7 @@ class VolumeSpec:
         from mitsnerf import volumes
 
         if self.family not in volumes.FAMILIES:
-            known = ", ".join(sorted(volumes.FAMILIES))
-            raise ValueError(f"family: unknown volume family {self.family!r} (known: {known})")
+            raise ValueError(f"family: {unknown('volume family', self.family, sorted(volumes.FAMILIES))}")
         params = from_dict(volumes.FAMILIES[self.family].params_type, self.params, prefix="params")
         object.__setattr__(self, "params", _freeze(to_dict(params)))  # the filled-in, read-only table
 

@@ -31,6 +31,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from mitsnerf.math.box import UNIT_BOX
 from mitsnerf.math.camera import Camera, look_at
 
 #: Where the verification camera sits (it looks at the origin along +y, z up).
@@ -243,7 +244,8 @@ class TrainingPathCase:
     detects: tuple[str, ...] = ()
 
 
-SUN = tuple(float(v) for v in np.array([0.3, 0.5, -0.8]) / np.linalg.norm([0.3, 0.5, -0.8]))
+_sun = np.array([0.3, 0.5, -0.8]) / np.linalg.norm([0.3, 0.5, -0.8])
+SUN = (float(_sun[0]), float(_sun[1]), float(_sun[2]))
 
 SCENARIOS: tuple[VolpathScenario, ...] = (
     VolpathScenario(
@@ -374,9 +376,10 @@ PLUGIN_CASES: tuple[PluginCase, ...] = (
 
 
 def voxel_centres(resolution: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """World coordinates ``(x, y, z)`` of the voxel centres, each ``(R, R, R)`` indexed ``[z, y, x]``."""
-    c = (np.arange(resolution) + 0.5) / resolution - 0.5
-    z, y, x = np.meshgrid(c, c, c, indexing="ij")
+    """World coordinates ``(x, y, z)`` of the voxel centres of the unit box (:meth:`Box.voxel_axes`), each
+    ``(R, R, R)`` indexed ``[z, y, x]``."""
+    cx, cy, cz = UNIT_BOX.voxel_axes(resolution)
+    z, y, x = np.meshgrid(cz, cy, cx, indexing="ij")
     return x, y, z
 
 

@@ -33,6 +33,7 @@ from types import MappingProxyType
 from typing import Any
 
 from mitsnerf.config import from_dict
+from mitsnerf.errors import unknown
 from mitsnerf.volumes import blobs, cloud, lattice, nebula, plume, shell
 from mitsnerf.volumes.base import Family, VolumeGrids
 
@@ -48,7 +49,7 @@ FAMILIES: Mapping[str, Family] = MappingProxyType(
 
 def _family(name: Any) -> Family:
     if not isinstance(name, str) or name not in FAMILIES:
-        raise ValueError(f"unknown volume family {name!r}; known: {', '.join(sorted(FAMILIES))}")
+        raise ValueError(unknown("volume family", name, sorted(FAMILIES)))
     return FAMILIES[name]
 
 

@@ -16,6 +16,8 @@ from typing import Any
 
 import numpy as np
 
+from mitsnerf.math.box import UNIT_BOX
+
 #: Every family keeps density below 0.01 outside ``[-MARGIN, MARGIN]^3`` so the medium never touches
 #: the box faces.
 MARGIN = 0.45
@@ -88,8 +90,8 @@ def voxel_centres(resolution: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     >>> x.ravel().tolist(), z.shape
     ([-0.375, -0.125, 0.125, 0.375], (4, 1, 1))
     """
-    c = ((np.arange(resolution, dtype=np.float64) + 0.5) / resolution - 0.5).astype(np.float32)
-    return c[:, None, None], c[None, :, None], c[None, None, :]
+    cx, cy, cz = (c.astype(np.float32) for c in UNIT_BOX.voxel_axes(resolution))  # math/box.py: the one rule
+    return cz[:, None, None], cy[None, :, None], cx[None, None, :]
 
 
 def voxels_in_ball(resolution: int, radius: float):
