@@ -65,6 +65,15 @@ class Quality:
         if not 0.0 < self.alpha < 0.5:
             raise ValueError(f"quality {self.name!r}: alpha must be in (0, 0.5), got {self.alpha}")
 
+    def reference_spp(self, spp_factor: float) -> int:
+        """Samples per pixel of a case's Mitsuba reference: this quality's ``spp`` times the case's factor,
+        at least 16.
+
+        >>> QUALITIES["quick"].reference_spp(4.0), QUALITIES["quick"].reference_spp(0.001)
+        (4096, 16)
+        """
+        return max(16, int(round(self.spp * spp_factor)))
+
     def camera(self) -> Camera:
         return Camera.from_fov(look_at(CAMERA_ORIGIN, (0.0, 0.0, 0.0), (0.0, 0.0, 1.0)),
                                self.width, self.width, CAMERA_FOV_DEG)

@@ -206,7 +206,7 @@ def furnace_depths(rec: C.FurnaceDepthRecord, quality: C.Quality) -> CaseResult:
     t_n, t_f, _ = UNIT_BOX.intersect_numpy(o, d)
     hit = t_f > t_n
     sigma = np.full((r, r, r), rec.sigma_t, np.float32)
-    spp = max(16, int(round(quality.spp * rec.spp_factor)))
+    spp = quality.reference_spp(rec.spp_factor)
     parts, zs = [], []
     for depth in rec.max_depths:
         desc = M.scene_dict(sigma, 1.0, {"environment": M.constant_environment((1.0, 1.0, 1.0))}, depth)

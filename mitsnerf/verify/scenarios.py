@@ -56,7 +56,7 @@ def prepare_scenario(s: C.VolpathScenario, quality: C.Quality) -> PreparedScenar
     scene = mi.load_dict(M.scene_dict(sigma_t, albedo, M.emitters_of(s), s.max_depth))
     camera = quality.camera()
     o, d = camera.pixel_rays()
-    spp = max(16, int(round(quality.spp * s.spp_factor)))
+    spp = quality.reference_spp(s.spp_factor)
     names = [x.name for x in C.SCENARIOS]  # a seed of its own per scenario: independent references
     seed = quality.seed * 1000 + (names.index(s.name) if s.name in names else len(names))
     ref = M.sample_rays(scene, o, d, spp, seed).reshaped(camera.height, camera.width)
@@ -181,7 +181,7 @@ def mitsuba_furnace(case: C.MitsubaFurnace, quality: C.Quality) -> Outcome:
                                       case.max_depth))
     camera = quality.camera()
     o, d = camera.pixel_rays()
-    spp = max(16, int(round(quality.spp * case.spp_factor)))
+    spp = quality.reference_spp(case.spp_factor)
     ref = M.sample_rays(scene, o, d, spp, quality.seed * 1000 + 100).reshaped(camera.height, camera.width)
     test = z_test(np.ones_like(ref.mean), ref.mean, ref.var, ref.n, max_rel_error=case.max_rel_error,
                   label="1 vs volpath")
