@@ -185,7 +185,7 @@ def test_make_params_builds_from_toml_like_values():
 
 
 def test_make_params_unknown_family_names_the_known_ones():
-    with pytest.raises(ValueError, match="unknown volume family 'fog' \(known: blobs, cloud"):
+    with pytest.raises(ValueError, match=r"unknown volume family 'fog' \(known: blobs, cloud"):
         make_params("fog", {})
     with pytest.raises(ValueError, match="unknown volume family"):
         generate_volume("fog", R, 0)
