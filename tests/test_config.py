@@ -301,10 +301,10 @@ def test_a_nested_table_lists_the_dotted_keys_with_the_fields_own_defaults():
 
 def test_the_methods_command_prints_a_methods_settings(capsys):
     from mitsnerf.cli import main
-    from mitsnerf.methods import METHODS
+    from mitsnerf.methods import methods
 
     assert main(["methods"]) == 0
-    assert [line.split()[0] for line in capsys.readouterr().out.splitlines()] == list(METHODS)
+    assert [line.split()[0] for line in capsys.readouterr().out.splitlines()] == list(methods())
     assert main(["methods", "mitsuba-inverse"]) == 0
     out = capsys.readouterr().out
     assert "| max_depth | an integer >= -1 | 0 | prbvolpath path length" in out and "--method mitsuba-inverse" in out

@@ -16,7 +16,8 @@ from pathlib import Path
 import mitsnerf
 
 LAYERS = (
-    ("mitsnerf", "mitsnerf._llvm", "mitsnerf.env", "mitsnerf.errors", "mitsnerf.config", "mitsnerf.outputs"),
+    ("mitsnerf", "mitsnerf._llvm", "mitsnerf.env", "mitsnerf.errors", "mitsnerf.config", "mitsnerf.outputs",
+     "mitsnerf.plugins"),
     ("mitsnerf.math",),
     ("mitsnerf.volumes", "mitsnerf.data"),
     ("mitsnerf.scene",),

@@ -84,6 +84,10 @@ class Cell:
     quick: bool = False
     oracle: Mapping[str, Any] | None = None
     """``OracleConfig`` resolved (the dataset's oracle, scored at the eval footprint); None: no oracle."""
+    method_version: str | None = None
+    """A plugin method's version (:attr:`mitsnerf.plugins.Source.version`: its distribution's name and version,
+    and a sha256 of its source), part of the hash: editing a plugin reruns its cells alone. None: a built-in,
+    which ``code_version`` covers."""
 
     @property
     def key(self) -> str:
@@ -91,8 +95,10 @@ class Cell:
         return f"{self.scene}/{self.label}-seed{self.seed}"
 
     def identity(self) -> dict[str, Any]:
-        """Everything that decides the cell's result, except the code version."""
+        """Everything that decides the cell's result, except mitsnerf's code version (a plugin method's is in)."""
+        plugin = {} if self.method_version is None else {"method_version": self.method_version}
         return {
+            **plugin,
             "record_format": RECORD_FORMAT,
             "scene": self.scene,
             "spec": self.spec,

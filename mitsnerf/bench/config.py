@@ -34,7 +34,7 @@ External renders are matched and scored as ``mitsnerf score`` does (:mod:`mitsne
 relative paths are relative to the config file's folder. A config of ``[[external]]`` entries alone
 (no ``[[methods]]``) scores them against the datasets and their oracles, training nothing.
 
-With ``methods = "all"``, every method in :data:`mitsnerf.methods.METHODS` runs with its
+With ``methods = "all"``, every registered method (:func:`mitsnerf.methods.methods`) runs with its
 default settings, and ``[method_settings.NAME]`` tables (``config``, ``train``, ``quick``)
 adjust the ones that need it; a table naming a method that is not registered is ignored
 with a warning (configs may name methods before they land).
@@ -62,8 +62,8 @@ from mitsnerf.config import (
     source_field,
     to_dict,
 )
-from mitsnerf.errors import SpecError, unknown
-from mitsnerf.methods import METHODS
+from mitsnerf.errors import SpecError
+from mitsnerf.methods import methods as registered_methods
 from mitsnerf.oracle.cache import OracleConfig
 from mitsnerf.train.evaluate import EvalConfig
 
@@ -86,18 +86,19 @@ class MethodQuick:
 class MethodRun:
     """One method column of a benchmark: the method, its config, its training budget."""
 
-    name: str = param(doc="a registered method (mitsnerf.methods.METHODS)")
+    name: str = param(doc="a registered method (`mitsnerf methods` lists them)")
     label: str = param("", doc="column label (default: name); unique")
     config: Mapping[str, Any] = param(
-        default_factory=dict, doc="the method's config (mitsnerf.methods.METHODS[name].config_type keys)")
+        default_factory=dict, doc="the method's config (the keys `mitsnerf methods NAME` lists)")
     train: Mapping[str, Any] = param(
         default_factory=dict,
         doc="training settings over the benchmark's shared train (mitsnerf.train.TrainConfig keys)")
     quick: MethodQuick = param(default_factory=MethodQuick, doc="this method's part of the --quick profile")
 
     def __post_init__(self) -> None:
-        if self.name not in METHODS:
-            raise ValueError(f"name: {unknown('method', self.name, sorted(METHODS))}")
+        problem = registered_methods().why_not(self.name)
+        if problem:
+            raise ValueError(f"name: {problem}")
         if not self.label:
             object.__setattr__(self, "label", self.name)
         if "/" in self.label or self.label.startswith("."):
@@ -278,15 +279,16 @@ def _expand(raw: dict, source: str) -> dict:
         if not isinstance(settings or {}, Mapping):
             raise SpecError(source, "method_settings", "must be a table of method names")
         settings = dict(settings or {})
-        for name in sorted(set(settings) - set(METHODS)):
+        registered = registered_methods()
+        for name in sorted(set(settings) - set(registered)):
             warnings.warn(f"method_settings.{name}: no method {name!r} is registered (yet); ignored", stacklevel=3)
-        methods = []
-        for name in sorted(METHODS):
+        listed = []
+        for name in sorted(registered):
             entry = dict(settings.get(name) or {})
             if "name" in entry and entry["name"] != name:
                 raise SpecError(source, f"method_settings.{name}.name", f"must be {name!r} or left out")
-            methods.append({**entry, "name": name})
-        raw["methods"] = methods
+            listed.append({**entry, "name": name})
+        raw["methods"] = listed
     elif settings is not None:
         raise SpecError(
             source, "method_settings", 'only with methods = "all" (give settings in each [[methods]] table)'

@@ -132,6 +132,8 @@ def plan_cells(config: BenchConfig, options: BenchOptions, scenes: list[SceneDat
     SpecError naming the bench file and field)."""
     import mitsuba as mi
 
+    from mitsnerf.methods import get_method
+
     variant = mi.variant() or env.set_variant()
     version = options.code_version or code_version()
     out_root = out_root_of(config, options).resolve()
@@ -144,7 +146,7 @@ def plan_cells(config: BenchConfig, options: BenchOptions, scenes: list[SceneDat
                     spec=site.spec, method_config=resolved, train=train[seed], eval=site.eval,
                     variant=variant, code_version=version, dataset_dir=site.dataset_dir, data_root=site.data_root,
                     out_dir=str(cell_dir(out_root, site.scene, method.label, seed)), quick=options.quick,
-                    oracle=site.oracle,
+                    oracle=site.oracle, method_version=get_method(method.name).source.version,
                 ))
     return cells
 

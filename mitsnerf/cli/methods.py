@@ -1,29 +1,63 @@
-"""``mitsnerf methods``."""
+"""``mitsnerf methods``: the registered methods and where each came from, one method's settings, or
+``--check NAME``: the conformance suite (:mod:`mitsnerf.runs.conformance`) on it."""
 
 from __future__ import annotations
 
-from mitsnerf.errors import unknown
+import sys
 
 
-def run(args) -> int:
+def _list(registry) -> int:
+    width = max(map(len, registry), default=4) + 2
+    for name, method in registry.items():
+        print(f"{name:{width}s}{method.source.kind:13s}{method.description}")
+        if method.source.kind != "built-in":
+            print(f"{'':{width}s}{'':13s}from {method.source.where}")
+    for problem in registry.problems.values():
+        print(f"mitsnerf: warning: not loaded: {problem}", file=sys.stderr)
+    return 0
+
+
+def _show(method) -> int:
     from mitsnerf.config import doc_table
-    from mitsnerf.errors import SpecError
-    from mitsnerf.methods import METHODS
 
-    if not args.name:
-        for name, entry in METHODS.items():
-            print(f"{name:16s} {entry.description}")
-        return 0
-    if args.name not in METHODS:
-        raise SpecError(None, "NAME", unknown("method", args.name, sorted(METHODS)))
-    entry = METHODS[args.name]
-    print(f"{entry.name}: {entry.description}\n\n{doc_table(entry.config_type, nested=True)}\n\n"
-          f"Set with: mitsnerf train DATASET --method {entry.name} --set KEY=VALUE "
+    print(f"{method.name}: {method.description}\n({method.source.kind}: {method.source.where})\n\n"
+          f"{doc_table(method.config_type, nested=True)}\n\n"
+          f"Set with: mitsnerf train DATASET --method {method.name} --set KEY=VALUE "
           "(or in a bench file's [[methods]] config table).")
     return 0
 
 
+def run(args) -> int:
+    from mitsnerf.errors import SpecError
+    from mitsnerf.methods import methods
+
+    registry = methods()
+    name = args.check or args.name
+    if not name:
+        return _list(registry)
+    problem = registry.why_not(name)
+    if problem:
+        raise SpecError(None, "--check" if args.check else "NAME", problem)
+    if args.check:
+        from mitsnerf.runs.conformance import check_method
+
+        report = check_method(name, progress=not args.no_progress)
+        print(report.summary())
+        return 0 if report.passed else 1
+    return _show(registry[name])
+
+
 def add_parser(sub) -> None:
-    p = sub.add_parser("methods", help="list the methods, or one method's settings (what --set takes)")
+    from mitsnerf.cli.common import NO_PROGRESS_HELP
+
+    p = sub.add_parser(
+        "methods",
+        help="list the methods (built-in and plugins), one method's settings, or check a method's conformance",
+        description="Without NAME: every registered method, where it came from (built-in, a 'mitsnerf.methods' "
+                    "entry point, or the MITSNERF_METHODS variable: NAME=MODULE:CLASS, separated by ',' or ':') and "
+                    "the plugins that failed to load. With NAME: its settings (what --set takes). With --check NAME: "
+                    "train its tiny configuration through every promise the harness makes for a method.")
     p.add_argument("name", nargs="?", metavar="NAME", help="a method: print its settings, ranges and defaults")
+    p.add_argument("--check", metavar="NAME", help="run the conformance suite on method NAME (exit 1 if it fails)")
+    p.add_argument("--no-progress", action="store_true", help=NO_PROGRESS_HELP)
     p.set_defaults(func=run)

@@ -14,7 +14,6 @@ from mitsnerf.cli.common import (
     options_config,
     parse_overrides,
 )
-from mitsnerf.errors import unknown
 
 if TYPE_CHECKING:
     from mitsnerf.train.evaluate import EvalConfig
@@ -32,19 +31,21 @@ def _fresh_settings(args) -> tuple[str, dict, EvalConfig]:
     """``(method, method overrides, EvalConfig)`` of a new run, checked before anything runs."""
     from mitsnerf.config import apply_overrides, from_dict
     from mitsnerf.errors import UsageError
-    from mitsnerf.methods import METHODS
+    from mitsnerf.methods import methods
     from mitsnerf.train.evaluate import EvalConfig
 
     if not args.dataset:
         raise UsageError("train", "name a DATASET directory (or pass --resume to continue the run in --out)")
     method = DEFAULT_METHOD if args.method is None else args.method
-    if method not in METHODS:
-        raise UsageError("--method", unknown("method", method, sorted(METHODS)))
+    registry = methods()
+    problem = registry.why_not(method)
+    if problem:
+        raise UsageError("--method", problem)
     overrides = apply_overrides({}, parse_overrides(args.set), "--set")
     if args.lr is not None:
-        options_config(METHODS[method].config_type, {"lr": args.lr})
+        options_config(registry[method].config_type, {"lr": args.lr})
         overrides["lr"] = args.lr
-    from_dict(METHODS[method].config_type, overrides, source="--set")
+    from_dict(registry[method].config_type, overrides, source="--set")
     eval_config = options_config(EvalConfig, {} if args.footprint is None else {"footprint": args.footprint})
     return method, overrides, eval_config
 
@@ -117,18 +118,18 @@ def run(args) -> int:
 
 def _method_help() -> str:
     """What ``--method`` takes, from the method registry (so a method added there is listed)."""
-    from mitsnerf.methods import METHODS
+    from mitsnerf.methods import methods
 
-    listed = "; ".join(f"{name}: {entry.description}" for name, entry in METHODS.items())
+    listed = "; ".join(f"{name}: {entry.description}" for name, entry in methods().items())
     return f"the method to fit (default {DEFAULT_METHOD}): {listed}. `mitsnerf methods NAME` lists its --set keys"
 
 
 def _lr_help() -> str:
     """``--lr``'s help: each registered method's own default learning rate, from its config."""
     from mitsnerf.config import option_spec
-    from mitsnerf.methods import METHODS
+    from mitsnerf.methods import methods
 
-    defaults = ", ".join(f"{n} {option_spec(e.config_type, 'lr').default:g}" for n, e in METHODS.items())
+    defaults = ", ".join(f"{n} {option_spec(e.config_type, 'lr').default:g}" for n, e in methods().items())
     return f"the method's learning rate, its config's lr (default: {defaults})"
 
 

@@ -1,50 +1,115 @@
-"""The registry of methods: name -> (config type, model type).
+"""The registry of methods: name -> :class:`Method` (its model type, config type and source).
 
-Adding a method is one module with a frozen config dataclass and a
-:class:`mitsnerf.methods.base.Model`, plus one line below.
+Filled from three sources (:mod:`mitsnerf.plugins`), each method declared once, where it is written:
+
+- the built-ins: each module of this package that declares ``METHOD = SomeModel``;
+- the ``mitsnerf.methods`` entry points of installed distributions (the entry point's name is the
+  method's name, its object the model class);
+- ``MITSNERF_METHODS="name=module:Class,other=path/to/file.py:Class"``, for code that is not installed.
+
+What a method must be is :mod:`mitsnerf.methods.base`'s contract; a plugin that breaks it is refused
+with one line (:func:`methods` ``.problems``), and the other methods keep working.
+
+>>> sorted(methods())[:2]
+['mitsuba-inverse', 'nerf']
+>>> get_method("ngp").source.kind, get_method("ngp").config_type.__name__
+('built-in', 'NGPMethodConfig')
 """
 
 from __future__ import annotations
 
+import dataclasses
+import functools
+import inspect
+import os
+import sys
+from collections.abc import Mapping
 from dataclasses import dataclass
-from types import MappingProxyType
+from typing import Any
 
-from mitsnerf.errors import unknown
-from mitsnerf.methods.mitsuba_inverse import MitsubaInverseConfig, MitsubaInverseModel
-from mitsnerf.methods.nerf import NeRFMethodConfig, NeRFModel
-from mitsnerf.methods.ngp import NGPMethodConfig, NGPModel
-from mitsnerf.methods.voxel import VoxelMethodConfig, VoxelModel
+from mitsnerf.methods.base import MethodConfig, Model, RendersRays, TrainsOnViews
+from mitsnerf.plugins import Entry, Kind, PluginError, Registry, Source, load
+
+#: The environment variable that registers methods which are not installed.
+VARIABLE = "MITSNERF_METHODS"
+#: The entry-point group of installed plugin methods.
+GROUP = "mitsnerf.methods"
 
 
 @dataclass(frozen=True)
-class MethodEntry:
+class Method:
+    """A registered method."""
+
     name: str
-    config_type: type
-    model_type: type
-    description: str
+    model_type: type[Model]
+    source: Source
+    """Where it came from: built-in, entry point or variable, with the plugin's version."""
+
+    @property
+    def config_type(self) -> type[MethodConfig]:
+        return self.model_type.config_type
+
+    @property
+    def description(self) -> str:
+        return self.model_type.description
+
+    @property
+    def tiny(self) -> Mapping[str, Any]:
+        """Overrides making the method's smallest configuration."""
+        return self.model_type.tiny
 
 
-METHODS = MappingProxyType(
-    {
-        "nerf": MethodEntry(
-            "nerf", NeRFMethodConfig, NeRFModel, "positional-encoding MLPs, coarse + importance samples"
-        ),
-        "mitsuba-inverse": MethodEntry(
-            "mitsuba-inverse",
-            MitsubaInverseConfig,
-            MitsubaInverseModel,
-            "sigma_t/albedo grids through Mitsuba's prbvolpath, coarse to fine",
-        ),
-        "ngp": MethodEntry("ngp", NGPMethodConfig, NGPModel, "hash-grid encoding, tiny MLPs, occupancy-grid skipping"),
-        "voxel": MethodEntry(
-            "voxel", VoxelMethodConfig, VoxelModel, "dense density + SH grid, TV prior, coarse to fine"
-        ),
-    }
-)
-
-
-def get_method(name: str) -> MethodEntry:
+def check_method(name: str, obj: Any) -> type[Model]:
+    """``obj`` if it is a method's model class that keeps :mod:`mitsnerf.methods.base`'s contract, else a
+    :class:`~mitsnerf.plugins.PluginError` saying which part it breaks."""
+    what = f"{getattr(obj, '__module__', '?')}.{getattr(obj, '__qualname__', type(obj).__name__)}"
+    if not (inspect.isclass(obj) and issubclass(obj, Model)):
+        raise PluginError(f"{what} is not a mitsnerf.methods.base.Model subclass")
+    if inspect.isabstract(obj):
+        missing = ", ".join(sorted(obj.__abstractmethods__))
+        raise PluginError(f"{what} leaves abstract methods unwritten: {missing}")
+    if not (issubclass(obj, RendersRays) or issubclass(obj, TrainsOnViews)):
+        raise PluginError(f"{what} neither renders rays (subclass RayModel) nor trains on views (subclass ViewModel)")
+    _check_config_type(what, getattr(obj, "config_type", None))
+    if not isinstance(getattr(obj, "description", None), str) or not obj.description.strip():
+        raise PluginError(f"{what}.description must be a one-line string")
     try:
-        return METHODS[name]
-    except KeyError:
-        raise KeyError(unknown("method", name, sorted(METHODS))) from None
+        inspect.signature(obj).bind(None, None, 0)
+    except TypeError:
+        raise PluginError(f"{what}'s constructor must take (config, scene, seed), "
+                          f"not {inspect.signature(obj)}") from None
+    return obj
+
+
+def _check_config_type(what: str, config_type: Any) -> None:
+    if not (inspect.isclass(config_type) and issubclass(config_type, MethodConfig)):
+        raise PluginError(f"{what}.config_type must be a dataclass subclassing mitsnerf.methods.base.MethodConfig, "
+                          f"got {config_type!r}")
+    if not config_type.__dataclass_params__.frozen:  # type: ignore[attr-defined]
+        raise PluginError(f"{what}.config_type must be a frozen dataclass")
+    required = [f.name for f in dataclasses.fields(config_type)
+                if f.default is dataclasses.MISSING and f.default_factory is dataclasses.MISSING]
+    if required:
+        raise PluginError(f"{what}.config_type: every field needs a default; {', '.join(required)} has none")
+
+
+KIND = Kind("method", "mitsnerf.methods", "METHOD", GROUP, VARIABLE, check_method)
+
+
+def methods() -> Registry[Method]:
+    """Every registered method, by name (built-ins first, then plugins by name); broken plugins in ``.problems``."""
+    return _methods(os.environ.get(VARIABLE, ""), tuple(sys.path))
+
+
+@functools.lru_cache(maxsize=8)
+def _methods(variable: str, path: tuple[str, ...]) -> Registry[Method]:
+    """The registry for ``variable``'s text and ``path`` (entry points are found on ``sys.path``)."""
+    loaded = load(KIND, {VARIABLE: variable})
+    entries = {name: Entry(name, Method(name, e.value, e.source), e.source) for name, e in loaded.entries.items()}
+    return Registry(loaded.what, entries, loaded.problems)
+
+
+def get_method(name: str) -> Method:
+    """The method ``name``; a KeyError naming the known methods, or why a plugin of that name is broken."""
+    return methods()[name]
+

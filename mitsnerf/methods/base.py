@@ -1,9 +1,22 @@
-"""What a method is: a :class:`Model` with named parameters, behind one of two narrow protocols.
+"""What a method is, for the built-ins and for a plugin alike: the contract the harness holds every method to.
 
-- :class:`RayModel`, a per-ray model: it writes :meth:`RayModel.render_rays` (and says how much
-  jitter its sampler draws). The trainer's step is a random batch of training pixels rendered
-  through it; whole views are rendered ray by ray by the base class.
-- :class:`ViewModel`, a whole-view model: it writes its own step's loss
+A method is a :class:`Model` subclass with three class attributes and a constructor:
+
+- ``config_type``: a frozen dataclass subclassing :class:`MethodConfig` (so it has ``lr``), every field
+  with a default (:func:`mitsnerf.config.param`, a docstring under each field): what ``--set`` and a bench
+  file's ``config`` table set, validated by :func:`mitsnerf.config.from_dict`;
+- ``description``: one line for ``mitsnerf methods``;
+- ``tiny``: overrides of ``config_type`` that make the method's smallest configuration (the
+  conformance suite, ``mitsnerf methods --check``, trains it for a few steps on a tiny dataset);
+- ``__init__(self, config, scene: SceneInfo, seed: int)``: the model for one scene, initialised
+  from ``seed`` alone (a run resumed or repeated with the same seed starts from the same values).
+
+and renders through one of two narrow capabilities:
+
+- :class:`RendersRays` (subclass :class:`RayModel`), a per-ray model: it writes
+  :meth:`RayModel.render_rays` (and says how much jitter its sampler draws). The trainer's step is a
+  random batch of training pixels rendered through it; whole views are rendered ray by ray by the base class.
+- :class:`TrainsOnViews` (subclass :class:`ViewModel`), a whole-view model: it writes its own step's loss
   (:meth:`ViewModel.training_loss`) and :meth:`ViewModel.render_view` (``mitsuba-inverse``
   renders whole images through Mitsuba's path tracer).
 
@@ -17,6 +30,10 @@ returning new values from :meth:`Model.after_step`, which the trainer writes int
 A capability beyond rendering is a protocol of its own, tested with ``isinstance``: :class:`HasField`, a
 model whose learned medium can be queried (``field()``; with ``density(x)`` the density scores and
 ``mitsnerf export`` read it).
+
+A method joins the registry (:mod:`mitsnerf.methods`) by declaring itself in its own module
+(``METHOD = NeRFModel``, the built-ins), by a ``mitsnerf.methods`` entry point, or by the
+``MITSNERF_METHODS`` variable (:mod:`mitsnerf.plugins`).
 """
 
 from __future__ import annotations
@@ -24,10 +41,12 @@ from __future__ import annotations
 from abc import ABC, abstractmethod
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field, replace
+from types import MappingProxyType
 from typing import Any, ClassVar, Protocol, runtime_checkable
 
 import drjit as dr
 
+from mitsnerf.config import param
 from mitsnerf.fields.protocols import Field
 from mitsnerf.math.box import Box
 from mitsnerf.math.composite import Composite
@@ -95,6 +114,31 @@ def check_shapes(current: Mapping[str, Any], values: Mapping[str, Any]) -> None:
             raise ParameterShapeError(key, value.shape, current[key].shape)
 
 
+@dataclass(frozen=True)
+class MethodConfig:
+    """The fields every method's config has; a method's ``config_type`` subclasses it (and may give ``lr``
+    its own default by declaring it again)."""
+
+    lr: float = param(1e-2, lo=0.0, lo_open=True)
+    """Adam learning rate (the trainer's schedule scales it)."""
+
+
+@runtime_checkable
+class RendersRays(Protocol):
+    """A per-ray model: the trainer's step renders a random batch of training pixels through it."""
+
+    def render_rays(self, o, d, *, u=None, training: bool = False) -> RenderOutput: ...
+
+    def jitter_size(self) -> int: ...
+
+
+@runtime_checkable
+class TrainsOnViews(Protocol):
+    """A whole-view model: it writes its own step's loss."""
+
+    def training_loss(self, data, step: int, rng) -> StepLoss: ...
+
+
 @runtime_checkable
 class HasField(Protocol):
     """A model whose learned medium can be queried: ``field()`` is its :class:`~mitsnerf.fields.protocols.Field`
@@ -104,9 +148,22 @@ class HasField(Protocol):
 
 
 class Model(ABC):
-    """A trainable scene representation (see the module docstring). Subclass one of the protocols."""
+    """A trainable scene representation (see the module docstring): subclass :class:`RayModel` or
+    :class:`ViewModel`, give the class attributes below, and the constructor
+    ``__init__(self, config: config_type, scene: SceneInfo, seed: int)``."""
 
     name: ClassVar[str]
+    """The built-in's registry name (a plugin's is its entry point's or variable's)."""
+    config_type: ClassVar[type[MethodConfig]]
+    """Its settings: a frozen dataclass subclassing :class:`MethodConfig`, every field with a default."""
+    description: ClassVar[str]
+    """One line saying what the method is, for ``mitsnerf methods``."""
+    tiny: ClassVar[Mapping[str, Any]] = MappingProxyType({})
+    """Overrides of ``config_type`` making the smallest configuration (the conformance suite's)."""
+
+    def __init__(self, config: Any, scene: SceneInfo, seed: int = 0) -> None:
+        """The model for one scene, initialised from ``seed`` alone; ``config`` is a ``config_type``."""
+        self.config = config
 
     @abstractmethod
     def parameters(self) -> Mapping[str, Any]:

@@ -35,6 +35,7 @@ from __future__ import annotations
 
 from collections.abc import Mapping
 from dataclasses import dataclass
+from types import MappingProxyType
 from typing import Any
 
 import drjit as dr
@@ -44,7 +45,7 @@ import numpy as np
 from mitsnerf.config import check_fields, param
 from mitsnerf.errors import DatasetError
 from mitsnerf.fields.grid import GridField
-from mitsnerf.methods.base import SceneInfo, StepLoss, ViewModel
+from mitsnerf.methods.base import MethodConfig, SceneInfo, StepLoss, ViewModel
 from mitsnerf.render.camera import Rendered, render_view
 from mitsnerf.render.volume import render_rays
 
@@ -54,7 +55,7 @@ EVAL_SEED = 0x5EED
 
 
 @dataclass(frozen=True)
-class MitsubaInverseConfig:
+class MitsubaInverseConfig(MethodConfig):
     """Configuration of the ``mitsuba-inverse`` method."""
 
     resolutions: tuple[int, ...] = param((16, 32, 64), lo=2, hi=512)
@@ -107,6 +108,9 @@ def _rgb_sensor(camera, spp: int):
 
 class MitsubaInverseModel(ViewModel):
     name = "mitsuba-inverse"
+    config_type = MitsubaInverseConfig
+    description = "sigma_t/albedo grids through Mitsuba's prbvolpath, coarse to fine"
+    tiny = MappingProxyType({"resolutions": [4, 8], "upsample_at": [3], "spp": 2, "eval_spp": 4})
 
     def __init__(self, config: MitsubaInverseConfig, scene: SceneInfo, seed: int = 0) -> None:
         from mitsnerf.scene.spec import parse_scene
@@ -241,3 +245,7 @@ class MitsubaInverseModel(ViewModel):
             quad = render_view(lambda o, d: render_rays(density, o, d, n, box=self.box), camera,
                                pixel_center=pixel_center, footprint=max(footprint, 2))
         return Rendered(rgb, quad.opacity, quad.depth)
+
+
+#: The method this module declares (:mod:`mitsnerf.methods` registers it as ``mitsuba-inverse``).
+METHOD = MitsubaInverseModel

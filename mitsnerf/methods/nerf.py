@@ -38,6 +38,7 @@ from __future__ import annotations
 
 from collections.abc import Mapping
 from dataclasses import dataclass
+from types import MappingProxyType
 from typing import Any, Literal
 
 import drjit as dr
@@ -50,13 +51,13 @@ from mitsnerf.fields.occupancy import OccupancyConfig, eval_masked
 from mitsnerf.math.composite import composite, weights
 from mitsnerf.math.proposal import interlevel_loss
 from mitsnerf.math.sampling import deltas_from_sorted_t, merge_sorted_t, sample_pdf
-from mitsnerf.methods.base import RenderOutput, SceneInfo, check_shapes, cover_radiance
+from mitsnerf.methods.base import MethodConfig, RenderOutput, SceneInfo, check_shapes, cover_radiance
 from mitsnerf.methods.occupancy import OccupancyModel
 from mitsnerf.render.volume import background_radiance, sample_rays
 
 
 @dataclass(frozen=True)
-class NeRFMethodConfig:
+class NeRFMethodConfig(MethodConfig):
     """Configuration of the ``nerf`` method."""
 
     network: NeRFConfig = param(default_factory=NeRFConfig)
@@ -159,6 +160,10 @@ class NeRFNetworks(nn.Module):
 
 class NeRFModel(OccupancyModel):
     name = "nerf"
+    config_type = NeRFMethodConfig
+    description = "positional-encoding MLPs, coarse + importance samples"
+    tiny = MappingProxyType({"network": {"width": 8, "depth": 1, "head_width": 8, "features": 4}, "n_samples": 8,
+                             "n_importance": 4})
 
     def __init__(self, config: NeRFMethodConfig, scene: SceneInfo, seed: int = 0) -> None:
         self.config = config
@@ -252,3 +257,7 @@ class NeRFModel(OccupancyModel):
             loss = interlevel_loss(w_f, coarse_edges(t, t_exit, n_f), n_f, s_edges, w_p, n_p)
             extra["proposal"] = cfg.proposal_loss_weight * loss
         return RenderOutput(comp, extra)
+
+
+#: The method this module declares (:mod:`mitsnerf.methods` registers it as ``nerf``).
+METHOD = NeRFModel

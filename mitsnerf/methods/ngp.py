@@ -13,6 +13,7 @@ from __future__ import annotations
 
 from collections.abc import Mapping
 from dataclasses import dataclass
+from types import MappingProxyType
 from typing import Any
 
 import mitsuba as mi
@@ -20,12 +21,12 @@ import mitsuba as mi
 from mitsnerf.config import check_fields, param
 from mitsnerf.fields.ngp import NGPConfig, NGPField
 from mitsnerf.fields.occupancy import OccupancyConfig
-from mitsnerf.methods.base import RenderOutput, SceneInfo, check_shapes, cover_radiance
+from mitsnerf.methods.base import MethodConfig, RenderOutput, SceneInfo, check_shapes, cover_radiance
 from mitsnerf.methods.occupancy import OccupancyModel
 
 
 @dataclass(frozen=True)
-class NGPMethodConfig:
+class NGPMethodConfig(MethodConfig):
     """Configuration of the ``ngp`` method."""
 
     network: NGPConfig = param(default_factory=NGPConfig)
@@ -45,6 +46,11 @@ class NGPMethodConfig:
 
 class NGPModel(OccupancyModel):
     name = "ngp"
+    config_type = NGPMethodConfig
+    description = "hash-grid encoding, tiny MLPs, occupancy-grid skipping"
+    tiny = MappingProxyType({"network": {"n_levels": 2, "log2_hashmap_size": 10, "base_resolution": 8,
+                                         "max_resolution": 16, "hidden": 8, "color_hidden": 8},
+                             "occupancy": {"resolution": 8, "update_every": 2}, "n_samples": 16})
 
     def __init__(self, config: NGPMethodConfig, scene: SceneInfo, seed: int = 0) -> None:
         self.config = config
@@ -61,3 +67,7 @@ class NGPModel(OccupancyModel):
 
     def render_rays(self, o, d, *, u=None, training: bool = False) -> RenderOutput:
         return RenderOutput(self.composite(o, d, u, training))
+
+
+#: The method this module declares (:mod:`mitsnerf.methods` registers it as ``ngp``).
+METHOD = NGPModel

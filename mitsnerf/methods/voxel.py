@@ -21,6 +21,7 @@ from __future__ import annotations
 
 from collections.abc import Mapping
 from dataclasses import dataclass
+from types import MappingProxyType
 from typing import Any
 
 import mitsuba as mi
@@ -28,7 +29,7 @@ import mitsuba as mi
 from mitsnerf.config import check_fields, param
 from mitsnerf.fields.occupancy import OccupancyConfig
 from mitsnerf.fields.voxel import VoxelField, VoxelFieldConfig, total_variation, upsample
-from mitsnerf.methods.base import ParameterShapeError, RenderOutput, SceneInfo, cover_radiance
+from mitsnerf.methods.base import MethodConfig, ParameterShapeError, RenderOutput, SceneInfo, cover_radiance
 from mitsnerf.methods.occupancy import OccupancyModel
 
 SIGMA_KEY = "sigma_raw"
@@ -36,7 +37,7 @@ SH_KEY = "sh"
 
 
 @dataclass(frozen=True)
-class VoxelMethodConfig:
+class VoxelMethodConfig(MethodConfig):
     """Configuration of the ``voxel`` method."""
 
     grid: VoxelFieldConfig = param(default_factory=VoxelFieldConfig)
@@ -102,6 +103,9 @@ def _check_grids(sigma, sh, channels: int) -> None:
 
 class VoxelModel(OccupancyModel):
     name = "voxel"
+    config_type = VoxelMethodConfig
+    description = "dense density + SH grid, TV prior, coarse to fine"
+    tiny = MappingProxyType({"resolution": 8, "initial_resolution": 4, "upsample_steps": [3], "n_samples": 16})
 
     def __init__(self, config: VoxelMethodConfig, scene: SceneInfo, seed: int = 0) -> None:
         self.config = config
@@ -151,3 +155,7 @@ class VoxelModel(OccupancyModel):
             self.set_parameters(new)
         super().after_step(step, params)
         return new
+
+
+#: The method this module declares (:mod:`mitsnerf.methods` registers it as ``voxel``).
+METHOD = VoxelModel

@@ -29,10 +29,10 @@ from mitsnerf.data.atomic import atomic_dir, atomic_write_json
 from mitsnerf.data.dataset import Dataset, load_dataset
 from mitsnerf.data.images import write_exr, write_png
 from mitsnerf.data.verify import verify_dataset
-from mitsnerf.errors import DatasetError, DiskFullError, OutputError, UsageError, unknown
+from mitsnerf.errors import DatasetError, DiskFullError, OutputError, UsageError
 from mitsnerf.fields.protocols import DensityField
 from mitsnerf.math.box import Box
-from mitsnerf.methods import METHODS, get_method
+from mitsnerf.methods import get_method, methods
 from mitsnerf.methods.base import HasField, Model, ParameterShapeError, SceneInfo, num_parameters
 from mitsnerf.render.background import make_background
 from mitsnerf.render.camera import Rendered
@@ -159,8 +159,9 @@ def run_method(config: Mapping[str, Any], where: Path) -> str:
     method = config.get("method")
     if method is None:
         raise DatasetError(where, "method", "missing: the run does not say which method trained it")
-    if method not in METHODS:
-        raise DatasetError(where, "method", unknown("method", method, sorted(METHODS)))
+    problem = methods().why_not(method)
+    if problem:
+        raise DatasetError(where, "method", problem)
     return method
 
 

@@ -165,7 +165,7 @@ def train(model: Model, data: PixelData, config: TrainConfig, base_lr: float, *,
     loop = _Loop(model, data, config, base_lr, state or TrainState(make_optimizer(model, base_lr)),
                  CheckpointPolicy(checkpointer, config.checkpoint_every), on_log)
     model.set_parameters(loop.opt)
-    bar = Progress(model.name, config.steps, loop.step, progress)
+    bar = Progress(getattr(model, "name", None) or type(model).__name__, config.steps, loop.step, progress)
     t0 = loop.clock.seconds()
     try:
         with stop_signals():  # up to the last checkpoint: a signal while the bar closes or the file is written too

@@ -1,6 +1,6 @@
 """One training step's loss, by protocol: a random ray batch for per-ray models, the model's own for whole-view ones.
 
-For a :class:`mitsnerf.methods.base.RayModel` (``B`` rays, targets ``C*``)::
+For a :class:`mitsnerf.methods.base.RendersRays` model (``B`` rays, targets ``C*``)::
 
     loss = mean_rays,channels (C - C*)^2 + sum extra_losses + sum_aux mean (C_aux - C*)^2
 """
@@ -10,12 +10,12 @@ from __future__ import annotations
 import drjit as dr
 import mitsuba as mi
 
-from mitsnerf.methods.base import Model, RayModel, StepLoss, ViewModel
+from mitsnerf.methods.base import Model, RendersRays, StepLoss, TrainsOnViews
 from mitsnerf.train.config import TrainConfig
 from mitsnerf.train.data import PixelData
 
 
-def ray_batch_loss(model: RayModel, data: PixelData, config: TrainConfig, rng) -> StepLoss:
+def ray_batch_loss(model: RendersRays, data: PixelData, config: TrainConfig, rng) -> StepLoss:
     """Render ``config.batch_rays`` random training pixels (jittered training samples)."""
     B = config.batch_rays
     o, d, target = data.batch(rng, B, config.pixel_jitter)
@@ -31,9 +31,11 @@ def ray_batch_loss(model: RayModel, data: PixelData, config: TrainConfig, rng) -
 
 
 def step_loss(model: Model, data: PixelData, config: TrainConfig, step: int, rng) -> StepLoss:
-    """The step of ``model``'s protocol."""
-    if isinstance(model, RayModel):
+    """The step of ``model``'s capability (:class:`~mitsnerf.methods.base.RendersRays` or
+    :class:`~mitsnerf.methods.base.TrainsOnViews`)."""
+    if isinstance(model, RendersRays):
         return ray_batch_loss(model, data, config, rng)
-    if isinstance(model, ViewModel):
+    if isinstance(model, TrainsOnViews):
         return model.training_loss(data, step, rng)
-    raise TypeError(f"{type(model).__name__}: a Model must subclass RayModel or ViewModel")
+    raise TypeError(f"{type(model).__name__}: a Model must render rays (RendersRays: subclass RayModel) or "
+                    "train on views (TrainsOnViews: subclass ViewModel)")

@@ -9,7 +9,7 @@ import pytest
 from mitsnerf.bench.config import benchmarks_dir, load_bench_config, parse_bench_config
 from mitsnerf.bench.runner import BenchOptions, plan_cells
 from mitsnerf.errors import SpecError
-from mitsnerf.methods import METHODS
+from mitsnerf.methods import methods
 from mitsnerf.scene.spec import list_scenes
 
 from .conftest import write_scene
@@ -43,7 +43,7 @@ def test_full_runs_every_scene_and_method_with_three_seeds():
         warnings.simplefilter("ignore")
         config = load_bench_config("full")
     assert list(config.scenes) == list_scenes()
-    assert sorted(m.name for m in config.methods) == sorted(METHODS)
+    assert sorted(m.name for m in config.methods) == sorted(methods())
     assert len(config.seeds) == 3
 
 
@@ -82,7 +82,7 @@ def test_methods_all_with_settings_for_a_method_not_registered_yet_warns():
     with pytest.warns(UserWarning, match="method_settings.not-yet"):
         config = _config(methods="all", method_settings={"nerf": {"label": "N", "config": {"n_samples": 8}}, "not-yet": {}})
     labels = {m.name: m.label for m in config.methods}
-    assert labels["nerf"] == "N" and set(labels) == set(METHODS)
+    assert labels["nerf"] == "N" and set(labels) == set(methods())
 
 
 def test_plan_validates_method_settings_before_running(tmp_path):
@@ -175,7 +175,7 @@ def test_paper_is_sized_like_the_fields_benchmarks(tmp_path):
     for spec in specs.values():
         assert min(spec["cameras"]["width"], spec["cameras"]["height"]) >= 256 and spec["cameras"]["n_train"] == 100
         assert spec["render"]["noise_floor"] and spec["render"]["spp_test"] >= 2048
-    assert sorted(m.name for m in config.methods) == sorted(METHODS)
+    assert sorted(m.name for m in config.methods) == sorted(methods())
 
 
 def test_an_undecodable_or_empty_bench_file_is_named(tmp_path, capsys):

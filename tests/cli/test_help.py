@@ -7,7 +7,7 @@ import pytest
 from mitsnerf.cli import main
 from mitsnerf.config import option_spec
 from mitsnerf.train.evaluate import EvalConfig
-from mitsnerf.methods import METHODS
+from mitsnerf.methods import methods
 from mitsnerf.train import TrainConfig
 
 
@@ -24,7 +24,7 @@ def _help(capsys, *argv: str) -> str:
 
 def test_train_help_lists_every_registered_method_and_its_learning_rate(capsys):
     text = _help(capsys, "train")
-    for name, entry in METHODS.items():
+    for name, entry in methods().items():
         assert f"{name}: {entry.description}" in text
         assert f"{name} {option_spec(entry.config_type, 'lr').default:g}" in text
 

@@ -1,0 +1,84 @@
+"""The conformance suite (``mitsnerf methods --check NAME``): every registered method keeps every promise, and
+each promise's check fails on a planted bug where a real one would sit (the shared trainer, checkpoint and run
+code, or a plugin's own model)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+
+from mitsnerf.methods import methods
+from mitsnerf.runs.conformance import PROMISES, check_method
+
+PLUGIN = Path(__file__).resolve().parents[1] / "plugins" / "tiny_plugin.py"
+
+
+@pytest.mark.parametrize("name", sorted(methods()))
+def test_every_registered_method_conforms(name):
+    report = check_method(name)
+    assert report.passed, report.summary()
+    assert [o.promise for o in report.outcomes] == [p[0] for p in PROMISES]
+    assert all(o.passed for o in report.outcomes if o.promise != "exports its density, which is scored"), \
+        report.summary()
+
+
+def _broken(report) -> list[str]:
+    return [o.promise for o in report.failures()]
+
+
+def test_a_plugin_whose_set_parameters_drops_the_values_fails_to_train(monkeypatch):
+    monkeypatch.setenv("MITSNERF_METHODS", f"frozen={PLUGIN}:FrozenNGP")
+    report = check_method("frozen")
+    assert not report.passed and _broken(report)[0] == "trains and evaluates", report.summary()
+    assert "FAILED   trains and evaluates" in report.summary() and "frozen: does not conform" in report.summary()
+
+
+def test_a_learning_rate_of_zero_is_seen_as_not_learning(monkeypatch):
+    import mitsnerf.train.loop
+
+    monkeypatch.setattr(mitsnerf.train.loop, "learning_rate", lambda *args, **kwargs: 0.0)
+    report = check_method("ngp")
+    assert _broken(report)[:1] == ["trains and evaluates"], report.summary()
+    assert "every parameter is as initialised" in report.failures()[0].detail
+
+
+def test_an_interrupt_that_saves_nothing_breaks_the_sigterm_promise(monkeypatch):
+    from mitsnerf.train.checkpointing import CheckpointPolicy, interrupted_message
+
+    monkeypatch.setattr(CheckpointPolicy, "interrupted",
+                        lambda self, exc, save: interrupted_message(exc, self.checkpointer.path, 0))
+    report = check_method("voxel")
+    assert _broken(report) == ["SIGTERM checkpoints the last completed step"], report.summary()
+
+
+def test_a_resume_without_the_optimiser_moments_is_not_bit_identical(monkeypatch):
+    import mitsnerf.runs.fit
+
+    restore = mitsnerf.runs.fit.restore_optimizer
+
+    def forget_moments(opt, ckpt, path):
+        restore(opt, ckpt, path)
+        for key in list(opt.keys()):
+            opt.reset(key)
+
+    monkeypatch.setattr(mitsnerf.runs.fit, "restore_optimizer", forget_moments)
+    report = check_method("nerf")
+    assert _broken(report) == ["resume is bit-identical"], report.summary()
+    assert "differ from the run never stopped" in report.failures()[0].detail
+
+
+def test_a_run_read_back_without_its_parameters_renders_differently(monkeypatch):
+    import mitsnerf.runs.fit
+
+    monkeypatch.setattr(mitsnerf.runs.fit, "set_checked", lambda model, values, where, method, run_dir: None)
+    report = check_method("voxel")
+    assert "renders a saved run" in _broken(report), report.summary()
+
+
+def test_a_resume_that_ignores_the_settings_breaks_the_refusal_promise(monkeypatch):
+    import mitsnerf.runs.fit
+
+    monkeypatch.setattr(mitsnerf.runs.fit, "_check_resumable", lambda saved, current, where: None)
+    report = check_method("ngp")
+    assert _broken(report) == ["a run of other settings is refused on resume"], report.summary()
