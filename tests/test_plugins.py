@@ -128,3 +128,26 @@ def test_a_plugins_version_is_in_its_cells_key_and_a_built_ins_is_not(tmp_path, 
     mitsnerf.methods._methods.cache_clear()
     after = {c.method: c.config_hash for c in plan_cells(config, options)}
     assert before["ngp"] == after["ngp"] and before["mine"] != after["mine"]
+
+
+def test_a_volume_family_joins_through_the_variable_and_a_broken_one_is_named(tmp_path, monkeypatch):
+    from mitsnerf.scene.spec import load_scene
+    from mitsnerf.volumes import families, generate_volume
+
+    (tmp_path / "fog.py").write_text(
+        "import numpy as np\n"
+        "from dataclasses import dataclass\n"
+        "from mitsnerf.config import param\n"
+        "from mitsnerf.volumes.base import Family, VolumeGrids\n\n"
+        "@dataclass(frozen=True)\nclass FogParams:\n    level: float = param(0.5, lo=0.0, hi=1.0)\n\n"
+        "def generate(params, resolution, seed):\n"
+        "    d = np.full((resolution,) * 3, params.level, np.float32)\n"
+        "    return VolumeGrids(d, np.full(d.shape + (3,), 0.9, np.float32))\n\n"
+        "FAMILY = Family('whatever', FogParams, generate, 'uniform fog')\n")
+    monkeypatch.setenv("MITSNERF_VOLUMES", f"fog={tmp_path / 'fog.py'}:FAMILY,bad={tmp_path / 'fog.py'}:FogParams")
+    registry = families()
+    assert registry["fog"].name == "fog" and registry.entry("fog").source.kind == "variable"
+    assert "is not a mitsnerf.volumes.base.Family" in registry.problems["bad"]
+    assert float(generate_volume("fog", 8, 0, {"level": 0.25}).density.max()) == 0.25
+    spec = load_scene("cloud").with_overrides({"volume.family": "fog", "volume.params": {"level": 0.3}})
+    assert spec.volume.family == "fog" and spec.volume.params["level"] == 0.3

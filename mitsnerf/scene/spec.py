@@ -49,7 +49,7 @@ from mitsnerf.config import (
     to_dict,
     with_overrides,
 )
-from mitsnerf.errors import SpecError, unknown
+from mitsnerf.errors import SpecError
 
 #: The world's up axis (Z-up). Rigs' "upper half" and the sky's zenith are +Z.
 UP = (0.0, 0.0, 1.0)
@@ -108,9 +108,11 @@ class VolumeSpec:
     def __post_init__(self) -> None:
         from mitsnerf import volumes
 
-        if self.family not in volumes.FAMILIES:
-            raise ValueError(f"family: {unknown('volume family', self.family, sorted(volumes.FAMILIES))}")
-        params = from_dict(volumes.FAMILIES[self.family].params_type, self.params, prefix="params")
+        registry = volumes.families()
+        problem = registry.why_not(self.family)
+        if problem:
+            raise ValueError(f"family: {problem}")
+        params = from_dict(registry[self.family].params_type, self.params, prefix="params")
         object.__setattr__(self, "params", _freeze(to_dict(params)))  # the filled-in, read-only table
 
     def __hash__(self) -> int:  # params is a read-only mapping, which Python does not hash

@@ -15,7 +15,11 @@ faces of the scene box ``[-0.5, 0.5]^3``.
 | lattice | hard-edged cubes, density exactly 0 or 1: the worst case for smooth fields       |
 | nebula  | spatially varying RGB albedo                                                     |
 
->>> sorted(FAMILIES)
+Families are a registry (:mod:`mitsnerf.plugins`): each built-in declares ``FAMILY = Family(...)`` in its own
+module; installed code joins through a ``mitsnerf.volumes`` entry point (its object a :class:`Family`, its
+name the entry point's), code that is not installed through ``MITSNERF_VOLUMES="name=path/to/file.py:FAMILY"``.
+
+>>> sorted(families())
 ['blobs', 'cloud', 'lattice', 'nebula', 'plume', 'shell']
 >>> g = generate_volume("cloud", 8, seed=0, params={"octaves": 2})
 >>> g.density.shape, g.albedo.shape
@@ -28,29 +32,53 @@ mitsnerf.errors.SpecError: octaves: must be an integer >= 1, got 0
 
 from __future__ import annotations
 
+import dataclasses
+import functools
+import os
+import sys
 from collections.abc import Mapping
-from types import MappingProxyType
 from typing import Any
 
 from mitsnerf.config import from_dict
-from mitsnerf.errors import unknown
-from mitsnerf.volumes import blobs, cloud, lattice, nebula, plume, shell
+from mitsnerf.plugins import Entry, Kind, PluginError, Registry, load
 from mitsnerf.volumes.base import Family, VolumeGrids
 
-__all__ = ["FAMILIES", "Family", "VolumeGrids", "generate_volume", "make_params"]
+__all__ = ["Family", "VolumeGrids", "families", "generate_volume", "make_params"]
 
 MIN_RESOLUTION, MAX_RESOLUTION = 8, 512
+#: The environment variable that registers families which are not installed, and the entry-point group.
+VARIABLE, GROUP = "MITSNERF_VOLUMES", "mitsnerf.volumes"
 
-#: name -> Family, read-only; built from the family modules.
-FAMILIES: Mapping[str, Family] = MappingProxyType(
-    {m.FAMILY.name: m.FAMILY for m in (cloud, plume, blobs, shell, lattice, nebula)}
-)
+
+def check_family(name: str, obj: Any) -> Family:
+    """``obj`` if it is a :class:`Family` (renamed to its registry name), else a PluginError saying what it is."""
+    if not isinstance(obj, Family):
+        raise PluginError(f"{obj!r} is not a mitsnerf.volumes.base.Family")
+    if not (dataclasses.is_dataclass(obj.params_type) and callable(obj.generate)):
+        raise PluginError(f"family {obj.name!r}: params_type must be a dataclass and generate callable")
+    return obj if obj.name == name else dataclasses.replace(obj, name=name)
+
+
+KIND = Kind("volume family", "mitsnerf.volumes", "FAMILY", GROUP, VARIABLE, check_family)
+
+
+def families() -> Registry[Family]:
+    """Every registered volume family by name (built-ins first); broken plugins in ``.problems``."""
+    return _families(os.environ.get(VARIABLE, ""), tuple(sys.path))
+
+
+@functools.lru_cache(maxsize=8)
+def _families(variable: str, path: tuple[str, ...]) -> Registry[Family]:
+    loaded = load(KIND, {VARIABLE: variable})
+    return Registry(loaded.what, {n: Entry(n, e.value, e.source) for n, e in loaded.entries.items()}, loaded.problems)
 
 
 def _family(name: Any) -> Family:
-    if not isinstance(name, str) or name not in FAMILIES:
-        raise ValueError(unknown("volume family", name, sorted(FAMILIES)))
-    return FAMILIES[name]
+    registry = families()
+    problem = registry.why_not(name)
+    if problem:
+        raise ValueError(problem)
+    return registry[name]
 
 
 def make_params(family: str, values: Mapping[str, Any]) -> Any:

@@ -10,10 +10,10 @@ import numpy as np
 import pytest
 
 import mitsnerf  # noqa: F401  (sets up LLVM before drjit loads anywhere)
-from mitsnerf.volumes import FAMILIES, VolumeGrids, generate_volume, make_params
+from mitsnerf.volumes import VolumeGrids, families, generate_volume, make_params
 
 R = 32
-NAMES = sorted(FAMILIES)
+NAMES = sorted(families())
 SEED_UNUSED = {"shell"}  # fully determined by its parameters; its docstring says so
 # mean density at R = 32 over seeds (measured 0.031-0.050, 0.002-0.005, 0.0089, 0.034, 0.071, 0.032-0.040)
 MASS = {
@@ -50,12 +50,12 @@ def components(mask: np.ndarray) -> int:
 def test_registry_lists_the_six_families_read_only():
     assert set(NAMES) >= {"cloud", "plume", "blobs", "shell", "lattice", "nebula"}
     with pytest.raises(TypeError):
-        FAMILIES["fog"] = FAMILIES["cloud"]  # type: ignore[index]
+        families()["fog"] = families()["cloud"]  # type: ignore[index]
 
 
 @pytest.mark.parametrize("name", NAMES)
 def test_family_record_and_params_are_complete(name):
-    fam = FAMILIES[name]
+    fam = families()[name]
     assert fam.name == name and fam.description
     params = fam.params_type()  # every field has a default
     assert dataclasses.is_dataclass(params)
@@ -131,7 +131,7 @@ def test_plume_rises_along_z_and_is_high_frequency(grids):
 @pytest.mark.parametrize("seed", [0, 1])
 def test_blobs_are_separate_lobes_in_empty_space(seed, grids):
     d = grids[("blobs", seed)].density
-    n_blobs = FAMILIES["blobs"].params_type().n_blobs
+    n_blobs = families()["blobs"].params_type().n_blobs
     assert components(d > 0) == n_blobs
     assert (d == 0).mean() > 0.8
     three = generate_volume("blobs", R, seed, {"n_blobs": 3, "sigma": 0.04})
@@ -167,7 +167,7 @@ def test_nebula_albedo_varies_in_colour(grids):
     assert seen.std(axis=0).min() > 0.05  # every channel varies where the medium is
     hue = seen / seen.sum(axis=1, keepdims=True)
     assert np.ptp(hue[:, 2]) > 0.2  # a change of colour, not only of brightness
-    palette = np.asarray(FAMILIES["nebula"].params_type().palette)
+    palette = np.asarray(families()["nebula"].params_type().palette)
     assert (seen >= palette.min(axis=0) - 1e-6).all() and (seen <= palette.max(axis=0) + 1e-6).all()
 
 
@@ -177,7 +177,7 @@ def test_nebula_albedo_varies_in_colour(grids):
 def test_make_params_builds_from_toml_like_values():
     p = make_params("cloud", {"octaves": 3, "radius": 0.3, "albedo": [1, 0.5, 0.25]})
     assert p.octaves == 3 and p.albedo == (1.0, 0.5, 0.25) and isinstance(p.albedo[0], float)
-    assert make_params("cloud", {}) == FAMILIES["cloud"].params_type()
+    assert make_params("cloud", {}) == families()["cloud"].params_type()
     n = make_params("nebula", {"palette": [[0, 0, 0], [1, 1, 1]]})
     assert n.palette == ((0.0, 0.0, 0.0), (1.0, 1.0, 1.0))
     contrast = make_params("cloud", {"contrast": 3}).contrast  # TOML ints are fine for floats
