@@ -151,3 +151,15 @@ def test_a_volume_family_joins_through_the_variable_and_a_broken_one_is_named(tm
     assert float(generate_volume("fog", 8, 0, {"level": 0.25}).density.max()) == 0.25
     spec = load_scene("cloud").with_overrides({"volume.family": "fog", "volume.params": {"level": 0.3}})
     assert spec.volume.family == "fog" and spec.volume.params["level"] == 0.3
+
+
+def test_volumes_lists_the_families_with_their_sources_and_a_familys_parameters(tmp_path, monkeypatch, capsys):
+    monkeypatch.setenv("MITSNERF_VOLUMES", f"bad={TINY}:TinyNGP")
+    assert main(["volumes"]) == 0
+    out, err = capsys.readouterr()
+    assert [line.split()[:2] for line in out.splitlines()][:2] == [["blobs", "built-in"], ["cloud", "built-in"]]
+    assert err.startswith(f"mitsnerf: warning: not loaded: MITSNERF_VOLUMES: bad={TINY}:TinyNGP: ")
+    assert main(["volumes", "shell"]) == 0
+    assert "| shape | one of 'sphere', 'torus' |" in capsys.readouterr().out
+    assert main(["volumes", "bad"]) == 2
+    assert "NAME: volume family 'bad' is broken" in capsys.readouterr().err

@@ -13,7 +13,7 @@ import argparse
 import errno
 import sys
 
-from mitsnerf.cli import bench, check, env, export, generate, methods, render, scenes, score, train
+from mitsnerf.cli import bench, check, env, export, generate, methods, render, scenes, score, train, volumes
 
 
 class _Parser(argparse.ArgumentParser):
@@ -42,7 +42,7 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
-COMMANDS = (env, scenes, methods, generate, train, score, render, export, bench, check)
+COMMANDS = (env, scenes, volumes, methods, generate, train, score, render, export, bench, check)
 """The command modules, each with ``add_parser(subparsers)`` and ``run(args)``; in the order ``mitsnerf --help``
 lists them."""
 

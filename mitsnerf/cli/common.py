@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import functools
 import os
+import sys
 from pathlib import Path
 
 
@@ -194,3 +195,17 @@ def add_dataset_options(parser) -> None:
     parser.add_argument("--no-verify", action="store_true",
                         help="skip checking the dataset's files against the sha256 hashes in its manifest "
                              "(grids and images are still checked)")
+
+
+def print_registry(registry, describe) -> int:
+    """List a registry (:mod:`mitsnerf.plugins`): name, source kind and ``describe(value)`` per entry, where a
+    plugin came from under it, and each plugin that failed to load as one warning line on stderr."""
+    width = max(map(len, registry), default=4) + 2
+    for name in registry:
+        source = registry.entry(name).source
+        print(f"{name:{width}s}{source.kind:13s}{describe(registry[name])}")
+        if source.kind != "built-in":
+            print(f"{'':{width}s}{'':13s}from {source.where}")
+    for problem in registry.problems.values():
+        print(f"mitsnerf: warning: not loaded: {problem}", file=sys.stderr)
+    return 0

@@ -3,18 +3,7 @@
 
 from __future__ import annotations
 
-import sys
-
-
-def _list(registry) -> int:
-    width = max(map(len, registry), default=4) + 2
-    for name, method in registry.items():
-        print(f"{name:{width}s}{method.source.kind:13s}{method.description}")
-        if method.source.kind != "built-in":
-            print(f"{'':{width}s}{'':13s}from {method.source.where}")
-    for problem in registry.problems.values():
-        print(f"mitsnerf: warning: not loaded: {problem}", file=sys.stderr)
-    return 0
+from mitsnerf.cli.common import print_registry
 
 
 def _show(method) -> int:
@@ -34,7 +23,7 @@ def run(args) -> int:
     registry = methods()
     name = args.check or args.name
     if not name:
-        return _list(registry)
+        return print_registry(registry, lambda method: method.description)
     problem = registry.why_not(name)
     if problem:
         raise SpecError(None, "--check" if args.check else "NAME", problem)
