@@ -263,7 +263,8 @@ def density_scores(fn: Density | None, sigma_t: np.ndarray, box: Box,
     """Learned (``fn``) against true density on the voxel centres of an ``R^3`` grid over ``box`` (0: the true
     grid's R).
 
-    Returns ``(scores, slices)``: ``density_rel_l1``, ``density_rel_l2``, ``density_psnr``,
+    Returns ``(scores, slices)``: ``density_rel_l1``, ``density_rel_l2``, ``density_rel_mass`` (signed, see
+    :func:`mitsnerf.math.metrics.density_error`), ``density_psnr``,
     ``density_resolution`` (None values and ``density_note`` when ``fn`` is None), and the
     central ``z``, ``y`` and ``x`` slices of both grids (``true_z``, ``learned_z``, ...).
     """
@@ -273,12 +274,13 @@ def density_scores(fn: Density | None, sigma_t: np.ndarray, box: Box,
              else query_density(true_density(sigma_t, box), points).reshape(r, r, r))
     slices = {f"true_{a}": s for a, s in _slices(truth).items()}
     if fn is None:
-        return {"density_rel_l1": None, "density_rel_l2": None, "density_psnr": None,
+        return {"density_rel_l1": None, "density_rel_l2": None, "density_rel_mass": None, "density_psnr": None,
                 "density_resolution": r, "density_note": NO_DENSITY}, slices
     learned = query_density(fn, points).reshape(r, r, r)
     err = density_error(learned, truth)
     slices.update({f"learned_{a}": s for a, s in _slices(learned).items()})
     return {"density_rel_l1": finite(err["rel_l1"]), "density_rel_l2": finite(err["rel_l2"]),
+            "density_rel_mass": finite(err["rel_mass"]),
             "density_psnr": finite(err["psnr"]), "density_resolution": r, "density_note": None}, slices
 
 

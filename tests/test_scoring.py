@@ -61,6 +61,9 @@ def test_density_error_of_the_true_grid_is_zero(blob_grid):
 def test_a_scaled_density_has_relative_error_of_the_scale(blob_grid):
     scores, _ = density_scores(grid_density(blob_grid, 1.5), blob_grid, UNIT_BOX, resolution=16)
     assert scores["density_rel_l1"] == pytest.approx(0.5, rel=1e-4) and scores["density_resolution"] == 16
+    assert scores["density_rel_mass"] == pytest.approx(0.5, rel=1e-4)  # signed: more mass than the truth
+    shrunk, _ = density_scores(grid_density(blob_grid, 0.75), blob_grid, UNIT_BOX, resolution=16)
+    assert shrunk["density_rel_mass"] == pytest.approx(-0.25, rel=1e-4)
     tau = optical_depth_scores(grid_density(blob_grid, 1.5), blob_grid, UNIT_BOX, _cameras(), n_samples=32)
     assert tau["tau_rel_l1"] == pytest.approx(0.5, rel=1e-4)
 

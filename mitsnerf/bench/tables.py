@@ -39,6 +39,7 @@ QUALITY: tuple[Column, ...] = KEYS + (
     ("psnr_train", "PSNR train", 2),
     ("density_rel_l1", "sigma rel L1", 3),
     ("density_rel_l2", "sigma rel L2", 3),
+    ("density_rel_mass", "sigma mass err", 3),
     ("density_psnr", "sigma PSNR", 2),
     ("tau_rel_l1", "tau rel L1", 3),
     ("transmittance_mae", "T MAE", 4),
@@ -99,6 +100,8 @@ MEANINGS: dict[str, str] = {
     "PSNR train": "PSNR on the training views",
     "sigma rel L1": "relative L1 error of the learned density against the true sigma_t on the voxel centres",
     "sigma rel L2": "the same, relative L2",
+    "sigma mass err": "relative mass error (sum learned - sum true) / sum true on the voxel centres, signed: > 0 the "
+                      "learned medium holds more extinction (never bold: its sign is the information)",
     "sigma PSNR": "PSNR of the learned density against the true sigma_t",
     "tau rel L1": "relative L1 error of the optical depth along every test ray",
     "T MAE": "mean absolute error of the transmittance exp(-tau)",

@@ -152,15 +152,18 @@ def ssim(a, b, max_val: float = 1.0):
 def density_error(learned, true) -> dict[str, float]:
     """Errors of a learned density grid against the true one (any equal shapes, e.g. ``(R, R, R)``).
 
-    ``rel_l1 = sum|l - t| / sum|t|``, ``rel_l2 = ||l - t||_2 / ||t||_2`` and
-    ``psnr = 10 log10(max(t)^2 / mean (l - t)^2)`` over all grid cells.
+    ``rel_l1 = sum|l - t| / sum|t|`` (the cloud-tomography literature's epsilon), ``rel_l2 = ||l - t||_2 / ||t||_2``,
+    ``rel_mass = (sum|l| - sum|t|) / sum|t|`` (its delta, signed: > 0 when the learned medium holds more
+    extinction than the true one) and ``psnr = 10 log10(max(t)^2 / mean (l - t)^2)`` over all grid cells.
 
-    A grid scaled by ``s`` has ``rel_l1 = rel_l2 = |s - 1|``:
+    A grid scaled by ``s`` has ``rel_l1 = rel_l2 = |s - 1|`` and ``rel_mass = s - 1``:
 
     >>> t = np.array([[0.0, 1.0], [2.0, 4.0]])
     >>> e = density_error(1.5 * t, t)
     >>> round(e["rel_l1"], 6), round(e["rel_l2"], 6), round(e["psnr"], 4)  # mse = 0.25 * 21 / 4
     (0.5, 0.5, 10.8602)
+    >>> round(density_error(0.8 * t, t)["rel_mass"], 6)
+    -0.2
     """
     s = np.asarray(learned, dtype=np.float64)
     t = np.asarray(true, dtype=np.float64)
@@ -172,5 +175,6 @@ def density_error(learned, true) -> dict[str, float]:
     return {
         "rel_l1": float(np.abs(diff).sum() / np.abs(t).sum()),
         "rel_l2": float(np.linalg.norm(diff.ravel()) / np.linalg.norm(t.ravel())),
+        "rel_mass": float((np.abs(s).sum() - np.abs(t).sum()) / np.abs(t).sum()),
         "psnr": float(_psnr_from_mse(np.mean(diff * diff), float(t.max()))),
     }

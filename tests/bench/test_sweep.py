@@ -13,7 +13,7 @@ from mitsnerf.bench.cells import ARTEFACTS_FILE, RESULT_FILE
 from mitsnerf.bench.runner import plan_cells, run_benchmark
 
 QUALITY_KEYS = ("psnr_test", "psnr_test_srgb", "psnr_test_medium", "psnr_test_medium_srgb", "ssim_test",
-                "ssim_test_srgb", "density_rel_l1", "density_rel_l2", "density_psnr", "tau_rel_l1", "tau_rmse",
+                "ssim_test_srgb", "density_rel_l1", "density_rel_l2", "density_rel_mass", "density_psnr", "tau_rel_l1", "tau_rmse",
                 "transmittance_mae")
 
 
