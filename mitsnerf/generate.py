@@ -66,13 +66,31 @@ def _resolve_splits(spec: SceneSpec, splits: Sequence[str] | None) -> tuple[str,
     return tuple(s for s in SPLITS if s in splits)
 
 
-def hash_extra(splits: Sequence[str]) -> dict[str, Any]:
-    """What besides the spec decides a dataset's content (needs the Mitsuba variant set)."""
+def hash_extra(splits: Sequence[str], spec: SceneSpec | None = None) -> dict[str, Any]:
+    """What besides the spec decides a dataset's content (needs the Mitsuba variant set): the versions,
+    the splits, and a plugin volume family's version (its distribution and source hash)."""
     import drjit as dr
     import mitsuba as mi
 
-    return {"format_version": FORMAT_VERSION, "variant": mi.variant(), "mitsuba": mi.__version__,
-            "drjit": dr.__version__, "splits": list(splits)}
+    extra = {"format_version": FORMAT_VERSION, "variant": mi.variant(), "mitsuba": mi.__version__,
+             "drjit": dr.__version__, "splits": list(splits)}
+    version = _family_version(spec) if spec is not None else None
+    return {**extra, "volume_family": version} if version is not None else extra
+
+
+def _family_version(spec: SceneSpec) -> str | None:
+    """A plugin volume family's version (:attr:`mitsnerf.plugins.Source.version`); None for a built-in."""
+    from mitsnerf import volumes
+
+    return volumes.families().entry(spec.volume.family).source.version
+
+
+def data_inputs(spec: SceneSpec) -> dict[str, Any] | None:
+    """What decides ``spec``'s dataset beyond its text and mitsnerf's version, for a bench cell's key: the
+    input files' sha256 (``inputs``) and a plugin family's version (``volume_family``); None when neither."""
+    found = {"inputs": spec.volume.input_digests(), "volume_family": _family_version(spec)}
+    found = {k: v for k, v in found.items() if v}
+    return found or None
 
 
 def _ensure_variant() -> str:
@@ -86,7 +104,7 @@ def _ensure_variant() -> str:
 def dataset_dir(spec: SceneSpec, out_root: str | os.PathLike, splits: Sequence[str] | None = None) -> Path:
     """Where :func:`generate_dataset` puts ``spec`` (sets the default variant if none is set)."""
     _ensure_variant()
-    digest = spec.content_hash(hash_extra(_resolve_splits(spec, splits)))
+    digest = spec.content_hash(hash_extra(_resolve_splits(spec, splits), spec))
     return Path(out_root) / f"{spec.name}-{digest[:12]}"
 
 
@@ -122,6 +140,8 @@ def _manifest(spec: SceneSpec, digest: str, splits, box: Box, timings: dict, che
     return {
         "format_version": FORMAT_VERSION, "name": spec.name, "hash": digest, "spec": spec.to_dict(),
         "source": spec.source, "provenance": provenance(), "box": box.to_list(),
+        "inputs": {str(path): {"field": f"volume.{field}", "sha256": sha256_file(path)}
+                   for field, path in spec.volume.input_files().items()},
         "background": background_description(spec),
         "render": {
             "integrator": "volpath", "max_depth": spec.render.max_depth, "film": "hdrfilm, rgba, box filter",
@@ -228,7 +248,7 @@ def generate_dataset(spec: SceneSpec, out_root: str | os.PathLike, *, force: boo
 
     _ensure_variant()
     splits = _resolve_splits(spec, splits)
-    digest = spec.content_hash(hash_extra(splits))
+    digest = spec.content_hash(hash_extra(splits, spec))
     final = Path(out_root) / f"{spec.name}-{digest[:12]}"
     state = "missing" if force else _cache_state(final, digest, verify_hashes)
     if state == "ok":

@@ -88,6 +88,9 @@ class Cell:
     """A plugin method's version (:attr:`mitsnerf.plugins.Source.version`: its distribution's name and version,
     and a sha256 of its source), part of the hash: editing a plugin reruns its cells alone. None: a built-in,
     which ``code_version`` covers."""
+    data_inputs: Mapping[str, Any] | None = None
+    """What decides the dataset beyond the spec's text (:func:`mitsnerf.generate.data_inputs`: a grid file's
+    sha256, a plugin volume family's version), part of the hash: editing a grid reruns its scene's cells."""
 
     @property
     def key(self) -> str:
@@ -97,8 +100,10 @@ class Cell:
     def identity(self) -> dict[str, Any]:
         """Everything that decides the cell's result, except mitsnerf's code version (a plugin method's is in)."""
         plugin = {} if self.method_version is None else {"method_version": self.method_version}
+        inputs = {} if self.data_inputs is None else {"data_inputs": self.data_inputs}
         return {
             **plugin,
+            **inputs,
             "record_format": RECORD_FORMAT,
             "scene": self.scene,
             "spec": self.spec,
@@ -132,6 +137,7 @@ class SceneData:
     dataset_dir: str
     data_root: str
     oracle: dict | None
+    data_inputs: dict | None = None
 
 
 def cell_dir(out_root: Path, scene: str, label: str, seed: int) -> Path:

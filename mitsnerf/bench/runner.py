@@ -117,14 +117,15 @@ def out_root_of(config: BenchConfig, options: BenchOptions) -> Path:
 
 def plan_scenes(config: BenchConfig, options: BenchOptions) -> list[SceneData]:
     """Every scene of ``config``, resolved and validated (a SpecError naming the bench file and field)."""
-    from mitsnerf.generate import dataset_dir
+    from mitsnerf.generate import data_inputs, dataset_dir
 
     data_root = Path(options.data_root).resolve()
     evalc = to_dict(config.eval_config(options.quick))
     oracle = config.oracle_config(options.quick)
     oracle_data = to_dict(oracle) if oracle.enabled else None
     return [SceneData(scene=spec.name, spec=spec.to_dict(), eval=evalc, dataset_dir=str(dataset_dir(spec, data_root)),
-                      data_root=str(data_root), oracle=oracle_data) for spec in _scene_specs(config, options.quick)]
+                      data_root=str(data_root), oracle=oracle_data, data_inputs=data_inputs(spec))
+            for spec in _scene_specs(config, options.quick)]
 
 
 def plan_cells(config: BenchConfig, options: BenchOptions, scenes: list[SceneData] | None = None) -> list[Cell]:
@@ -147,6 +148,7 @@ def plan_cells(config: BenchConfig, options: BenchOptions, scenes: list[SceneDat
                     variant=variant, code_version=version, dataset_dir=site.dataset_dir, data_root=site.data_root,
                     out_dir=str(cell_dir(out_root, site.scene, method.label, seed)), quick=options.quick,
                     oracle=site.oracle, method_version=get_method(method.name).source.version,
+                    data_inputs=site.data_inputs,
                 ))
     return cells
 

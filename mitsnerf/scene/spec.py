@@ -94,7 +94,7 @@ class VolumeSpec:
     :func:`mitsnerf.config.from_dict` against the family's params dataclass), read-only.
     """
 
-    family: str = param(doc="a mitsnerf.volumes family: cloud, plume, blobs, shell, lattice, nebula")
+    family: str = param(doc="a mitsnerf.volumes family: cloud, plume, blobs, shell, lattice, nebula; grid (a file)")
     resolution: int = param(lo=8, hi=512, doc="grid R (R^3 voxels)")
     seed: int = param(0, lo=0, hi=2**32 - 1, doc="the family's seed")
     sigma_t_scale: float = param(lo=0.0, hi=SIGMA_T_SCALE_MAX, lo_open=True,
@@ -114,6 +114,38 @@ class VolumeSpec:
             raise ValueError(f"family: {problem}")
         params = from_dict(registry[self.family].params_type, self.params, prefix="params")
         object.__setattr__(self, "params", _freeze(to_dict(params)))  # the filled-in, read-only table
+        if getattr(params, "values", "density") == "sigma_t" and self.sigma_t_scale != 1.0:
+            raise ValueError(f"sigma_t_scale: must be 1 when params.values is 'sigma_t' (the grid is the "
+                             f"extinction itself, not scaled), got {self.sigma_t_scale:g}")
+
+    @property
+    def file_fields(self) -> tuple[str, ...]:
+        """The family's parameters that name input files (:attr:`mitsnerf.volumes.base.Family.files`)."""
+        from mitsnerf import volumes
+
+        return tuple(volumes.families()[self.family].files)
+
+    def input_files(self) -> dict[str, Path]:
+        """``params.FIELD -> path`` of every input file the family reads (the fields that are set)."""
+        return {f"params.{f}": Path(self.params[f]) for f in self.file_fields if self.params.get(f)}
+
+    def with_files_under(self, base: Path) -> VolumeSpec:
+        """A copy whose relative input-file paths are resolved against ``base`` (absolute, normalised)."""
+        moved = {f: str((base / self.params[f]).resolve()) for f in self.file_fields
+                 if self.params.get(f) and not Path(self.params[f]).is_absolute()}
+        return dataclasses.replace(self, params={**self.params, **moved}) if moved else self
+
+    def input_digests(self) -> dict[str, str]:
+        """``params.FIELD -> sha256`` of every input file's content (what a dataset's key covers
+        instead of the path); a SpecError naming a file that cannot be read."""
+        from mitsnerf.data.cache import sha256_file
+
+        out = {}
+        for field, path in self.input_files().items():
+            if not path.is_file():
+                raise SpecError(path, None, f"no such grid file (volume.{field})")
+            out[field] = sha256_file(path)
+        return out
 
     def __hash__(self) -> int:  # params is a read-only mapping, which Python does not hash
         return hash(json.dumps(to_dict(self), sort_keys=True))
@@ -299,6 +331,9 @@ class SceneSpec:
     source: str | None = source_field()
 
     def __post_init__(self) -> None:
+        # input files are relative to the spec file's directory (a spec without a file: the working directory)
+        here = Path(self.source).parent if self.source and Path(self.source).is_file() else Path.cwd()
+        object.__setattr__(self, "volume", self.volume.with_files_under(here))
         if not _NAME_RE.match(self.name):
             raise ValueError(
                 f"name: must be letters, digits, '_', '-' or '.', starting with a letter or digit; got {self.name!r}")
@@ -336,10 +371,14 @@ class SceneSpec:
     def content_hash(self, extra: Mapping[str, Any] | None = None) -> str:
         """sha256 (hex) of the canonical JSON of :meth:`to_dict` and ``extra``.
 
-        ``description`` is left out: rewording a scene must not invalidate its datasets.
+        ``description`` is left out: rewording a scene must not invalidate its datasets. An input
+        file (a ``grid`` volume's) counts by its content's sha256, not its path: editing the file
+        changes the hash, moving it does not.
         """
         spec = self.to_dict()
         del spec["description"]
+        for field, digest in self.volume.input_digests().items():  # a file's content, not where it lies
+            spec["volume"]["params"][field.split(".", 1)[1]] = {"sha256": digest}
         text = json.dumps(
             {"spec": spec, "extra": plain(dict(extra or {}))},
             sort_keys=True, separators=(",", ":"), ensure_ascii=True, allow_nan=False,
@@ -374,6 +413,35 @@ def load_scene(name_or_path: str | os.PathLike) -> SceneSpec:
     """Load a spec by library name (``"cloud"``) or by path (anything with a ``/`` or ending in ``.toml``)."""
     path = _spec_path(name_or_path)
     return parse_scene(read_toml(path, "a spec file"), path)
+
+
+def is_grid_path(name_or_path: str | os.PathLike) -> bool:
+    """Whether ``name_or_path`` names a grid file (``.npy``, ``.npz``, ``.vol``) rather than a spec.
+
+    >>> is_grid_path("smoke.npy"), is_grid_path("data/smoke.VOL"), is_grid_path("cloud")
+    (True, True, False)
+    """
+    from mitsnerf.volumes.grid import SUFFIXES
+
+    return Path(os.fspath(name_or_path)).suffix.lower() in SUFFIXES
+
+
+def grid_scene(path: str | os.PathLike, template: str = "cloud") -> SceneSpec:
+    """The library's ``template`` scene with its medium replaced by the grid in ``path``: family ``grid``
+    (values a density, the template's ``sigma_t_scale``), at the grid's own resolution (its longest
+    axis, kept in [8, 512]), named after the file. What ``mitsnerf generate FILE.npy`` renders; ``--set``
+    changes the rest (``volume.sigma_t_scale``, ``volume.params.values``, ``volume.resolution``)."""
+    from mitsnerf.volumes import MAX_RESOLUTION, MIN_RESOLUTION
+    from mitsnerf.volumes.grid import grid_shape
+
+    path = Path(path).resolve()
+    longest = max(grid_shape(path))
+    data = load_scene(template).to_dict()
+    name = re.sub(r"[^A-Za-z0-9_.-]", "_", path.stem).lstrip("_.-") or "grid"
+    data.update(name=name, description=f"the grid in {path.name}")
+    data["volume"] = {"family": "grid", "resolution": min(max(longest, MIN_RESOLUTION), MAX_RESOLUTION),
+                      "sigma_t_scale": data["volume"]["sigma_t_scale"], "params": {"path": str(path)}}
+    return parse_scene(data, path)
 
 
 def is_spec_path(name_or_path: str | os.PathLike) -> bool:

@@ -46,13 +46,14 @@ def volume_grids(spec: SceneSpec) -> tuple[np.ndarray, np.ndarray]:
     """``(sigma_t float32 (R, R, R), albedo float32 (R, R, R, 3))`` of the spec, ``[z, y, x]``.
 
     ``sigma_t = volume.sigma_t_scale * density / world.scale`` (world units: a box ``scale`` times
-    larger with ``sigma_t`` divided by ``scale`` has the same optical depths); deterministic in the spec.
+    larger with ``sigma_t`` divided by ``scale`` has the same optical depths), or the family's grid
+    itself when it holds ``sigma_t`` (``VolumeGrids.values``); deterministic in the spec.
     """
     from mitsnerf.volumes import generate_volume
 
     v = spec.volume
     grids = generate_volume(v.family, v.resolution, v.seed, dict(v.params))
-    per_unit = np.float32(v.sigma_t_scale / spec.world.scale)
+    per_unit = np.float32(1.0 if grids.values == "sigma_t" else v.sigma_t_scale / spec.world.scale)
     sigma_t = (per_unit * np.asarray(grids.density, dtype=np.float32)).astype(np.float32)
     return np.ascontiguousarray(sigma_t), np.ascontiguousarray(grids.albedo, dtype=np.float32)
 

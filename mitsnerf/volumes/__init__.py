@@ -1,4 +1,5 @@
-"""Procedural volume families: seeded density and albedo grids that each stress something different.
+"""Volume families: seeded procedural density and albedo grids that each stress something different, and
+``grid``, the user's own medium read from a file.
 
 A family turns ``(params, resolution, seed)`` into a :class:`VolumeGrids` pair (density (R, R, R) in
 [0, 1], albedo (R, R, R, 3) in [0, 1], float32, indexed ``[z, y, x]``), deterministically. Density is
@@ -14,13 +15,14 @@ faces of the scene box ``[-0.5, 0.5]^3``.
 | shell   | a thin dense hollow sphere or torus: sharp edges, high optical depth             |
 | lattice | hard-edged cubes, density exactly 0 or 1: the worst case for smooth fields       |
 | nebula  | spatially varying RGB albedo                                                     |
+| grid    | your own medium: a .npy or .npz ([z, y, x]) or Mitsuba .vol file (see .grid)      |
 
 Families are a registry (:mod:`mitsnerf.plugins`): each built-in declares ``FAMILY = Family(...)`` in its own
 module; installed code joins through a ``mitsnerf.volumes`` entry point (its object a :class:`Family`, its
 name the entry point's), code that is not installed through ``MITSNERF_VOLUMES="name=path/to/file.py:FAMILY"``.
 
 >>> sorted(families())
-['blobs', 'cloud', 'lattice', 'nebula', 'plume', 'shell']
+['blobs', 'cloud', 'grid', 'lattice', 'nebula', 'plume', 'shell']
 >>> g = generate_volume("cloud", 8, seed=0, params={"octaves": 2})
 >>> g.density.shape, g.albedo.shape
 ((8, 8, 8), (8, 8, 8, 3))

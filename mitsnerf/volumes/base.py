@@ -28,9 +28,11 @@ class VolumeGrids:
     """A family's output on an ``R^3`` grid, indexed ``[z, y, x]``.
 
     Attributes:
-        density: float32 (R, R, R), values in [0, 1]: the shape of the medium, unscaled (the scene
-            multiplies it by its ``sigma_t`` scale).
+        density: float32 (R, R, R), values >= 0 (the procedural families' in [0, 1]): the shape of the
+            medium, unscaled (the scene multiplies it by its ``sigma_t`` scale); with ``values =
+            "sigma_t"``, the extinction itself in world units, not scaled.
         albedo: float32 (R, R, R, 3), single-scattering albedo in [0, 1].
+        values: ``"density"`` (the default) or ``"sigma_t"``: what ``density`` holds.
 
     >>> g = VolumeGrids(np.zeros((8, 8, 8), np.float32), np.ones((8, 8, 8, 3), np.float32))
     >>> g.resolution
@@ -43,9 +45,12 @@ class VolumeGrids:
 
     density: np.ndarray
     albedo: np.ndarray
+    values: str = "density"
 
     def __post_init__(self) -> None:
         d, a = self.density, self.albedo
+        if self.values not in ("density", "sigma_t"):
+            raise ValueError(f"values: must be 'density' or 'sigma_t', got {self.values!r}")
         if d.ndim != 3 or len(set(d.shape)) != 1:
             raise ValueError(f"density: must have shape (R, R, R), got {d.shape}")
         if a.shape != d.shape + (3,):
@@ -70,14 +75,19 @@ class Family:
             :func:`mitsnerf.config.from_dict`: every field is a :func:`mitsnerf.config.param` with a
             default and its range; ``__post_init__`` checks the rules between fields (raising
             ``ValueError("field: ...")``).
-        generate: ``(params, resolution, seed) -> VolumeGrids``; deterministic in its arguments.
+        generate: ``(params, resolution, seed) -> VolumeGrids``; deterministic in its arguments (and
+            in the content of the files it reads).
         description: one line saying what the family stresses.
+        files: the names of ``params_type``'s fields that are paths of files ``generate`` reads (empty
+            values allowed): a spec resolves relative ones against its own directory, and a dataset's
+            key covers each file's sha256 rather than its path.
     """
 
     name: str
     params_type: type
     generate: Callable[[Any, int, int], VolumeGrids]
     description: str
+    files: tuple[str, ...] = ()
 
 
 def voxel_centres(resolution: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:

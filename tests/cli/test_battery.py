@@ -136,6 +136,25 @@ def binary_spec(ctx) -> None:
     (ctx.scenes / "binary.toml").write_bytes(bytes(range(256)))
 
 
+def bad_grid(name: str, value) -> Callable:
+    """A grid file ``ctx.grid`` (``name`` in the case's tmp; bytes are written as they are) and a spec
+    ``ctx.grid_spec``: the tiny scene with that grid as its medium."""
+    def setup(ctx) -> None:
+        from mitsnerf.data.vol import write_vol
+
+        ctx.grid = ctx.tmp / name
+        if isinstance(value, bytes):
+            ctx.grid.write_bytes(value)
+        elif name.endswith(".vol"):
+            write_vol(ctx.grid, value)
+        else:
+            np.save(ctx.grid, value)
+        ctx.grid_spec = ctx.tmp / "mine.toml"
+        text = ctx.world.spec.read_text().replace('family = "cloud"', 'family = "grid"')
+        ctx.grid_spec.write_text(text.replace("params = { albedo = [0.8, 0.8, 0.8] }", f'params = {{ path = "{name}" }}'))
+    return setup
+
+
 def finished_run_and_swapped_image(ctx) -> None:
     copy_run(ctx)
     swapped_image(ctx)
@@ -317,6 +336,21 @@ CASES = [
     Case("light radiance past float32", 3, ["generate", "{world.spec}", "--set", "lights.0.radiance=[1e39, 1, 1]",
                                             "--out", "{tmp}/d"], 2, ("tiny.toml", "lights.0", "non-finite"), None,
          (absent("d/tiny-*"), absent("d/.tiny-*"))),
+    Case("grid with NaN", 3, ["generate", "{grid_spec}", "--out", "{tmp}/d"], 2, ("{grid}", "non-finite"),
+         bad_grid("nan.npy", np.full((8, 8, 8), np.nan, np.float32)), (absent("d/tiny-*"), absent("d/.tiny-*"))),
+    Case("grid with negative density", 3, ["generate", "{grid}", "--out", "{tmp}/d"], 2, ("{grid}", "outside >= 0"),
+         bad_grid("neg.npy", -np.ones((8, 8, 8), np.float32)), (absent("d/neg-*"), absent("d/.neg-*"))),
+    Case("grid of rank 2", 3, ["generate", "{grid_spec}", "--out", "{tmp}/d"], 2, ("{grid}", "has 2 axes"),
+         bad_grid("flat.npy", np.ones((8, 8), np.float32)), (absent("d/tiny-*"),)),
+    Case("grid all zero", 3, ["generate", "{grid}", "--out", "{tmp}/d"], 2, ("{grid}", "holds no medium"),
+         bad_grid("empty.npy", np.zeros((8, 8, 8), np.float32)), (absent("d/empty-*"), absent("d/.empty-*"))),
+    Case("grid unreadable", 3, ["generate", "{grid_spec}", "--out", "{tmp}/d"], 2, ("{grid}", "cannot be read"),
+         bad_grid("junk.npy", b"\x93NUMPY garbage"), (absent("d/tiny-*"),)),
+    Case("grid .vol of 3 channels", 3, ["generate", "{grid}", "--out", "{tmp}/d"], 2, ("{grid}", "3 channels"),
+         bad_grid("rgb.vol", np.ones((8, 8, 8, 3), np.float32)), (absent("d/rgb-*"),)),
+    Case("grid file missing", 3, ["generate", "{grid_spec}", "--out", "{tmp}/d"], 2,
+         ("gone.npy", "no such grid file", "volume.params.path"), bad_grid("gone.npy", b""), (absent("d/tiny-*"),),
+         fault=lambda ctx, mp: ctx.grid.unlink()),
     Case("swapped training image", 3, [*train_on("{ds}"), "--out", "{tmp}/r"], 2, ("train/r_000.exr", "sha256"),
          swapped_image, (absent("r"),)),
     Case("radiance -50", 3, [*train_on("{ds}"), "--out", "{tmp}/r"], 2, ("train/r_000.exr", "sha256"),
