@@ -28,7 +28,7 @@ LAYERS = (
     ("mitsnerf.train", "mitsnerf.generate"),
     ("mitsnerf.runs",),
     ("mitsnerf.verify", "mitsnerf.bench"),
-    ("mitsnerf.cli", "mitsnerf.__main__"),
+    ("mitsnerf.cli", "mitsnerf.__main__", "mitsnerf.api"),
 )
 ROOT = Path(mitsnerf.__file__).parent
 

@@ -107,12 +107,7 @@ def run(args) -> int:
             dataset = open_dataset(args, args.dataset)
             run = fit(dataset, method, overrides, train_config, out, eval_config=eval_config,
                       deterministic=args.deterministic, progress=not args.no_progress)
-    m = run.metrics()
-    medium = "" if m.get("psnr_test_medium") is None else f" ({m['psnr_test_medium']:.2f} dB on medium pixels)"
-    rate = "no steps run" if m["rays_per_s"] is None else f"{m['rays_per_s']:.0f} rays/s"
-    print(f"{run.method}: test PSNR {m['psnr_test']:.2f} dB{medium}, footprint {m['footprint']}x{m['footprint']}, "
-          f"train PSNR {m['psnr_train']:.2f} dB, {m['steps']} steps in {m['train_seconds']:.1f} s, "
-          f"{rate} -> {args.out}")
+    print(run.summary(args.out))
     return 0
 
 

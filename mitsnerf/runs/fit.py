@@ -76,6 +76,16 @@ class RunResult:
             **self.scores,
         }
 
+    def summary(self, out: object = None) -> str:
+        """The line ``mitsnerf train`` prints: test PSNR (medium pixels), footprint, train PSNR, steps, rays/s."""
+        m = self.metrics()
+        medium = "" if m.get("psnr_test_medium") is None else f" ({m['psnr_test_medium']:.2f} dB on medium pixels)"
+        rate = "no steps run" if m["rays_per_s"] is None else f"{m['rays_per_s']:.0f} rays/s"
+        k = m["footprint"]
+        return (f"{self.method}: test PSNR {m['psnr_test']:.2f} dB{medium}, footprint {k}x{k}, "
+                f"train PSNR {m['psnr_train']:.2f} dB, {m['steps']} steps in {m['train_seconds']:.1f} s, "
+                f"{rate}" + ("" if out is None else f" -> {out}"))
+
 
 def scene_info(dataset: Dataset, train_images: np.ndarray) -> SceneInfo:
     return SceneInfo(
@@ -273,16 +283,24 @@ def fit(
     return run
 
 
-def evaluate_run(model: Model, method: str, run_config: dict, result: TrainResult, dataset: Dataset,
-                 ref: scoring.Reference, eval_config: EvalConfig, oracle: dict | None) -> RunResult:
-    """Render the test views (and a few training views) with the run's footprint and score them."""
-    k = eval_config.footprint
-    renders, seconds = render_views(model, ref.cameras, pixel_center=ref.pixel_center, footprint=k)
+def score_model(model: Model, ref: scoring.Reference, eval_config: EvalConfig,
+                oracle: dict | None = None) -> tuple[dict, list[Rendered], dict, float]:
+    """Render ``ref``'s views with the footprint of ``eval_config`` and score them (the density too, where the
+    model has a queryable one): ``(scores, renders, density slices, render seconds)``."""
+    renders, seconds = render_views(model, ref.cameras, pixel_center=ref.pixel_center, footprint=eval_config.footprint)
     field = model.field() if isinstance(model, HasField) else None
     density = field.density if isinstance(field, DensityField) else None
     scores, slices = scoring.score_views(stack_rgb(renders), ref, density, oracle=oracle,
                                          density_resolution=eval_config.density_resolution,
                                          od_samples=eval_config.od_samples)
+    return scores, renders, slices, seconds
+
+
+def evaluate_run(model: Model, method: str, run_config: dict, result: TrainResult, dataset: Dataset,
+                 ref: scoring.Reference, eval_config: EvalConfig, oracle: dict | None) -> RunResult:
+    """Render the test views (and a few training views) with the run's footprint and score them."""
+    k = eval_config.footprint
+    scores, renders, slices, seconds = score_model(model, ref, eval_config, oracle)
     train_views = dataset.views("train")
     n = min(eval_config.train_eval_views, len(train_views.cameras))
     train_renders, _ = render_views(model, train_views.cameras[:n], pixel_center=train_views.pixel_center, footprint=k)
