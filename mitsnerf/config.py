@@ -403,7 +403,8 @@ def _check_unknown(cls, data: Mapping, known: list[str], source, prefix: str) ->
     for key in data:
         if key not in known:
             close = difflib.get_close_matches(str(key), known, n=1)
-            hint = f" (did you mean {close[0]!r}?)" if close else f" (known: {', '.join(known)})"
+            hint = (f" (did you mean {close[0]!r}?)" if close else f" (known: {', '.join(known)})" if known
+                    else " (it takes none)")
             raise SpecError(source, _join(prefix, key), f"unknown {_noun(cls)}{hint}")
 
 

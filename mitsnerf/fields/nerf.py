@@ -13,7 +13,7 @@ CPU-sized trunk of 4 x 64 instead of 8 x 256)::
 
 The defaults differ from NeRF in two settings, both measured on the default cloud (800 steps,
 benchmarks/README.md, "nerf: the view direction"): no direction input (``use_direction = False``)
-and 4 position octaves instead of 10. The scenes mitsnerf generates have an isotropic phase
+and 4 position octaves instead of 10. The library's scenes but ``cloud_hg*`` have an isotropic phase
 function, so the emission ``albedo J(x)`` that every pixel integrates does not depend on the view
 direction; a colour head that takes it can explain each training view's image with a wrong
 density instead (NeRF++'s shape-radiance ambiguity): 30.5 dB on medium pixels with NeRF's 4

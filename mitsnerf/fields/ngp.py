@@ -21,7 +21,7 @@ Grid sizes and SH degrees measured on the default cloud (64^3 fBm, 40 training v
 
 Capacity above the data's own resolution, and any direction input, let the field follow
 the training views' per-pixel noise; the defaults (:class:`NGPConfig`: 3 levels from 16
-to 24, SH degree 0) are smaller still. The scenes mitsnerf generates have an isotropic
+to 24, SH degree 0) are smaller still. The library's scenes but ``cloud_hg*`` have an isotropic
 phase function, so their exact emission ``albedo * J(x)`` does not depend on the
 direction; ``sh_degree`` 1-3 remain for anisotropic media or foreign data.
 

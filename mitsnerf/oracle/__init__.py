@@ -14,4 +14,8 @@ package's own integrator:
   the same rays, the statistical agreement that accounts for ``J``'s noise (the check's case);
 - :mod:`mitsnerf.oracle.cache`: a dataset's oracle computed once, cached and scored
   (``DATASET/oracle/<key>/``), the ceiling row of every benchmark table.
+
+A medium with an anisotropic phase function (``volume.phase`` ``hg`` with ``g != 0``) gets no oracle: its exact
+emission-absorption colour ``albedo int p(d, w) L(x, w) dw`` depends on the view direction, which this
+oracle's direction-free ``J`` cannot represent.
 """

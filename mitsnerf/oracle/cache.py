@@ -92,15 +92,20 @@ class Oracle:
 
 
 def _grids(dataset) -> tuple[Any, np.ndarray, np.ndarray] | None:
-    """``(spec, sigma_t, albedo)`` of a generated dataset; None for foreign data (no spec or grids)."""
+    """``(spec, sigma_t, albedo)`` of a generated dataset whose oracle this module computes; None for foreign
+    data (no spec or grids) and for a medium that does not scatter isotropically, whose emission-absorption
+    colour depends on the view direction (its oracle, the directional one, is not implemented: no ceiling is
+    better than a wrong one)."""
     from mitsnerf.data.dataset import true_grid_path
-    from mitsnerf.scene.spec import parse_scene
+    from mitsnerf.scene.spec import is_isotropic, parse_scene
 
     spec_data = (dataset.manifest or {}).get("spec")
     sigma_t, albedo = (true_grid_path(dataset.root, name) for name in ("sigma_t", "albedo"))
     if not spec_data or not sigma_t.is_file() or not albedo.is_file():
         return None
     spec = parse_scene(spec_data, Path(dataset.root) / "manifest.json")
+    if not is_isotropic(spec.volume.phase):
+        return None
     return spec, np.load(sigma_t), np.load(albedo)
 
 
@@ -147,7 +152,8 @@ def error_split(oracle: np.ndarray, var: np.ndarray, ref, test_ref: np.ndarray |
 
 def compute_oracle(dataset, config: OracleConfig, footprint: int,
                    log: Callable[[str], None] = lambda line: None) -> tuple[dict, dict, dict[str, np.ndarray]] | None:
-    """``(info, scores, arrays)`` of the oracle of ``dataset``'s test views (None for foreign data)."""
+    """``(info, scores, arrays)`` of the oracle of ``dataset``'s test views (None for foreign data and for
+    anisotropic media, :func:`_grids`)."""
     from mitsnerf import env
     from mitsnerf.oracle.field import image_variance, render_field
     from mitsnerf.render.background import make_background
@@ -208,7 +214,8 @@ def load_oracle(path: Path) -> Oracle | None:
 
 def ensure_oracle(dataset, config: OracleConfig, footprint: int,
                   log: Callable[[str], None] = lambda line: None) -> Oracle | None:
-    """The cached oracle of ``dataset``, computed and written first if missing (None for foreign data).
+    """The cached oracle of ``dataset``, computed and written first if missing (None for foreign data and for
+    anisotropic media).
 
     One writer at a time (a lock next to the directory); ``oracle.json`` is written last inside
     a temporary directory renamed into place, so an interrupted run leaves no complete-looking oracle.

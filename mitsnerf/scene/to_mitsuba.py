@@ -4,13 +4,14 @@ The scene (``docs/conventions.md``, "World and volume"): a ``cube`` placed on th
 (:func:`scene_box`: ``world.scale * [-0.5, 0.5]^3``) with a ``null`` BSDF and a
 ``heterogeneous`` interior medium whose ``sigma_t`` and ``albedo`` are ``gridvolume`` s mapping
 ``[0, 1]^3`` onto the box (``accel = False``: no reduced precision hardware interpolation on
-CUDA), medium ``scale = 1`` (the grid holds true sigma_t),
-an isotropic phase function, a ``volpath`` integrator and the spec's emitters. Sensors are not
-part of the scene: render each view with ``mi.render(scene, sensor=load_sensor(camera, spp), ...)``.
+CUDA), medium ``scale = 1`` (the grid holds true sigma_t), the spec's phase function (``volume.phase``,
+isotropic by default), a ``volpath`` integrator and the spec's emitters. Sensors are not part of the scene:
+render each view with ``mi.render(scene, sensor=load_sensor(camera, spp), ...)``.
 """
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from typing import Any
 
 import numpy as np
@@ -74,11 +75,11 @@ def grid_volume(data: np.ndarray, box: Box) -> dict[str, Any]:
     }
 
 
-def medium_box(sigma_t: np.ndarray, albedo, box: Box) -> dict[str, Any]:
-    """The box: a ``cube`` with a ``null`` BSDF around a heterogeneous medium, isotropic phase.
+def medium_box(sigma_t: np.ndarray, albedo, box: Box, phase: Mapping[str, Any] | None = None) -> dict[str, Any]:
+    """The box: a ``cube`` with a ``null`` BSDF around a heterogeneous medium.
 
     ``sigma_t`` (R, R, R) holds the true extinction (``scale = 1``); ``albedo`` is an (R, R, R, 3)
-    grid or one float.
+    grid or one float; ``phase`` the phase plugin's entry (None: isotropic).
     """
     import mitsuba as mi
 
@@ -92,7 +93,7 @@ def medium_box(sigma_t: np.ndarray, albedo, box: Box) -> dict[str, Any]:
         "interior": {
             "type": "heterogeneous",
             "scale": 1.0,
-            "phase": {"type": "isotropic"},
+            "phase": dict(phase) if phase is not None else {"type": "isotropic"},
             "sigma_t": grid_volume(sigma_t, box),
             "albedo": albedo_entry,
         },
@@ -107,7 +108,7 @@ def scene_dict(spec: SceneSpec, sigma_t: np.ndarray, albedo: np.ndarray) -> dict
     d: dict[str, Any] = {
         "type": "scene",
         "integrator": {"type": "volpath", "max_depth": int(spec.render.max_depth)},
-        "medium_box": medium_box(sigma_t, albedo, scene_box(spec)),
+        "medium_box": medium_box(sigma_t, albedo, scene_box(spec), spec.volume.phase.mitsuba()),
     }
     for i, light in enumerate(spec.lights):
         d[f"light_{i}_{light.type}"] = emitter_dict(light)
