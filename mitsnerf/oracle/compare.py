@@ -26,7 +26,14 @@ import numpy as np
 
 from mitsnerf.math.box import Box
 from mitsnerf.math.composite import weights
-from mitsnerf.oracle.source import delta_radiance, mean_radiance
+from mitsnerf.oracle.source import (
+    delta_irradiance,
+    delta_lights,
+    delta_radiance,
+    mean_radiance,
+    phase_weighted_radiance,
+    toward_light,
+)
 from mitsnerf.render.volume import render_rays, sample_rays
 
 ROUNDING = 1e-5
@@ -52,40 +59,62 @@ class PointSource:
     spp: int
     m_light: int
     seed: int = 0
+    g: float = 0.0
+    """Henyey-Greenstein's ``g`` of the medium (0: isotropic, ``J(x)``; else the view-dependent colour
+    ``c(x, d) = albedo [int p(w . d) L(x, w) dw + sum_l p(w_l . d) E_l T_l]``, :mod:`mitsnerf.math.phase`)."""
     _last: dict = field(default_factory=dict, compare=False, repr=False)
 
-    def estimate(self, x) -> tuple[Any, np.ndarray, Any]:
-        """``(J Array3f (M,), se of J float64 (M, 3), sigma_t Float (M,))`` at points ``x`` (Array3f (M,))."""
+    def estimate(self, x, d=None) -> tuple[Any, np.ndarray, Any]:
+        """``(J Array3f (M,), se of J float64 (M, 3), sigma_t Float (M,))`` at points ``x`` (Array3f (M,)) seen
+        along ``d`` (Array3f (M,); needed when ``g != 0``)."""
         import mitsuba as mi
 
         pts = np.stack([np.asarray(c, dtype=np.float64) for c in x], axis=-1)
-        key = pts.tobytes()
+        dirs = None if self.g == 0.0 else np.stack([np.asarray(c, dtype=np.float64) for c in d], axis=-1)
+        key = pts.tobytes() + (b"" if dirs is None else dirs.tobytes())
         if self._last.get("key") != key:
             albedo, sigma = self.medium(x, x)
             alb = np.stack([np.asarray(c, dtype=np.float64) for c in albedo], axis=-1)
             active = np.asarray(sigma) > 0
             lbar, se = np.zeros_like(pts), np.zeros_like(pts)
             if self.scene is not None and active.any():
-                lbar[active], se[active] = mean_radiance(self.scene, pts[active], self.spp, self.seed)
-                lbar[active] += delta_radiance(self.lights, self.medium.density, pts[active], self.box, self.m_light)
+                lbar[active], se[active] = self._in_scattered(pts[active], None if dirs is None else dirs[active])
             self._last.clear()
             self._last.update(key=key, J=alb * lbar, se=alb * se)
         J = self._last["J"]
         return mi.Array3f(*(J[:, k].astype(np.float32) for k in range(3))), self._last["se"], self.medium.density(x)
 
+    def _in_scattered(self, pts: np.ndarray, dirs: np.ndarray | None) -> tuple[np.ndarray, np.ndarray]:
+        """The radiance scattered towards the camera per unit albedo, and its standard error (M, 3)."""
+        if dirs is None:
+            lbar, se = mean_radiance(self.scene, pts, self.spp, self.seed)
+            return lbar + delta_radiance(self.lights, self.medium.density, pts, self.box, self.m_light), se
+        from mitsnerf.math.phase import hg, scattering_cosine
+
+        mean, se = phase_weighted_radiance(self.scene, pts, dirs, self.spp, self.g, self.seed)
+        irradiance = delta_irradiance(self.lights, self.medium.density, pts, self.box, self.m_light)
+        for j, light in enumerate(delta_lights(self.lights)):
+            mean += hg(scattering_cosine(toward_light(light, pts), dirs), self.g)[:, None] * irradiance[:, j]
+        return mean, se
+
     def __call__(self, x, d):
-        J, _, sigma = self.estimate(x)
+        J, _, sigma = self.estimate(x, d)
         return J, sigma
+
+    def forget(self) -> None:
+        """Drop the kept estimate: the next one is computed afresh (by the code as it is now)."""
+        self._last.clear()
 
 
 def render_with_variance(source: PointSource, o, d, n_samples: int, box: Box,
                          background=None) -> tuple[np.ndarray, np.ndarray]:
     """``(C (R, 3), Var(C) (R, 3))`` float64 of rays ``o``, ``d`` (Array3f (R,)): ``render_rays`` with
     ``source`` at the stratum midpoints, and ``sum_i w_i^2 se_i^2`` on the same samples."""
+    source.forget()  # estimated on these rays by the code as it is now (a bug planted since must show)
     with dr.suspend_grad():
         comp = render_rays(source, o, d, n_samples, box=box, background=background)
         s, _ = sample_rays(o, d, n_samples, box)
-        _, se, sigma = source.estimate(s.x)
+        _, se, sigma = source.estimate(s.x, s.d)
         w, _ = weights(sigma, s.delta, n_samples)
         var = [np.asarray(dr.block_sum(w * w * type(w)(se[:, k] ** 2), n_samples), dtype=np.float64)
                for k in range(3)]

@@ -21,6 +21,7 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Any
 
+import drjit as dr
 import numpy as np
 
 from mitsnerf.fields.grid import GridField
@@ -62,6 +63,91 @@ class OracleField:
         if self.delta is not None:
             lbar = lbar + self.delta(x, d)[0]
         return albedo * lbar, sigma
+
+
+def _sh_texture(coefficients: np.ndarray):
+    """A trilinear texture of ``(R, R, R, K, 3)`` coefficients, channel ``3 k + c`` (Mitsuba's gridvolume rule)."""
+    import mitsuba as mi
+
+    r = coefficients.shape[0]
+    data = np.ascontiguousarray(coefficients.reshape(r, r, r, -1), dtype=np.float32)
+    return mi.Texture3f(mi.TensorXf(data), use_accel=False, filter_mode=dr.FilterMode.Linear,
+                        wrap_mode=dr.WrapMode.Clamp)
+
+
+@dataclass(frozen=True)
+class DirectionalOracleField:
+    """The oracle of a Henyey-Greenstein medium: ``(x, d) -> (c(x, d), sigma_t(x))`` with
+    (:mod:`mitsnerf.math.phase`)::
+
+        c(x, d) = albedo(x) [ max(0, sum_lm g^l h_l L_lm(x) Y_lm(d)) + sum_l p(w_l(x) . d) E_l T_l(x) ]
+
+    ``L_lm``: the spherical-harmonic coefficients of the radiance volpath brings to ``x`` (environment and
+    multiple scattering, :func:`mitsnerf.oracle.source.radiance_sh`), up to ``order``, with the window ``h_l``
+    (:func:`mitsnerf.math.phase.band_factors`) and clamped at 0 (a truncated series rings negative); the delta
+    lights' unscattered light is never expanded (a sun is a delta on the sphere): each light's ``E_l T_l``
+    grid is weighted by the phase function towards the light, ``w_l = -direction`` or towards its position.
+    Build with :meth:`from_grids`.
+
+    >>> import mitsuba as mi
+    >>> from mitsnerf.env import set_variant; _ = set_variant("llvm_ad_rgb")
+    >>> from mitsnerf.math.box import UNIT_BOX
+    >>> from mitsnerf.scene.spec import DirectionalLight
+    >>> sun = DirectionalLight(direction=(0.0, 0.0, -1.0), irradiance=(1.0, 1.0, 1.0))   # from +z
+    >>> sh, e = np.zeros((2, 2, 2, 1, 3), np.float32), np.ones((2, 2, 2, 1, 3), np.float32)
+    >>> f = DirectionalOracleField.from_grids(np.full((2, 2, 2), 3.0), (1.0, 1.0, 1.0), sh, 0.5, [sun], e, UNIT_BOX)
+    >>> x = mi.Array3f(0.1, 0.2, 0.3)
+    >>> [round(f(x, mi.Array3f(0, 0, s))[0].x[0] * 4 * np.pi, 4) for s in (1, -1)]   # towards the sun: (1+g)/(1-g)^2
+    [6.0, 0.2222]
+    """
+
+    medium: GridField
+    """``sigma_t`` with the albedo as its colour."""
+    sh: Any
+    """Texture3f of the windowed ``g^l h_l L_lm``, 3 channels per coefficient."""
+    order: int
+    g: float
+    lights: tuple
+    """``(w or None, position or None, GridField of E T)`` per delta light."""
+    box: Box
+
+    @classmethod
+    def from_grids(cls, sigma_t: np.ndarray, albedo, sh: np.ndarray, g: float, lights, irradiance: np.ndarray,
+                   box: Box, *, order: int | None = None, window: str = "lanczos") -> DirectionalOracleField:
+        """``sh``: ``(R, R, R, K, 3)`` coefficients ``L_lm`` (:func:`~mitsnerf.oracle.source.radiance_sh`), used
+        up to ``order`` (None: all); ``lights``: the spec's delta lights (:func:`~mitsnerf.oracle.source.
+        delta_lights`) with ``irradiance`` ``(R_d, R_d, R_d, n, 3)`` their ``E_l T_l``."""
+        from mitsnerf.math.phase import band_factors
+        from mitsnerf.scene.spec import DirectionalLight
+
+        full = int(round(np.sqrt(sh.shape[3]))) - 1
+        order = full if order is None else order
+        k = (order + 1) ** 2
+        scaled = sh[:, :, :, :k] * band_factors(g, order, window)[None, None, None, :, None]
+        terms: list[tuple[tuple[float, ...] | None, tuple[float, ...] | None, GridField]] = []
+        for j, light in enumerate(lights):
+            grid = GridField.from_arrays(np.zeros(irradiance.shape[:3], np.float32), box, color=irradiance[:, :, :, j])
+            if isinstance(light, DirectionalLight):
+                w = -np.asarray(light.direction, np.float64) / np.linalg.norm(light.direction)
+                terms.append((tuple(float(v) for v in w), None, grid))
+            else:
+                terms.append((None, tuple(float(v) for v in light.position), grid))
+        return cls(GridField.from_arrays(sigma_t, box, color=albedo), _sh_texture(scaled), order, float(g),
+                   tuple(terms), box)
+
+    def __call__(self, x, d):
+        from mitsnerf.math.phase import hg, scattering_cosine
+
+        Array3f = type(x)
+        albedo, sigma = self.medium(x, d)
+        coef = self.sh.eval(self.box.to_unit(x))
+        basis = dr.sh_eval(d, self.order)
+        rgb = Array3f(*(sum(y * coef[3 * k + c] for k, y in enumerate(basis)) for c in range(3)))
+        rgb = dr.maximum(rgb, 0.0)
+        for w, position, grid in self.lights:
+            to_light = Array3f(*w) if w is not None else dr.normalize(Array3f(*position) - x)
+            rgb += hg(scattering_cosine(to_light, d), self.g) * grid(x, d)[0]
+        return albedo * rgb, sigma
 
 
 def render_field(field, cameras: Sequence[Any], box: Box, n_samples: int, *, background=None,

@@ -30,7 +30,7 @@ from __future__ import annotations
 
 import math
 import time
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from typing import Any
 
@@ -66,8 +66,11 @@ def box_medium(scene):
     return media[0]
 
 
-def _pass_samples(scene, medium, o: np.ndarray, spp: int, seed: int) -> np.ndarray:
-    """``(P, spp, 3)`` float64 volpath radiance of ``spp`` uniform directions from each point of ``o`` (P, 3)."""
+def _pass_samples(scene, medium, o: np.ndarray, spp: int, seed: int,
+                  warp: Callable[[np.ndarray], np.ndarray] | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """``(P, spp, 3)`` float64 volpath radiance of ``spp`` directions from each point of ``o`` (P, 3), and
+    those directions ``w`` (P, spp, 3) (where the radiance arrives from): uniform on the sphere, or
+    ``warp(u)`` of the sampler's numbers ``u`` (P, spp, 2)."""
     import drjit as dr
     import mitsuba as mi
 
@@ -76,10 +79,19 @@ def _pass_samples(scene, medium, o: np.ndarray, spp: int, seed: int) -> np.ndarr
     sampler.seed(seed, n)
     idx = np.repeat(np.arange(len(o)), spp)
     with dr.suspend_grad():
-        w = mi.warp.square_to_uniform_sphere(sampler.next_2d())
+        u = sampler.next_2d()
+        if warp is None:
+            w = mi.warp.square_to_uniform_sphere(u)
+        else:
+            host_u = np.stack([np.asarray(c, np.float64) for c in u], -1).reshape(len(o), spp, 2)
+            w = to_array3f(mi.Vector3f, warp(host_u).reshape(n, 3))
         ray = mi.RayDifferential3f(mi.Ray3f(to_array3f(mi.Point3f, o[idx]), w))
         L, _, _ = scene.integrator().sample(scene, sampler, ray, medium=medium, active=True)
-    return np.stack([np.asarray(c, dtype=np.float64) for c in L], axis=-1).reshape(len(o), spp, 3)
+
+    def host(v) -> np.ndarray:
+        return np.stack([np.asarray(c, dtype=np.float64) for c in v], axis=-1).reshape(len(o), spp, 3)
+
+    return host(L), host(w)
 
 
 def mean_radiance(scene, points: np.ndarray, spp: int, seed: int = 0) -> tuple[np.ndarray, np.ndarray]:
@@ -107,9 +119,33 @@ def mean_radiance(scene, points: np.ndarray, spp: int, seed: int = 0) -> tuple[n
     mean, se = np.zeros((len(points), 3)), np.zeros((len(points), 3))
     per = max(1, SAMPLES_PER_PASS // spp)
     for i, start in enumerate(range(0, len(points), per)):
-        values = _pass_samples(scene, medium, points[start:start + per], spp, seed * 1000003 + i)
+        values, _ = _pass_samples(scene, medium, points[start:start + per], spp, seed * 1000003 + i)
         mean[start:start + per] = values.mean(axis=1)
         se[start:start + per] = values.std(axis=1, ddof=1) / math.sqrt(spp)
+    return mean, se
+
+
+def radiance_sh(scene, points: np.ndarray, spp: int, order: int, seed: int = 0) -> tuple[np.ndarray, np.ndarray]:
+    """The spherical-harmonic coefficients of the radiance volpath brings to ``points`` (M, 3), ``L_lm(x) =
+    int L(x, w) Y_lm(w) dw``, estimated from the same uniform directions as :func:`mean_radiance`:
+    ``4 pi / spp sum_k L_k Y_lm(w_k)``; mean and standard error, float64 ``(M, (order + 1)^2, 3)``.
+    Coefficient 0 is ``sqrt(4 pi) Lbar_mc``, with the same samples (the same seeds) as :func:`mean_radiance`.
+    """
+    if spp < 2:
+        raise ValueError(f"radiance_sh: need spp >= 2 for a standard error, got {spp}")
+    points = np.asarray(points, dtype=np.float64).reshape(-1, 3)
+    medium = box_medium(scene)
+    k = (order + 1) ** 2
+    mean, se = np.zeros((len(points), k, 3)), np.zeros((len(points), k, 3))
+    per = max(1, SAMPLES_PER_PASS // spp)
+    step = max(1, (1 << 22) // (spp * k))  # points per slice of the (P, spp, K, 3) products
+    for i, start in enumerate(range(0, len(points), per)):
+        values, w = _pass_samples(scene, medium, points[start:start + per], spp, seed * 1000003 + i)
+        for lo in range(0, len(values), step):
+            basis = sh_basis(w[lo:lo + step], order)
+            terms = FOUR_PI * basis[:, :, :, None] * values[lo:lo + step, :, None, :]
+            rows = slice(start + lo, start + lo + len(terms))
+            mean[rows], se[rows] = terms.mean(axis=1), terms.std(axis=1, ddof=1) / math.sqrt(spp)
     return mean, se
 
 
@@ -131,6 +167,89 @@ def _light_terms(lights: Sequence[Any], x) -> list[tuple[Any, Any, Any]]:
     return out
 
 
+def sh_basis(w: np.ndarray, order: int) -> np.ndarray:
+    """Orthonormal real spherical harmonics (Dr.Jit's ``sh_eval``) of unit directions ``w`` (..., 3):
+    float64 (..., (order + 1)^2), coefficient ``l (l + 1) + m``.
+
+    >>> sh_basis(np.array([[0.0, 0.0, 1.0]]), 1).round(4).tolist()    # Y_00 = 1 / sqrt(4 pi); Y_10 = sqrt(3 / 4 pi) z
+    [[0.2821, -0.0, 0.4886, -0.0]]
+    """
+    import drjit as dr
+    import mitsuba as mi
+
+    flat = np.asarray(w, dtype=np.float64).reshape(-1, 3)
+    basis = dr.sh_eval(to_array3f(mi.Array3f, flat), order)
+    out = np.stack([np.broadcast_to(np.asarray(y, dtype=np.float64), (len(flat),)) for y in basis], axis=-1)
+    return out.reshape(np.shape(w)[:-1] + (len(basis),))
+
+
+def phase_weighted_radiance(scene, points: np.ndarray, d: np.ndarray, spp: int, g: float,
+                            seed: int = 0) -> tuple[np.ndarray, np.ndarray]:
+    """``int p(w . d) L(x, w) dw`` at each point ``x`` for its own direction ``d`` ((M, 3) each), the
+    radiance volpath brings scattered towards ``-d`` by Henyey-Greenstein's phase function: the mean of
+    ``spp`` volpath samples from directions drawn from ``p(w . d)`` (:func:`mitsnerf.math.phase.sample_hg`,
+    weight 1: no heavy tail for a peaked lobe); mean and standard error, float64 (M, 3)."""
+    from mitsnerf.math.phase import sample_hg
+
+    if spp < 2:
+        raise ValueError(f"phase_weighted_radiance: need spp >= 2 for a standard error, got {spp}")
+    points = np.asarray(points, dtype=np.float64).reshape(-1, 3)
+    d = np.asarray(d, dtype=np.float64).reshape(-1, 3)
+    medium = box_medium(scene)
+    mean, se = np.zeros((len(points), 3)), np.zeros((len(points), 3))
+    per = max(1, SAMPLES_PER_PASS // spp)
+    for i, start in enumerate(range(0, len(points), per)):
+        lobe = d[start:start + per, None, :]
+
+        def around_lobe(u: np.ndarray, lobe: np.ndarray = lobe) -> np.ndarray:
+            return sample_hg(np.broadcast_to(lobe, u.shape[:2] + (3,)), u, g)
+
+        values, _ = _pass_samples(scene, medium, points[start:start + per], spp, seed * 1000003 + i, around_lobe)
+        mean[start:start + per] = values.mean(axis=1)
+        se[start:start + per] = values.std(axis=1, ddof=1) / math.sqrt(spp)
+    return mean, se
+
+
+def delta_lights(lights: Sequence[Any]) -> list[Any]:
+    """The spec's delta lights (directional and point), in order: the lights whose unscattered light the
+    oracle adds exactly (a direction sampled by volpath never meets them)."""
+    from mitsnerf.scene.spec import DirectionalLight, PointLight
+
+    return [light for light in lights if isinstance(light, (DirectionalLight, PointLight))]
+
+
+def toward_light(light: Any, x: np.ndarray) -> np.ndarray:
+    """Unit direction from points ``x`` (M, 3) to a delta light (a directional light: ``-direction``;
+    a point light: towards its position), float64 (M, 3): the ``w`` its light arrives from."""
+    from mitsnerf.scene.spec import DirectionalLight
+
+    x = np.asarray(x, dtype=np.float64).reshape(-1, 3)
+    if isinstance(light, DirectionalLight):
+        w = -np.asarray(light.direction, np.float64) / np.linalg.norm(light.direction)
+        return np.broadcast_to(w, x.shape)
+    v = np.asarray(light.position, np.float64) - x
+    return v / np.linalg.norm(v, axis=-1, keepdims=True)
+
+
+def delta_irradiance(lights: Sequence[Any], density, points: np.ndarray, box: Box, m: int,
+                     chunk: int = 1 << 16) -> np.ndarray:
+    """``E_l T_l`` at ``points`` (M, 3) for each delta light ``l`` of :func:`delta_lights`: float64 (M, n, 3),
+    the light's irradiance there after the medium between (``density``: ``x -> sigma_t``, ``m`` midpoints)."""
+    import drjit as dr
+    import mitsuba as mi
+
+    points = np.asarray(points, dtype=np.float64).reshape(-1, 3)
+    found = delta_lights(lights)
+    out = np.zeros((len(points), len(found), 3))
+    with dr.suspend_grad():
+        for start in range(0, len(points), chunk):
+            x = to_array3f(mi.Array3f, points[start:start + chunk])
+            for j, (w, irradiance, s_max) in enumerate(_light_terms(found, x)):
+                e = irradiance * march_transmittance(density, x, w, m, box, s_max)
+                out[start:start + chunk, j] = np.stack([np.asarray(c, dtype=np.float64) for c in e], axis=-1)
+    return out
+
+
 def delta_radiance(lights: Sequence[Any], density, points: np.ndarray, box: Box, m: int,
                    chunk: int = 1 << 16) -> np.ndarray:
     """``Lbar_delta = (1 / 4 pi) sum_l E_l T_l`` at ``points`` (M, 3): float64 (M, 3) (module docstring).
@@ -146,19 +265,7 @@ def delta_radiance(lights: Sequence[Any], density, points: np.ndarray, box: Box,
     >>> delta_radiance([sun], lambda x: 2.0 + 0.0 * x.x, np.zeros((1, 3)), UNIT_BOX, 8).round(6)  # e^-1
     array([[0.367879, 0.      , 0.      ]])
     """
-    import drjit as dr
-    import mitsuba as mi
-
-    points = np.asarray(points, dtype=np.float64).reshape(-1, 3)
-    out = np.zeros((len(points), 3))
-    with dr.suspend_grad():
-        for start in range(0, len(points), chunk):
-            x = to_array3f(mi.Array3f, points[start:start + chunk])
-            total = dr.zeros(mi.Array3f, dr.width(x))
-            for w, irradiance, s_max in _light_terms(lights, x):
-                total += irradiance * march_transmittance(density, x, w, m, box, s_max)
-            out[start:start + chunk] = np.stack([np.asarray(c, dtype=np.float64) for c in total], axis=-1)
-    return out / FOUR_PI
+    return delta_irradiance(lights, density, points, box, m, chunk).sum(axis=1) / FOUR_PI
 
 
 def needed_voxels(sigma_t: np.ndarray, resolution: int) -> np.ndarray:

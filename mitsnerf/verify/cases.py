@@ -28,6 +28,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
@@ -123,6 +124,13 @@ class VolpathScenario:
     """Bound on ``|sum ours - sum ref| / sum ref``, on top of the z-tests."""
     detects: tuple[str, ...] = ()
     """Mutations this scenario must fail on."""
+    phase_g: float = 0.0
+    """The medium's phase function: 0 isotropic, else Henyey-Greenstein with this ``g`` (the in-scattered
+    source then depends on the view direction)."""
+
+    def phase(self) -> dict[str, Any]:
+        """The Mitsuba phase plugin's entry."""
+        return {"type": "isotropic"} if self.phase_g == 0.0 else {"type": "hg", "g": float(self.phase_g)}
 
     def __post_init__(self) -> None:
         if self.medium not in MEDIA:
@@ -135,6 +143,8 @@ class VolpathScenario:
             raise ValueError(f"{self.name}: source must be one of {', '.join(SOURCES)}, got {self.source!r}")
         if self.source in ("single_scatter", "in_scattered") and self.sun_direction is None:
             raise ValueError(f"{self.name}: single scattering needs a sun_direction")
+        if self.phase_g != 0.0 and self.source not in ("zero", "in_scattered"):
+            raise ValueError(f"{self.name}: an anisotropic medium needs the in_scattered source (or none)")
         if not self.quadratures or set(self.quadratures) - {"seed", "midpoint"}:
             raise ValueError(f"{self.name}: quadratures must be a non-empty subset of seed, midpoint")
         if "seed" in self.quadratures and self.seed_reference() is None:
@@ -350,6 +360,40 @@ SCENARIOS: tuple[VolpathScenario, ...] = (
         spp_factor=4.0,
         max_rel_error=0.02,
         detects=("T_off_by_one", "delta_wrong_end", "no_background"),
+    ),
+    VolpathScenario(
+        "forward_scatter_g50",
+        "front-heavy, albedo < 1, sky + sun, unlimited depth, Henyey-Greenstein g = 0.5: the directional oracle",
+        "front_heavy",
+        sigma_t_max=8.0,
+        albedo="procedural",
+        environment="constant",
+        source="in_scattered",
+        env_radiance=(0.5, 0.55, 0.6),
+        sun_direction=SUN,
+        sun_irradiance=(3.0, 2.5, 2.0),
+        max_depth=-1,
+        spp_factor=4.0,
+        max_rel_error=0.02,
+        phase_g=0.5,
+        detects=("hg_sign", "cosine_reversed"),
+    ),
+    VolpathScenario(
+        "forward_scatter_g85",
+        "the same with g = 0.85 (water clouds): the sun's forward lobe",
+        "front_heavy",
+        sigma_t_max=8.0,
+        albedo="procedural",
+        environment="constant",
+        source="in_scattered",
+        env_radiance=(0.5, 0.55, 0.6),
+        sun_direction=SUN,
+        sun_irradiance=(3.0, 2.5, 2.0),
+        max_depth=-1,
+        spp_factor=4.0,
+        max_rel_error=0.02,
+        phase_g=0.85,
+        detects=("hg_sign", "cosine_reversed"),
     ),
 )
 

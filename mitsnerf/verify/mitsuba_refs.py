@@ -55,12 +55,14 @@ def directional_light(direction, irradiance) -> dict[str, Any]:
             "irradiance": {"type": "rgb", "value": [float(c) for c in irradiance]}}
 
 
-def scene_dict(sigma_t, albedo, emitters: dict[str, dict], max_depth: int = -1) -> dict[str, Any]:
-    """``mi.load_dict`` input: the medium box, the ``emitters`` (name -> dict), ``volpath(max_depth)``."""
+def scene_dict(sigma_t, albedo, emitters: dict[str, dict], max_depth: int = -1,
+               phase: dict[str, Any] | None = None) -> dict[str, Any]:
+    """``mi.load_dict`` input: the medium box (``phase``: its phase plugin, None isotropic), the ``emitters``
+    (name -> dict), ``volpath(max_depth)``."""
     d: dict[str, Any] = {
         "type": "scene",
         "integrator": {"type": "volpath", "max_depth": int(max_depth)},
-        "medium_box": medium_box(sigma_t, albedo, UNIT_BOX),
+        "medium_box": medium_box(sigma_t, albedo, UNIT_BOX, phase),
     }
     d.update(emitters)
     return d

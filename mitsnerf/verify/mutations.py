@@ -198,6 +198,16 @@ MUTATION_LIST: tuple[Mutation, ...] = (
         "    opacity = one_minus_exp_neg(",
         kind="gradient",
     ),
+    Mutation(
+        "hg_sign", "Henyey-Greenstein with the sign of g flipped: forward scattering becomes backward",
+        "mitsnerf.math.phase", "hg",
+        "1.0 + g * g - 2.0 * g * cos_theta", "1.0 + g * g + 2.0 * g * cos_theta",
+    ),
+    Mutation(
+        "cosine_reversed", "the scattering angle's cosine taken against the reversed view direction (-d)",
+        "mitsnerf.math.phase", "scattering_cosine",
+        "zip(_xyz(w), _xyz(d))", "zip(_xyz(w), _xyz(-d))",
+    ),
 )
 
 MUTATIONS: dict[str, Mutation] = {m.name: m for m in MUTATION_LIST}

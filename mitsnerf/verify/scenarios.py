@@ -53,7 +53,7 @@ def prepare_scenario(s: C.VolpathScenario, quality: C.Quality) -> PreparedScenar
     from mitsnerf.verify.sources import SOURCE_BUILDERS
 
     sigma_t, albedo = C.scenario_grids(s, quality.resolution)
-    scene = mi.load_dict(M.scene_dict(sigma_t, albedo, M.emitters_of(s), s.max_depth))
+    scene = mi.load_dict(M.scene_dict(sigma_t, albedo, M.emitters_of(s), s.max_depth, s.phase()))
     camera = quality.camera()
     o, d = camera.pixel_rays()
     spp = quality.reference_spp(s.spp_factor)

@@ -98,7 +98,8 @@ def single_scatter_source(scenario, sigma_t, albedo, scene, quality):
 
 
 def in_scattered_source(scenario, sigma_t, albedo, scene, quality):
-    """``c = J = albedo (1/4pi) int L dw``, estimated by volpath from each sample point
+    """``c = J = albedo (1/4pi) int L dw`` (an anisotropic medium: ``albedo int p(w . d) L dw``), estimated by
+    volpath from each sample point
     (:class:`mitsnerf.oracle.compare.PointSource`: the oracle without its grid), the sun's direct term
     by shadow rays; ``quality.j_spp`` directions per point."""
     import mitsuba as mi
@@ -116,13 +117,13 @@ def in_scattered_source(scenario, sigma_t, albedo, scene, quality):
         else (
             scene
             if depth == scenario.max_depth
-            else mi.load_dict(M.scene_dict(sigma_t, albedo, M.emitters_of(scenario), depth))
+            else mi.load_dict(M.scene_dict(sigma_t, albedo, M.emitters_of(scenario), depth, scenario.phase()))
         )
     )
     albedo_grid = albedo if np.ndim(albedo) else np.full(sigma_t.shape + (3,), float(albedo), np.float32)
     lights = [DirectionalLight(direction=scenario.sun_direction, irradiance=scenario.sun_irradiance)]
     return PointSource(inner, GridField.from_arrays(sigma_t, UNIT_BOX, color=albedo_grid), lights, UNIT_BOX,
-                       spp=quality.j_spp, m_light=64, seed=quality.seed + 17)
+                       spp=quality.j_spp, m_light=64, seed=quality.seed + 17, g=scenario.phase_g)
 
 
 SOURCE_BUILDERS: dict[str, Callable[..., Any]] = {
