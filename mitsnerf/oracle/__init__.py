@@ -15,7 +15,7 @@ package's own integrator:
 - :mod:`mitsnerf.oracle.cache`: a dataset's oracle computed once, cached and scored
   (``DATASET/oracle/<key>/``), the ceiling row of every benchmark table.
 
-A medium with an anisotropic phase function (``volume.phase`` ``hg`` with ``g != 0``) gets no oracle: its exact
-emission-absorption colour ``albedo int p(d, w) L(x, w) dw`` depends on the view direction, which this
-oracle's direction-free ``J`` cannot represent.
+A medium with an anisotropic phase function (``volume.phase`` ``hg`` with ``g != 0``) has a view-dependent
+colour, ``albedo int p(w . d) L(x, w) dw``: :mod:`mitsnerf.oracle.directional` expands the in-scattered light in
+spherical harmonics (the delta lights exact), and its ceiling is scored at several orders.
 """

@@ -13,6 +13,10 @@ into place (:func:`mitsnerf.data.atomic.atomic_dir`) under a lock (one writer at
     test_k1.npy        the oracle's test views (V, H, W, 3) at footprint 1, test_kK.npy at K
     var_kK.npy         their Monte Carlo variance at K (:func:`mitsnerf.oracle.field.image_variance`)
 
+An anisotropic medium's oracle (:mod:`mitsnerf.oracle.directional`) keeps ``lbar_sh.npy`` (R, R, R, (L+1)^2, 3),
+its standard error ``lbar_sh_se.npy`` and ``delta_irradiance.npy`` (R_d, R_d, R_d, lights, 3) instead of the
+``lbar_*`` grids, and ``oracle.json``'s ``directional`` holds the medium PSNR at each order scored.
+
 The error of the oracle against ``test`` splits into what it cannot help and what it adds::
 
     MSE(oracle, test) = s_ref^2 + Var_mc + bias^2,   s_ref^2 = MSE(test, test_ref) / 2
@@ -33,6 +37,7 @@ from typing import Any
 import numpy as np
 
 from mitsnerf.config import check_fields, param, to_dict
+from mitsnerf.oracle.directional import DirectionalConfig
 
 ORACLE_FORMAT = 1
 ORACLE_DIR = "oracle"
@@ -55,6 +60,8 @@ class OracleConfig:
     noise_replicas: int = param(1, lo=1, doc="sign patterns for the image's Monte Carlo variance")
     seed: int = param(0, lo=0, doc="seed of the volpath samples")
     enabled: bool = param(True, doc="compute the oracle (false: no ceiling row, no error budget)")
+    directional: DirectionalConfig | None = param(None, doc="anisotropic media: the directional oracle's settings "
+                                                            "(order, window; None: the defaults)")
 
     def __post_init__(self) -> None:
         check_fields(self)
@@ -92,41 +99,100 @@ class Oracle:
 
 
 def _grids(dataset) -> tuple[Any, np.ndarray, np.ndarray] | None:
-    """``(spec, sigma_t, albedo)`` of a generated dataset whose oracle this module computes; None for foreign
-    data (no spec or grids) and for a medium that does not scatter isotropically, whose emission-absorption
-    colour depends on the view direction (its oracle, the directional one, is not implemented: no ceiling is
-    better than a wrong one)."""
+    """``(spec, sigma_t, albedo)`` of a generated dataset; None for foreign data (no spec or grids)."""
     from mitsnerf.data.dataset import true_grid_path
-    from mitsnerf.scene.spec import is_isotropic, parse_scene
+    from mitsnerf.scene.spec import parse_scene
 
     spec_data = (dataset.manifest or {}).get("spec")
     sigma_t, albedo = (true_grid_path(dataset.root, name) for name in ("sigma_t", "albedo"))
     if not spec_data or not sigma_t.is_file() or not albedo.is_file():
         return None
     spec = parse_scene(spec_data, Path(dataset.root) / "manifest.json")
-    if not is_isotropic(spec.volume.phase):
-        return None
     return spec, np.load(sigma_t), np.load(albedo)
 
 
-def estimate_source(spec, sigma_t: np.ndarray, albedo: np.ndarray, box, config: OracleConfig):
-    """``(SourceGrids, OracleField)`` of a scene: ``Lbar`` estimated by volpath from inside the medium."""
+def _inner_scene(spec, sigma_t: np.ndarray, albedo: np.ndarray):
+    """The Mitsuba scene volpath estimates the in-scattered light in (None: nothing in-scatters)."""
     import mitsuba as mi
 
-    from mitsnerf.oracle.field import OracleField
-    from mitsnerf.oracle.source import estimate_grids, inner_max_depth
+    from mitsnerf.oracle.source import inner_max_depth
     from mitsnerf.scene.to_mitsuba import scene_dict
 
     depth = inner_max_depth(spec.render.max_depth)
-    scene = None
-    if depth is not None:
-        description = scene_dict(spec, sigma_t, albedo)
-        description["integrator"] = {"type": "volpath", "max_depth": depth}
-        scene = mi.load_dict(description)
+    if depth is None:
+        return None
+    description = scene_dict(spec, sigma_t, albedo)
+    description["integrator"] = {"type": "volpath", "max_depth": depth}
+    return mi.load_dict(description)
+
+
+def estimate_source(spec, sigma_t: np.ndarray, albedo: np.ndarray, box, config: OracleConfig):
+    """``(SourceGrids, OracleField)`` of an isotropic scene: ``Lbar`` estimated by volpath from inside the medium."""
+    from mitsnerf.oracle.field import OracleField
+    from mitsnerf.oracle.source import estimate_grids
+
     r = config.resolution or sigma_t.shape[0]
     r_delta = config.delta_resolution or sigma_t.shape[0]
-    grids = estimate_grids(scene, spec.lights, sigma_t, box, r, r_delta, config.spp, config.seed)
+    grids = estimate_grids(_inner_scene(spec, sigma_t, albedo), spec.lights, sigma_t, box, r, r_delta, config.spp,
+                           config.seed)
     return grids, OracleField.from_grids(sigma_t, albedo, grids.mc, grids.delta, box)
+
+
+@dataclass(frozen=True)
+class _Estimate:
+    """What an oracle's estimate gives the renders: the field, the fields at lower orders (directional),
+    the image variance at a footprint, the arrays to cache and what ``oracle.json`` says of it."""
+
+    field: Any
+    by_order: dict[int, Any]
+    variance: Callable[[Any, int, float], np.ndarray]
+    arrays: dict[str, np.ndarray]
+    info: dict[str, Any]
+
+
+def _rel_se(mean: np.ndarray, se: np.ndarray) -> dict[str, float | None]:
+    needed = se.any(axis=-1) | (mean != 0).any(axis=-1)
+    rel = se[needed] / np.maximum(np.abs(mean[needed]), 1e-12)
+    return {"lbar_rel_se_median": float(np.median(rel)) if rel.size else None,
+            "lbar_rel_se_p90": float(np.quantile(rel, 0.9)) if rel.size else None}
+
+
+def _isotropic(spec, sigma_t: np.ndarray, albedo: np.ndarray, box, config: OracleConfig) -> _Estimate:
+    from mitsnerf.oracle.field import image_variance
+
+    grids, field = estimate_source(spec, sigma_t, albedo, box, config)
+
+    def variance(cameras, footprint: int, pixel_center: float) -> np.ndarray:
+        return image_variance(sigma_t, albedo, grids.mc_se, cameras, box, config.n_samples, pixel_center=pixel_center,
+                              footprint=footprint, replicas=config.noise_replicas, seed=config.seed)
+
+    info = {"grid_points": grids.points, "volpath_samples": grids.points * grids.spp, "seconds": dict(grids.seconds),
+            "mc_error": _rel_se(grids.mc, grids.mc_se)}
+    return _Estimate(field, {}, variance, {"lbar_mc": grids.mc, "lbar_mc_se": grids.mc_se, "lbar_delta": grids.delta},
+                     info)
+
+
+def _directional(spec, sigma_t: np.ndarray, albedo: np.ndarray, box, config: OracleConfig) -> _Estimate:
+    from mitsnerf.oracle import directional as D
+
+    dc = config.directional or D.DirectionalConfig()
+    r = config.resolution or sigma_t.shape[0]
+    r_delta = config.delta_resolution or sigma_t.shape[0]
+    grids = D.estimate(_inner_scene(spec, sigma_t, albedo), spec.lights, spec.volume.phase.g, sigma_t, box, r,
+                       r_delta, config.spp, dc.order, config.seed, config.noise_replicas)
+    by_order = {o: D.oracle_field(grids, sigma_t, albedo, box, o, dc.window) for o in dc.orders()}
+
+    def variance(cameras, footprint: int, pixel_center: float) -> np.ndarray:
+        return D.image_variance(grids, sigma_t, albedo, cameras, box, config.n_samples, dc, pixel_center=pixel_center,
+                                footprint=footprint)
+
+    info = {"grid_points": grids.points, "volpath_samples": grids.points * grids.spp, "seconds": dict(grids.seconds),
+            "mc_error": _rel_se(grids.sh[..., 0, :], grids.sh_se[..., 0, :]),
+            "directional": {"g": grids.g, "order": dc.order, "window": dc.window,
+                            "rule": "mitsnerf.oracle.directional: L(x, w) in real spherical harmonics up to order, "
+                                    "times g^l and the window per band, clamped at 0; the delta lights exact"}}
+    arrays = {"lbar_sh": grids.sh, "lbar_sh_se": grids.sh_se, "delta_irradiance": grids.irradiance}
+    return _Estimate(by_order[dc.order], by_order, variance, arrays, info)
 
 
 def _medium_mean(values: np.ndarray, masks: np.ndarray) -> float:
@@ -152,11 +218,14 @@ def error_split(oracle: np.ndarray, var: np.ndarray, ref, test_ref: np.ndarray |
 
 def compute_oracle(dataset, config: OracleConfig, footprint: int,
                    log: Callable[[str], None] = lambda line: None) -> tuple[dict, dict, dict[str, np.ndarray]] | None:
-    """``(info, scores, arrays)`` of the oracle of ``dataset``'s test views (None for foreign data and for
-    anisotropic media, :func:`_grids`)."""
+    """``(info, scores, arrays)`` of the oracle of ``dataset``'s test views (None for foreign data).
+
+    An isotropic medium's colour is ``J(x)`` (:mod:`mitsnerf.oracle.source`); an anisotropic one's depends on the
+    view direction (:mod:`mitsnerf.oracle.directional`), and its ceiling is also scored at the lower orders."""
     from mitsnerf import env
-    from mitsnerf.oracle.field import image_variance, render_field
+    from mitsnerf.oracle.field import render_field
     from mitsnerf.render.background import make_background
+    from mitsnerf.scene.spec import is_isotropic
     from mitsnerf.scoring import reference, score_views, true_density
 
     inputs = _grids(dataset)
@@ -164,35 +233,35 @@ def compute_oracle(dataset, config: OracleConfig, footprint: int,
         return None
     spec, sigma_t, albedo = inputs
     ref = reference(dataset, "test")
-    log(f"oracle: Lbar by volpath from inside the medium ({config.spp} directions per point) ...")
-    grids, field = estimate_source(spec, sigma_t, albedo, dataset.box, config)
-    seconds = dict(grids.seconds)
+    log(f"oracle: the in-scattered light by volpath from inside the medium ({config.spp} directions per point) ...")
+    est = (_isotropic if is_isotropic(spec.volume.phase) else _directional)(spec, sigma_t, albedo, dataset.box, config)
+    seconds = est.info.pop("seconds")
     start = time.perf_counter()
     background = make_background(dataset.background, dataset.root)
-    kwargs = dict(pixel_center=ref.pixel_center)
-    renders = {k: render_field(field, ref.cameras, dataset.box, config.n_samples, background=background,
-                               footprint=k, **kwargs) for k in sorted({1, int(footprint)})}
+
+    def render(field, k: int) -> np.ndarray:
+        return render_field(field, ref.cameras, dataset.box, config.n_samples, background=background, footprint=k,
+                            pixel_center=ref.pixel_center)
+
+    renders = {k: render(est.field, k) for k in sorted({1, int(footprint)})}
     seconds["render"] = time.perf_counter() - start
-    var = image_variance(sigma_t, albedo, grids.mc_se, ref.cameras, dataset.box, config.n_samples,
-                         footprint=footprint, replicas=config.noise_replicas, seed=config.seed, **kwargs)
+    var = est.variance(ref.cameras, int(footprint), ref.pixel_center)
     seconds["variance"] = time.perf_counter() - start - seconds["render"]
     density = true_density(sigma_t, dataset.box)
     scores = {f"footprint_{k}": score_views(img, ref, density)[0] for k, img in renders.items()}
+    if est.by_order:
+        est.info["directional"]["psnr_test_medium_by_order"] = {
+            str(o): score_views(render(f, int(footprint)), ref, None)[0].get("psnr_test_medium")
+            for o, f in est.by_order.items()}
     test_ref = dataset.views("test_ref").images if "test_ref" in dataset.splits else None
-    needed = grids.mc_se.any(axis=-1) | (grids.mc != 0).any(axis=-1)
-    rel_se = grids.mc_se[needed] / np.maximum(grids.mc[needed], 1e-12)
     info = {
         "format": ORACLE_FORMAT, "config": to_dict(config), "footprint": int(footprint),
-        "dataset_hash": dataset.manifest.get("hash"), "max_depth": spec.render.max_depth,
-        "grid_points": grids.points, "volpath_samples": grids.points * grids.spp, "seconds": seconds,
-        "mc_error": {"lbar_rel_se_median": float(np.median(rel_se)) if rel_se.size else None,
-                     "lbar_rel_se_p90": float(np.quantile(rel_se, 0.9)) if rel_se.size else None},
-        "error_split": error_split(renders[int(footprint)], var, ref, test_ref),
+        "dataset_hash": dataset.manifest.get("hash"), "max_depth": spec.render.max_depth, **est.info,
+        "seconds": seconds, "error_split": error_split(renders[int(footprint)], var, ref, test_ref),
         "psnr_test_medium": {k: s.get("psnr_test_medium") for k, s in scores.items()},
         "noise_floor_psnr_medium": (ref.noise_floor or {}).get("psnr_medium"), "provenance": env.provenance(),
     }
-    arrays = {"lbar_mc": grids.mc, "lbar_mc_se": grids.mc_se, "lbar_delta": grids.delta,
-              f"var_k{footprint}": var.astype(np.float32)}
+    arrays = {**est.arrays, f"var_k{footprint}": var.astype(np.float32)}
     arrays.update({f"test_k{k}": img for k, img in renders.items()})
     return info, scores, arrays
 
@@ -214,8 +283,7 @@ def load_oracle(path: Path) -> Oracle | None:
 
 def ensure_oracle(dataset, config: OracleConfig, footprint: int,
                   log: Callable[[str], None] = lambda line: None) -> Oracle | None:
-    """The cached oracle of ``dataset``, computed and written first if missing (None for foreign data and for
-    anisotropic media).
+    """The cached oracle of ``dataset``, computed and written first if missing (None for foreign data).
 
     One writer at a time (a lock next to the directory); ``oracle.json`` is written last inside
     a temporary directory renamed into place, so an interrupted run leaves no complete-looking oracle.

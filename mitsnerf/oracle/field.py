@@ -110,10 +110,13 @@ class DirectionalOracleField:
     lights: tuple
     """``(w or None, position or None, GridField of E T)`` per delta light."""
     box: Box
+    clamp: bool = True
+    """Clamp the series at 0 (False: the raw series, for error propagation)."""
 
     @classmethod
     def from_grids(cls, sigma_t: np.ndarray, albedo, sh: np.ndarray, g: float, lights, irradiance: np.ndarray,
-                   box: Box, *, order: int | None = None, window: str = "lanczos") -> DirectionalOracleField:
+                   box: Box, *, order: int | None = None, window: str = "lanczos",
+                   clamp: bool = True) -> DirectionalOracleField:
         """``sh``: ``(R, R, R, K, 3)`` coefficients ``L_lm`` (:func:`~mitsnerf.oracle.source.radiance_sh`), used
         up to ``order`` (None: all); ``lights``: the spec's delta lights (:func:`~mitsnerf.oracle.source.
         delta_lights`) with ``irradiance`` ``(R_d, R_d, R_d, n, 3)`` their ``E_l T_l``."""
@@ -133,7 +136,7 @@ class DirectionalOracleField:
             else:
                 terms.append((None, tuple(float(v) for v in light.position), grid))
         return cls(GridField.from_arrays(sigma_t, box, color=albedo), _sh_texture(scaled), order, float(g),
-                   tuple(terms), box)
+                   tuple(terms), box, clamp)
 
     def __call__(self, x, d):
         from mitsnerf.math.phase import hg, scattering_cosine
@@ -143,7 +146,8 @@ class DirectionalOracleField:
         coef = self.sh.eval(self.box.to_unit(x))
         basis = dr.sh_eval(d, self.order)
         rgb = Array3f(*(sum(y * coef[3 * k + c] for k, y in enumerate(basis)) for c in range(3)))
-        rgb = dr.maximum(rgb, 0.0)
+        if self.clamp:
+            rgb = dr.maximum(rgb, 0.0)
         for w, position, grid in self.lights:
             to_light = Array3f(*w) if w is not None else dr.normalize(Array3f(*position) - x)
             rgb += hg(scattering_cosine(to_light, d), self.g) * grid(x, d)[0]

@@ -125,10 +125,25 @@ def mean_radiance(scene, points: np.ndarray, spp: int, seed: int = 0) -> tuple[n
     return mean, se
 
 
-def radiance_sh(scene, points: np.ndarray, spp: int, order: int, seed: int = 0) -> tuple[np.ndarray, np.ndarray]:
+@dataclass(frozen=True)
+class RadianceSH:
+    """:func:`radiance_sh`'s estimate at M points: float64 arrays."""
+
+    mean: np.ndarray
+    """``(M, K, 3)`` coefficients ``L_lm``, ``K = (order + 1)^2``."""
+    se: np.ndarray
+    """``(M, K, 3)`` each coefficient's standard error."""
+    errors: np.ndarray
+    """``(replicas, M, K, 3)`` error patterns with the estimate's own covariance between coefficients:
+    ``sqrt(1 / (spp (spp - 1))) sum_k e_k (X_k - mean)`` with random signs ``e_k``, ``X_k`` sample ``k``'s
+    coefficients; ``E[e e^T] = Cov(mean)``, so a linear function of the coefficients rendered from a pattern
+    has, squared, the function's Monte Carlo variance in expectation."""
+
+
+def radiance_sh(scene, points: np.ndarray, spp: int, order: int, seed: int = 0, replicas: int = 1) -> RadianceSH:
     """The spherical-harmonic coefficients of the radiance volpath brings to ``points`` (M, 3), ``L_lm(x) =
     int L(x, w) Y_lm(w) dw``, estimated from the same uniform directions as :func:`mean_radiance`:
-    ``4 pi / spp sum_k L_k Y_lm(w_k)``; mean and standard error, float64 ``(M, (order + 1)^2, 3)``.
+    ``4 pi / spp sum_k L_k Y_lm(w_k)``, with standard errors and ``replicas`` error patterns (:class:`RadianceSH`).
     Coefficient 0 is ``sqrt(4 pi) Lbar_mc``, with the same samples (the same seeds) as :func:`mean_radiance`.
     """
     if spp < 2:
@@ -137,16 +152,20 @@ def radiance_sh(scene, points: np.ndarray, spp: int, order: int, seed: int = 0) 
     medium = box_medium(scene)
     k = (order + 1) ** 2
     mean, se = np.zeros((len(points), k, 3)), np.zeros((len(points), k, 3))
+    errors = np.zeros((replicas, len(points), k, 3))
+    rng = np.random.default_rng(seed)
     per = max(1, SAMPLES_PER_PASS // spp)
     step = max(1, (1 << 22) // (spp * k))  # points per slice of the (P, spp, K, 3) products
     for i, start in enumerate(range(0, len(points), per)):
         values, w = _pass_samples(scene, medium, points[start:start + per], spp, seed * 1000003 + i)
         for lo in range(0, len(values), step):
-            basis = sh_basis(w[lo:lo + step], order)
-            terms = FOUR_PI * basis[:, :, :, None] * values[lo:lo + step, :, None, :]
+            terms = FOUR_PI * sh_basis(w[lo:lo + step], order)[:, :, :, None] * values[lo:lo + step, :, None, :]
             rows = slice(start + lo, start + lo + len(terms))
             mean[rows], se[rows] = terms.mean(axis=1), terms.std(axis=1, ddof=1) / math.sqrt(spp)
-    return mean, se
+            signs = rng.choice(np.array([-1.0, 1.0]), size=(replicas, len(terms), spp))
+            deviation = terms - mean[rows][:, None]
+            errors[:, rows] = np.einsum("rps,pskc->rpkc", signs, deviation) / math.sqrt(spp * (spp - 1))
+    return RadianceSH(mean, se, errors)
 
 
 def _light_terms(lights: Sequence[Any], x) -> list[tuple[Any, Any, Any]]:

@@ -1,5 +1,5 @@
 """A medium's phase function: the spec's ``volume.phase`` (isotropic by default, ``hg`` with ``g`` always
-written), carried to volpath, out of the hash of older specs, and no oracle for an anisotropic medium."""
+written), carried to volpath, out of the hash of older specs, and the directional oracle for an anisotropic medium."""
 
 from __future__ import annotations
 
@@ -72,14 +72,18 @@ def test_volpath_scatters_with_the_specs_phase_function():
     assert forward > 2.0 * iso
 
 
-def test_an_anisotropic_medium_gets_no_oracle(tmp_path):
+def test_an_anisotropic_medium_gets_the_directional_oracle(tmp_path):
     from mitsnerf.data.dataset import load_dataset
     from mitsnerf.generate import generate_dataset
     from mitsnerf.oracle.cache import OracleConfig, ensure_oracle
+    from mitsnerf.oracle.directional import DirectionalConfig
 
     small = {"cameras.width": 8, "cameras.height": 8, "cameras.n_train": 2, "cameras.n_test": 1,
              "render.spp_train": 4, "render.spp_test": 4, "volume.resolution": 16}
     spec = with_phase({"type": "hg", "g": 0.5}).with_overrides(small)
     dataset = load_dataset(generate_dataset(spec, tmp_path, progress=False))
     assert dataset.manifest["spec"]["volume"]["phase"] == {"type": "hg", "g": 0.5}
-    assert ensure_oracle(dataset, OracleConfig(spp=4, resolution=8), 1) is None
+    config = OracleConfig(spp=4, resolution=8, directional=DirectionalConfig(order=2, report_orders=(0,)))
+    oracle = ensure_oracle(dataset, config, 1)
+    assert oracle is not None and set(oracle.info["directional"]["psnr_test_medium_by_order"]) == {"0", "2"}
+    assert (oracle.path / "lbar_sh.npy").is_file() and not (oracle.path / "lbar_mc.npy").exists()
