@@ -81,9 +81,9 @@ PERFECT_DB = 10 * math.log10(2)
 render's noise, where two renders' difference holds two (half the MSE: +3.01 dB)."""
 MEANINGS: dict[str, str] = {
     "scene": "the scene's name; mean of N: the mean over N scenes",
-    "method": "oracle (ceiling): the true sigma_t, in-scattered radiance J by volpath (view-dependent, in spherical "
-              "harmonics, for an anisotropic medium), the best an emission-absorption model can do (never bold); "
-              "NAME (external): another tool's renders, scored as mitsnerf score does",
+    "method": "oracle (ceiling): the true sigma_t, in-scattered radiance J by volpath (per direction if anisotropic), "
+              "the best an emission-absorption model can do (never bold); NAME (external): another tool's renders, "
+              "scored as mitsnerf score does",
     "seeds": "training seeds the row is the mean of",
     "PSNR lin": "PSNR of the test views, linear radiance clipped to [0, 1], whole image",
     "PSNR lin medium": "the same on the pixels whose ray crosses the true medium (the headline figure)",
