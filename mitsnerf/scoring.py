@@ -349,6 +349,34 @@ class Reference:
     """(V, H, W) medium pixels (None without a true grid)."""
     noise_floor: dict | None
     """The manifest's ``noise_floor`` (None without ``test_ref``)."""
+    reduced_sigma_t: np.ndarray | None = None
+    """An anisotropic medium's similarity-scaled extinction (:func:`reduced_extinction`); None otherwise."""
+
+
+def reduced_extinction(sigma_t: np.ndarray, albedo: np.ndarray, g: float) -> np.ndarray:
+    """The similarity-scaled extinction ``sigma_t (1 - albedo g)``, albedo averaged over RGB: with the scaled albedo
+    ``albedo (1 - g) / (1 - albedo g)`` and an isotropic phase it renders nearly the same images as the medium of
+    Henyey-Greenstein ``g`` (exactly in the diffusion limit), so an emission-absorption density fitted to the
+    images may land on it as well as on ``sigma_t``: the density scores are given against both.
+
+    >>> reduced_extinction(np.full((1, 1, 1), 10.0), np.full((1, 1, 1, 3), 0.8), 0.5).tolist()
+    [[[6.0]]]
+    """
+    mean_albedo = np.asarray(albedo, dtype=np.float64).reshape(np.shape(sigma_t) + (-1,)).mean(axis=-1)
+    return (np.asarray(sigma_t, dtype=np.float64) * (1.0 - mean_albedo * float(g))).astype(np.float32)
+
+
+def _reduced_sigma_t(dataset, sigma_t: np.ndarray | None) -> np.ndarray | None:
+    """The dataset's :func:`reduced_extinction` when its spec's medium is Henyey-Greenstein with ``g != 0``."""
+    from mitsnerf.data.arrays import read_npy
+    from mitsnerf.data.dataset import true_grid_path
+
+    phase = (((dataset.manifest or {}).get("spec") or {}).get("volume") or {}).get("phase") or {}
+    g = float(phase.get("g", 0.0)) if phase.get("type") == "hg" else 0.0
+    albedo = true_grid_path(dataset.root, "albedo")
+    if sigma_t is None or g == 0.0 or not albedo.exists():
+        return None
+    return reduced_extinction(sigma_t, read_npy(albedo, "numpy grid"), g)
 
 
 def load_true_sigma_t(root) -> np.ndarray | None:
@@ -369,7 +397,8 @@ def reference(dataset, split: str = "test") -> Reference:
     sigma_t = load_true_sigma_t(dataset.root)
     masks = medium_masks(sigma_t, dataset.box, views.cameras, views.pixel_center) if sigma_t is not None else None
     floor = (dataset.manifest or {}).get("noise_floor") if split == "test" else None
-    return Reference(views.images, tuple(views.cameras), views.pixel_center, dataset.box, sigma_t, masks, floor)
+    return Reference(views.images, tuple(views.cameras), views.pixel_center, dataset.box, sigma_t, masks, floor,
+                     _reduced_sigma_t(dataset, sigma_t))
 
 
 def score_views(preds: np.ndarray, ref: Reference, density: Density | None = None, *, oracle: dict | None = None,
@@ -397,5 +426,9 @@ def score_views(preds: np.ndarray, ref: Reference, density: Density | None = Non
         return metrics, slices
     dens, slices = density_scores(density, ref.sigma_t, ref.box, density_resolution)
     metrics.update(dens)
+    reduced = (density_scores(density, ref.reduced_sigma_t, ref.box, density_resolution)[0]
+               if ref.reduced_sigma_t is not None else {})
+    for key in ("density_rel_l1", "density_rel_mass"):  # None: an isotropic medium (nothing ambiguous)
+        metrics[f"{key}_reduced"] = reduced.get(key)
     metrics.update(optical_depth_scores(density, ref.sigma_t, ref.box, ref.cameras, ref.pixel_center, od_samples))
     return metrics, slices

@@ -128,3 +128,19 @@ def test_optical_depth_and_medium_mask_of_a_uniform_box():
     hits = (np.abs(dirs[:, 0] * t) <= 0.5) & (np.abs(dirs[:, 2] * t) <= 0.5)
     assert np.array_equal(mask.ravel(), hits)
     assert not medium_masks(np.zeros((8, 8, 8), np.float32), UNIT_BOX, [cam]).any()
+
+
+def test_an_anisotropic_medium_is_also_scored_against_its_reduced_extinction(blob_grid):
+    """g = 0.5, albedo 0.8: sigma_t (1 - 0.4) renders alike; a density that found it scores 0 there, 0.4 against
+    sigma_t; an isotropic medium's reduced scores are None."""
+    from mitsnerf.scoring import Reference, reduced_extinction, score_views
+
+    cams = _cameras()
+    images = np.zeros((len(cams), 12, 12, 3))
+    reduced = reduced_extinction(blob_grid, np.full(blob_grid.shape + (3,), 0.8), 0.5)
+    ref = Reference(images, tuple(cams), 0.5, UNIT_BOX, blob_grid, None, None, reduced)
+    scores, _ = score_views(images, ref, grid_density(blob_grid, 0.6), density_resolution=16)
+    assert scores["density_rel_l1_reduced"] < 1e-4 and scores["density_rel_l1"] == pytest.approx(0.4, rel=1e-3)
+    assert scores["density_rel_mass_reduced"] == pytest.approx(0.0, abs=1e-4)
+    isotropic = Reference(images, tuple(cams), 0.5, UNIT_BOX, blob_grid, None, None)
+    assert score_views(images, isotropic, grid_density(blob_grid))[0]["density_rel_l1_reduced"] is None
