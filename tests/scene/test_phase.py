@@ -87,3 +87,21 @@ def test_an_anisotropic_medium_gets_the_directional_oracle(tmp_path):
     oracle = ensure_oracle(dataset, config, 1)
     assert oracle is not None and set(oracle.info["directional"]["psnr_test_medium_by_order"]) == {"0", "2"}
     assert (oracle.path / "lbar_sh.npy").is_file() and not (oracle.path / "lbar_mc.npy").exists()
+
+
+def test_mitsuba_inverse_optimises_a_medium_with_the_datasets_phase_function():
+    import mitsuba as mi
+
+    from mitsnerf.env import set_variant
+    from mitsnerf.methods import get_method
+    from mitsnerf.methods.base import SceneInfo
+    from mitsnerf.oracle.source import box_medium
+    from mitsnerf.scene.to_mitsuba import scene_box
+
+    set_variant(mi.variant())
+    spec = with_phase({"type": "hg", "g": 0.85})
+    method = get_method("mitsuba-inverse")
+    config = method.config_type(**dict(method.tiny))
+    model = method.model_type(config, SceneInfo(scene_box(spec), lambda d: 0.0, 1.0, {"spec": spec.to_dict()}), 0)
+    assert str(box_medium(model.scene).phase_function()).replace("\n", "").replace(" ", "") == "HGPhaseFunction[g=[0.85]]"
+
