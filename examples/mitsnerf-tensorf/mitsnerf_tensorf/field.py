@@ -48,11 +48,13 @@ class VMFieldConfig:
     """Components per plane of the density VM (``n_lamb_sigma``; TensoRF: 16)."""
     app_components: int = param(16, lo=1, hi=64)
     """Components per plane of the appearance VM (``n_lamb_sh``; TensoRF: 48)."""
-    app_dim: int = param(27, lo=1, hi=256)
-    """Output width of the basis matrix B (``data_dim_color``, TensoRF: 27); the ``sh`` decode needs
-    ``3 (sh_degree + 1)^2``."""
-    decode: str = param("mlp", choices=("mlp", "sh"))
-    """Colour from ``B f``: a small MLP (``MLP_Fea``) or SH coefficients (``SH``)."""
+    app_dim: int = param(0, lo=0, hi=256)
+    """Output width of the basis matrix B (``data_dim_color``); 0: what the decode reads, ``3 (sh_degree + 1)^2``
+    SH coefficients for ``sh``, TensoRF's 27 features for ``mlp``."""
+    decode: str = param("sh", choices=("sh", "mlp"))
+    """Colour from ``B f``: SH coefficients (TensoRF's ``SH`` render mode) or a small MLP (``MLP_Fea``). On the
+    default cloud (1000 steps x 4096 rays, density shift -5, no priors) ``sh`` of degree 0 reached 38.20 dB on
+    medium pixels in 45 s, ``mlp`` 37.99 dB in 58 s."""
     mlp_hidden: int = param(64, lo=1, hi=512)
     """Hidden width of the colour MLP (``featureC``, TensoRF: 128)."""
     mlp_layers: int = param(1, lo=0, hi=4)
@@ -62,8 +64,10 @@ class VMFieldConfig:
     (0: no direction dependence; mitsnerf's media scatter isotropically)."""
     density_activation: str = param("softplus", choices=("softplus", "exp"))
     """``softplus`` (TensoRF's default) or ``exp`` of ``f + density_shift``."""
-    density_shift: float = param(-10.0)
-    """Added to the density feature before the activation (TensoRF: -10: the field starts empty)."""
+    density_shift: float = param(-3.0)
+    """Added to the density feature before the activation. TensoRF's -10 starts the field empty
+    (``25 softplus(-10) = 1e-3``) and, on the default cloud, had learned nothing after 300 steps (the
+    gradients through ``softplus'(-10) = 5e-5`` sink under Adam's epsilon); -3 starts a haze of 1.2."""
     distance_scale: float = param(25.0, lo=0.0, lo_open=True)
     """Factor on the activated density (TensoRF's ``distance_scale``, 25)."""
     init_scale: float = param(0.1, lo=0.0, lo_open=True)
@@ -73,10 +77,21 @@ class VMFieldConfig:
 
     def __post_init__(self) -> None:
         check_fields(self)
-        if self.decode == "sh" and self.app_dim != 3 * num_coefficients(self.sh_degree):
-            raise ValueError(f"app_dim: the sh decode of degree {self.sh_degree} needs "
-                             f"3 x {num_coefficients(self.sh_degree)} = {3 * num_coefficients(self.sh_degree)}, "
-                             f"got {self.app_dim}")
+        sh = 3 * num_coefficients(self.sh_degree)
+        if self.decode == "sh" and self.app_dim not in (0, sh):
+            raise ValueError(f"app_dim: the sh decode of degree {self.sh_degree} reads 3 x "
+                             f"{num_coefficients(self.sh_degree)} = {sh} coefficients (or give 0), got {self.app_dim}")
+
+    @property
+    def basis_width(self) -> int:
+        """The basis matrix's output width: ``app_dim``, or the decode's own when 0.
+
+        >>> VMFieldConfig().basis_width, VMFieldConfig(decode="mlp").basis_width, VMFieldConfig(sh_degree=1).basis_width
+        (3, 27, 12)
+        """
+        if self.app_dim:
+            return self.app_dim
+        return 3 * num_coefficients(self.sh_degree) if self.decode == "sh" else 27
 
 
 def grid_keys(kind: str) -> tuple[str, ...]:
@@ -155,10 +170,11 @@ def init_params(config: VMFieldConfig, resolution: int, TensorXf, seed: int) -> 
         for key in grid_keys(kind):
             shape = grid_shape(key, resolution, channels)
             params[key] = TensorXf(config.init_scale * rng.normal(Float, dr.prod(shape)), shape=shape)
-    basis = dense_init([3 * config.app_components, config.app_dim], TensorXf, rng)
+    basis = dense_init([3 * config.app_components, config.basis_width], TensorXf, rng)
     params[BASIS_KEY] = basis["0.weights"]  # B has no bias (TensoRF's basis_mat)
     if config.decode == "mlp":
-        sizes = [config.app_dim + num_coefficients(config.sh_degree)] + [config.mlp_hidden] * config.mlp_layers + [3]
+        n_in = config.basis_width + num_coefficients(config.sh_degree)
+        sizes = [n_in] + [config.mlp_hidden] * config.mlp_layers + [3]
         params.update(dense_init(sizes, TensorXf, rng, "mlp."))
     return params
 
@@ -214,7 +230,7 @@ class VMField:
         return self.activate(self.density_feature(x))
 
     def app_features(self, x):
-        """``B f_app(x)``: (M, app_dim) point-major tensor."""
+        """``B f_app(x)``: (M, basis_width) point-major tensor."""
         import mitsuba as mi
 
         p = self.box.to_unit(x)
