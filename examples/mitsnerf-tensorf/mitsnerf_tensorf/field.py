@@ -44,10 +44,12 @@ SIGMA_RAW_MAX = 15.0
 class VMFieldConfig:
     """Sizes, activations and initialisation of the VM field (TensoRF's names in parentheses)."""
 
-    density_components: int = param(8, lo=1, hi=64)
-    """Components per plane of the density VM (``n_lamb_sigma``; TensoRF: 16)."""
-    app_components: int = param(16, lo=1, hi=64)
-    """Components per plane of the appearance VM (``n_lamb_sh``; TensoRF: 48)."""
+    density_components: int = param(16, lo=1, hi=64)
+    """Components per plane of the density VM (``n_lamb_sigma``, TensoRF's 16). On the default cloud (1000 steps
+    x 4096 rays) 8 density and 16 appearance components reached 38.32 dB on medium pixels, 16 and 24 38.83,
+    16 and 48 39.06."""
+    app_components: int = param(48, lo=1, hi=64)
+    """Components per plane of the appearance VM (``n_lamb_sh``, TensoRF's 48)."""
     app_dim: int = param(0, lo=0, hi=256)
     """Output width of the basis matrix B (``data_dim_color``); 0: what the decode reads, ``3 (sh_degree + 1)^2``
     SH coefficients for ``sh``, TensoRF's 27 features for ``mlp``."""
