@@ -13,9 +13,10 @@ the grid convention of :mod:`mitsnerf.fields.grid`); gradients reach the tensors
   ``sigma = distance_scale * softplus(f + density_shift)`` (TensoRF's ``feature2density``; ``exp``:
   ``distance_scale * exp(f + density_shift)``, clamped);
 - appearance: a second VM of ``app_components`` per plane, its ``3 C_a`` products concatenated (not summed),
-  times the basis matrix ``B`` (3 C_a, app_dim), then decoded to a colour: ``mlp`` (TensoRF's ``MLP_Fea``
-  without its positional encodings: ``c_max * sigmoid(MLP([B f, SH(d)]))``) or ``sh`` (TensoRF's SH render
-  mode, ``B f`` read as SH coefficients: ``c_max * sigmoid(sum_k k_k Y_k(d))``).
+  times the basis matrix ``B`` (3 C_a, basis_width), then decoded to a colour: ``sh`` (TensoRF's SH render
+  mode, ``B f`` read as SH coefficients: ``c_max * sigmoid(sum_k k_k Y_k(d))``, where TensoRF clamps
+  ``relu(sum + 1/2)``) or ``mlp`` (TensoRF's ``MLP_Fea`` with the view direction as SH instead of its
+  positional encoding, and without the features' encoding: ``c_max * sigmoid(MLP([B f, SH(d)]))``).
 
 Planes are indexed ``[v, u]``: ``xy`` is (y, x), ``xz`` (z, x), ``yz`` (z, y); lines by their axis.
 """
