@@ -21,7 +21,7 @@ EXAMPLE = Path(__file__).resolve().parents[1] / "examples" / "mitsnerf-tensorf"
 
 def _env(site: Path) -> dict:
     env = {k: v for k, v in os.environ.items() if k not in ("MITSNERF_METHODS", "MITSNERF_VOLUMES")}
-    env["PYTHONPATH"] = str(site)
+    env["PYTHONPATH"] = os.pathsep.join(filter(None, [str(site), os.environ.get("PYTHONPATH")]))
     return env
 
 
