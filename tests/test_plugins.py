@@ -163,3 +163,17 @@ def test_volumes_lists_the_families_with_their_sources_and_a_familys_parameters(
     assert "| shape | one of 'sphere', 'torus' |" in capsys.readouterr().out
     assert main(["volumes", "bad"]) == 2
     assert "NAME: volume family 'bad' is broken" in capsys.readouterr().err
+
+
+def test_the_readmes_method_skeleton_conforms(tmp_path, monkeypatch, capsys):
+    """README.md's "Write your own method" block, saved as the README says and registered by the variable."""
+    import re
+
+    readme = (Path(__file__).resolve().parents[1] / "README.md").read_text()
+    section = readme.split("**Write your own method.**", 1)[1]
+    code = re.findall(r"```python\n(.*?)```", section, flags=re.S)[0]
+    (tmp_path / "fog_method.py").write_text(code)
+    monkeypatch.setenv("MITSNERF_METHODS", f"fog={tmp_path / 'fog_method.py'}:FogModel")
+    mitsnerf.methods._methods.cache_clear()
+    assert main(["methods", "--check", "fog", "--no-progress"]) == 0
+    assert capsys.readouterr().out.strip().splitlines()[-1] == "fog: conforms"
