@@ -121,7 +121,7 @@ def test_bench_configs_by_name_from_the_package_and_from_a_users_directory(tmp_p
     monkeypatch.delenv(BENCHMARKS_ENV, raising=False)
     assert benchmark_dirs() == [benchmarks_dir()] and load_bench_config("default").name == "default"
     (tmp_path / "mybench.toml").write_text('scenes = ["cloud"]\n[[methods]]\nname = "ngp"\n')
-    with pytest.raises(SpecError, match=r"no such benchmark config \(known: default, full, paper, targets\)"):
+    with pytest.raises(SpecError, match=r"no such benchmark config \(known: default, full, paper, physics, targets\)"):
         load_bench_config("mybench")
     monkeypatch.setenv(BENCHMARKS_ENV, str(tmp_path))
     config = load_bench_config("mybench")
@@ -133,7 +133,7 @@ def test_bench_config_option_is_a_directory(tmp_path, capsys):
     assert main(["bench", "--config", str(tmp_path / "nope"), "--quick"]) == 2
     assert capsys.readouterr().err == f"mitsnerf: error: {tmp_path / 'nope'}: no such directory (given to --config)\n"
     assert main(["bench", "--config", str(tmp_path), "mybench"]) == 2  # an empty directory adds no config
-    assert "no such benchmark config (known: default, full, paper, targets)" in capsys.readouterr().err
+    assert "no such benchmark config (known: default, full, paper, physics, targets)" in capsys.readouterr().err
 
 
 def test_the_top_level_scenes_path_is_the_package_library():
