@@ -313,3 +313,52 @@ def test_a_planted_bug_in_the_replay_fails_the_comparison(monkeypatch, helper):
     ref, got = voxel_case(n=12, n_rays=48)
     with pytest.raises(AssertionError):
         _compare(ref, got)
+
+
+# -- the methods that adopt it: the flag changes the renderer, not the training --
+
+def _blob_views(blob_grid, n_views: int = 4, size: int = 10):
+    from mitsnerf.math.camera import Camera, look_at
+    from mitsnerf.math.rays import camera_rays
+    from mitsnerf.methods.base import SceneInfo
+    from mitsnerf.train import PixelData
+
+    rng = np.random.default_rng(0)
+    cams = [Camera.from_fov(look_at(2.0 * v / np.linalg.norm(v)), size, size, 40.0)
+            for v in rng.normal(size=(n_views, 3))]
+    bg = ConstantBackground((0.05, 0.1, 0.3))
+    rays = camera_rays(mi.Array3f, cams)
+    with dr.suspend_grad():
+        comp = render_rays(GridField.from_arrays(blob_grid, UNIT_BOX, color=(1.0, 0.9, 0.1)), rays.o, rays.d, 64,
+                           background=bg, box=UNIT_BOX)
+    images = np.stack([np.asarray(c) for c in comp.rgb], -1).reshape(n_views, size, size, 3)
+    return PixelData.from_views(images, cams), SceneInfo(UNIT_BOX, bg, float(images.max()))
+
+
+@pytest.mark.parametrize("method", ["voxel", "ngp"])
+def test_training_with_the_replay_follows_the_shared_renderer(blob_grid, method):
+    """The same seed and batches, through occupancy updates and (voxel) an upsampling: the losses agree to
+    float round-off, and the grid lets the same share of samples through."""
+    from mitsnerf.methods import get_method
+    from mitsnerf.train import TrainConfig, train
+
+    data, info = _blob_views(blob_grid)
+    entry = get_method(method)
+    settings = {"n_samples": 24, "occupancy": {"resolution": 8, "update_every": 4}}
+    if method == "voxel":
+        settings.update({"resolution": 8, "initial_resolution": 4, "upsample_steps": [9]})
+    else:
+        settings["network"] = {"n_levels": 2, "log2_hashmap_size": 10, "base_resolution": 8, "max_resolution": 16,
+                               "hidden": 8, "color_hidden": 8}
+    losses, active = {}, {}
+    for flag in (False, True):
+        from mitsnerf.config import from_dict
+
+        model = entry.model_type(from_dict(entry.config_type, {**settings, "replay": flag}), info, 0)
+        result, _ = train(model, data, TrainConfig(steps=16, batch_rays=64, log_every=1), model.config.lr,
+                          progress=False)
+        losses[flag] = [h["loss"] for h in result.history]
+        active[flag] = model.active_fraction
+    np.testing.assert_allclose(losses[True], losses[False], rtol=1e-4)
+    assert active[True] == active[False] < 1.0
+    assert losses[True][-1] < losses[True][0]
