@@ -40,7 +40,9 @@ class NGPMethodConfig(MethodConfig):
     replay: bool = param(False)
     """Render through the replayed march (:func:`mitsnerf.render.replay.render_rays_replay`): the same samples,
     skipping and compositing as one loop per ray, the MLPs on cooperative vectors (:meth:`NGPField.loop_field
-    <mitsnerf.fields.ngp.NGPField.loop_field>`), the gradient replayed, nothing of size rays x samples stored."""
+    <mitsnerf.fields.ngp.NGPField.loop_field>`), the gradient replayed, nothing of size rays x samples stored.
+    Off: on this CPU it ran 0.28x the steps per second (the MLPs run per SIMD packet of rays for every sample
+    any of them keeps, where the shared renderer multiplies matrices over the compacted kept samples alone)."""
     lr: float = param(1e-2, lo=0.0, lo_open=True)
     """Adam learning rate (instant-ngp's)."""
 
