@@ -3,12 +3,13 @@
 
 The field is the scene's true ``sigma_t`` and albedo grids (``GridField``: trilinear lookups as
 Mitsuba's ``gridvolume``), rendered with ``mitsnerf.render.volume.render_rays`` along every pixel
-ray of the scene's test cameras, N stratified samples per ray. Three passes: forward only
+ray of the scene's test cameras, N stratified samples per ray. Four passes: forward only
 (evaluation) through ``render_rays`` (the sampler's, the field's and the compositing's arrays of
 R * N entries) and through ``march_rays`` (the same quadrature as one loop per ray,
-``mitsnerf.render.march``), and forward + backward through ``render_rays`` with respect to the
-``sigma_t`` grid (what fitting a voxel grid costs; the texture is rebuilt from the grid tensor each
-time, as in training). Samples =
+``mitsnerf.render.march``), and forward + backward with respect to the ``sigma_t`` grid (what fitting
+a voxel grid costs; the texture is rebuilt from the grid tensor each time, as in training) through
+``render_rays`` (AD through its R x N arrays) and through ``render_rays_replay`` (one loop per ray, its
+gradient replayed per ray, ``mitsnerf.render.replay``). Samples =
 rays * N; the median of the repeats after one warm-up (compilation). Scenes with a sky render
 with a black background here (the envmap lookup is not what is measured).
 
@@ -45,9 +46,10 @@ def main() -> int:
     import mitsuba as mi
 
     from mitsnerf.fields.grid import GridField
-    from mitsnerf.render.background import make_background
     from mitsnerf.math.rays import camera_rays
+    from mitsnerf.render.background import make_background
     from mitsnerf.render.march import march_rays
+    from mitsnerf.render.replay import render_rays_replay
     from mitsnerf.render.volume import render_rays
     from mitsnerf.scene.rigs import camera_rig
     from mitsnerf.scene.spec import load_scene
@@ -78,18 +80,23 @@ def main() -> int:
     sigma = mi.TensorXf(np.ascontiguousarray(sigma_np[..., None]))
     dr.enable_grad(sigma)
 
-    def backward(n: int) -> None:
-        field = GridField.from_arrays(sigma, UNIT_BOX, albedo_np)
-        comp = render_rays(field, rays.o, rays.d, n, background=background, box=UNIT_BOX)
-        loss = dr.mean(dr.square(comp.rgb), axis=None)
-        dr.backward(loss)
-        grad = dr.grad(sigma)
-        dr.eval(grad)
-        dr.sync_thread()
-        dr.clear_grad(sigma)
+    def backward_with(render):
+        def backward(n: int) -> None:
+            field = GridField.from_arrays(sigma, UNIT_BOX, albedo_np)
+            comp = render(field, rays.o, rays.d, n, background=background, box=UNIT_BOX)
+            loss = dr.mean(dr.square(comp.rgb), axis=None)
+            dr.backward(loss)
+            grad = dr.grad(sigma)
+            dr.eval(grad)
+            dr.sync_thread()
+            dr.clear_grad(sigma)
 
+        return backward
+
+    passes = (("forward", forward), ("forward (march)", march), ("forward+backward", backward_with(render_rays)),
+              ("forward+backward (replay)", backward_with(render_rays_replay)))
     for n in args.samples:
-        for name, fn in (("forward", forward), ("forward (march)", march), ("forward+backward", backward)):
+        for name, fn in passes:
             fn(n)  # warm-up: compilation
             times = []
             for _ in range(args.repeats):
