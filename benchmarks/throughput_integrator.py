@@ -10,8 +10,9 @@ R * N entries) and through ``march_rays`` (the same quadrature as one loop per r
 a voxel grid costs; the texture is rebuilt from the grid tensor each time, as in training) through
 ``render_rays`` (AD through its R x N arrays) and through ``render_rays_replay`` (one loop per ray, its
 gradient replayed per ray, ``mitsnerf.render.replay``). Samples =
-rays * N; the median of the repeats after one warm-up (compilation). Scenes with a sky render
-with a black background here (the envmap lookup is not what is measured).
+rays * N; the median of the repeats after one warm-up (compilation), the passes taking turns repeat by
+repeat (on a shared machine a change of load then hits every pass alike, and their ratios hold). Scenes
+with a sky render with a black background here (the envmap lookup is not what is measured).
 
 Run (measure only on an otherwise idle machine):
     .venv/bin/python benchmarks/throughput_integrator.py [--scene cloud] [--size 64] [--views 8] [--samples 64 128 256]
@@ -96,14 +97,16 @@ def main() -> int:
     passes = (("forward", forward), ("forward (march)", march), ("forward+backward", backward_with(render_rays)),
               ("forward+backward (replay)", backward_with(render_rays_replay)))
     for n in args.samples:
-        for name, fn in passes:
+        for _, fn in passes:
             fn(n)  # warm-up: compilation
-            times = []
-            for _ in range(args.repeats):
+        times: dict[str, list[float]] = {name: [] for name, _ in passes}
+        for _ in range(args.repeats):  # the passes take turns, so that a change of load hits them alike
+            for name, fn in passes:
                 t0 = time.perf_counter()
                 fn(n)
-                times.append(time.perf_counter() - t0)
-            med = float(np.median(times))
+                times[name].append(time.perf_counter() - t0)
+        for name, _ in passes:
+            med = float(np.median(times[name]))
             print(json.dumps({"bench": "integrator", "pass": name, "scene": args.scene, "grid": sigma_np.shape[0],
                               "rays": n_rays, "samples_per_ray": n, "median_s": med,
                               "samples_per_s": n_rays * n / med, "rays_per_s": n_rays / med,
