@@ -72,13 +72,20 @@ class GridField:
         """``sigma(x)``, Float (M,)."""
         return self.sigma_t.eval(self.box.to_unit(x))[0]
 
-    def __call__(self, x, d):
-        p = self.box.to_unit(x)
-        sigma = self.sigma_t.eval(p)[0]
+    def textures(self) -> tuple:
+        """The textures looked up (a :class:`~mitsnerf.fields.protocols.TextureField`): sigma_t, and the
+        colour unless it is a constant."""
+        return (self.sigma_t,) if isinstance(self.color, tuple) else (self.sigma_t, self.color)
+
+    def head(self, values, x, d):
+        """``(rgb, sigma)`` from the lookups of :meth:`textures` (the values themselves: no activation)."""
+        sigma = values[0][0]
         Array3f = type(x)
         if isinstance(self.color, tuple):
-            rgb = Array3f(*self.color) + 0.0 * sigma
-        else:
-            c = self.color.eval(p)
-            rgb = Array3f(c[0], c[1], c[2])
-        return rgb, sigma
+            return Array3f(*self.color) + 0.0 * sigma, sigma
+        c = values[1]
+        return Array3f(c[0], c[1], c[2]), sigma
+
+    def __call__(self, x, d):
+        p = self.box.to_unit(x)
+        return self.head([tex.eval(p) for tex in self.textures()], x, d)

@@ -69,7 +69,13 @@ def dense_apply_coop(params, prefix: str, n_layers: int, x, half: bool = False):
     2
     """
     names = [f"{prefix}{i}.{kind}" for i in range(n_layers) for kind in ("weights", "bias")]
-    views = pack_layers([params[n] for n in names], half)
+    return coop_apply(pack_layers([params[n] for n in names], half), n_layers, x, half)
+
+
+def coop_apply(views, n_layers: int, x, half: bool = False):
+    """The layers of :func:`dense_apply_coop` on weights already packed (:func:`pack_layers`: weights and
+    biases alternating), so that a symbolic loop can call it: packing is a side effect that a loop's
+    derivative cannot evaluate, so it is done once, outside."""
     if half:
         x = nn.cast(x, dr.float16_array_t(type(next(iter(x)))))
     for i in range(n_layers):

@@ -47,10 +47,12 @@ from mitsnerf.config import check_fields, param
 from mitsnerf.fields.mlp import (
     NETWORK_PATHS,
     column,
+    coop_apply,
     dense_apply,
     dense_apply_coop,
     dense_init,
     network_path,
+    pack_layers,
     rows_tensor,
 )
 from mitsnerf.fields.sh import MAX_DEGREE, num_coefficients, sh_basis
@@ -192,6 +194,12 @@ class NGPField:
             return self._sigma(self._density_coop(x, half)[0])
         return self._sigma(column(self._density_mlp(x), 0))
 
+    def loop_field(self) -> PackedNGP:
+        """This field for a symbolic loop (:mod:`mitsnerf.render.replay`): the MLPs on cooperative vectors, their
+        weights packed once, here (fp16 on ``coopvec-fp16``, fp32 otherwise: the tensor path's batch-wide
+        tensors cannot live in a loop)."""
+        return PackedNGP(self, half=self._coop_half() is True)
+
     def __call__(self, x, d):
         width = dr.width(x)
         if dr.width(d) != width:
@@ -210,3 +218,30 @@ class NGPField:
             * self.config.c_max
         )
         return type(x)(column(c, 0), column(c, 1), column(c, 2)), self._sigma(column(out, 0))
+
+
+class PackedNGP:
+    """:class:`NGPField` evaluated per point with pre-packed MLP weights (:meth:`NGPField.loop_field`): a field
+    callable ``(x, d) -> (rgb, sigma)`` a ``dr.while_loop`` can record and differentiate, gradients reaching the
+    field's :attr:`~NGPField.params` (the hash tables directly, the weights through the packing)."""
+
+    def __init__(self, field: NGPField, half: bool) -> None:
+        self.field, self.half = field, half
+        cfg = field.config
+        self.n_color = cfg.color_layers + 1
+
+        def names(prefix: str, n: int) -> list:
+            return [f"{prefix}{i}.{kind}" for i in range(n) for kind in ("weights", "bias")]
+
+        self.density_views = pack_layers([field.params[k] for k in names("density.", 2)], half)
+        self.color_views = pack_layers([field.params[k] for k in names("color.", self.n_color)], half)
+
+    def __call__(self, x, d):
+        f = self.field
+        width = dr.width(x)
+        if dr.width(d) != width:
+            d = d + dr.zeros(type(d), width)
+        out = coop_apply(self.density_views, 2, nn.CoopVec(*f._features(x)), self.half)
+        sh = sh_basis(d, f.config.sh_degree)
+        c = coop_apply(self.color_views, self.n_color, nn.CoopVec(*out[1:], *sh), self.half)
+        return type(x)(*(sigmoid(c_k) * f.config.c_max for c_k in c)), f._sigma(out[0])

@@ -142,6 +142,25 @@ class OccupancyGrid:
             keep &= tau < -math.log(T_min)
         return keep
 
+    def stop_depth(self) -> float | None:
+        """The estimated optical depth from which :meth:`sample_mask` keeps nothing more on a ray (early
+        stopping), or None when it does not stop rays."""
+        T_min = self.config.early_stop_T
+        return -math.log(T_min) if T_min > 0.0 and self.updates > 0 else None
+
+    def march_keep(self, x, delta, tau):
+        """:meth:`sample_mask` for one sample of each ray inside a march: ``(keep, tau')``.
+
+        ``tau`` is the grid's optical-depth estimate in front of the sample (the exclusive prefix sum of
+        :meth:`sample_mask`, carried by the loop from 0); ``tau' = tau + rho(x) delta``. ``x``, ``delta``:
+        Array3f (R,), Float (R,)."""
+        keep = self.is_occupied(x) & (delta > 0.0)
+        stop = self.stop_depth()
+        if stop is not None:
+            keep &= tau < stop
+            tau = tau + self.density_estimate(x) * dr.detach(delta)
+        return keep, tau
+
     # -- updates -----------------------------------------------------------------
 
     def cell_points(self, seed: int, step: int, jitter: bool = True):

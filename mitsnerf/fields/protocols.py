@@ -20,6 +20,7 @@ True
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from typing import Any, Protocol, runtime_checkable
 
 
@@ -35,3 +36,23 @@ class DensityField(Field, Protocol):
     """A field whose extinction can be queried from the position alone: ``density(x) -> sigma``."""
 
     def density(self, x: Any, /) -> Any: ...
+
+
+@runtime_checkable
+class TextureField(Field, Protocol):
+    """A field made of trilinear texture lookups at one point followed by a pointwise head::
+
+        field(x, d) == field.head([tex.eval(field.box.to_unit(x)) for tex in field.textures()], x, d)
+
+    ``textures()``: ``dr.Texture3f`` s built with ``use_accel=False``, linear filtering and clamped borders,
+    whose tensors (``tex.tensor()``, (Z, Y, X, C)) are the field's parameters; ``head(values, x, d) ->
+    (rgb, sigma)`` takes each texture's channels (a list of Floats per texture). What this structure buys: a
+    renderer can differentiate the head alone and scatter the lookups' adjoints into the grids itself
+    (:mod:`mitsnerf.render.replay`), instead of going through the texture's own derivative.
+    """
+
+    box: Any
+
+    def textures(self) -> Sequence[Any]: ...
+
+    def head(self, values: Sequence[Sequence[Any]], x: Any, d: Any, /) -> tuple[Any, Any]: ...

@@ -118,10 +118,18 @@ class VoxelField:
         """``sigma(x)``, Float (M,)."""
         return self.config.sigma_scale * softplus(self._sigma_tex.eval(self.box.to_unit(x))[0])
 
+    def textures(self) -> tuple:
+        """The raw density and the SH textures (a :class:`~mitsnerf.fields.protocols.TextureField`)."""
+        return (self._sigma_tex, self._sh_tex)
+
     def __call__(self, x, d):
         p = self.box.to_unit(x)
-        sigma = self.config.sigma_scale * softplus(self._sigma_tex.eval(p)[0])
-        coeffs = self._sh_tex.eval(p)
+        return self.head([tex.eval(p) for tex in self.textures()], x, d)
+
+    def head(self, values, x, d):
+        """``(rgb, sigma)`` from the two grids' lookups at ``x``: the activations of the module docstring."""
+        sigma = self.config.sigma_scale * softplus(values[0][0])
+        coeffs = values[1]
         Y = sh_basis(d, self.config.sh_degree)
         raw = [sum(coeffs[3 * k + c] * Y[k] for k in range(self.n_coeffs)) for c in range(3)]
         c_max = self.config.c_max

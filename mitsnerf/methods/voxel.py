@@ -6,7 +6,10 @@ ground truth, or, with ``use_occupancy``, by the same samples and compositing wi
 empty space skipped (:func:`mitsnerf.render.skipping.render_rays_skipping`): the
 backward pass scatters every evaluated sample into 8 voxels x 13 channels, the largest
 cost of a step (at 64^3, 4096 rays: 386 ms per step without skipping, 159 ms with it,
-on the loaded 2-core machine). The loss adds ``tv_sigma * TV(s) + tv_sh * TV(k)`` (as
+on the loaded 2-core machine). With ``replay`` (the default) the same samples, skipping and
+compositing run as one loop per ray whose gradient is replayed
+(:func:`mitsnerf.render.replay.render_rays_replay`): nothing of size rays x samples is stored
+and the grids' gradients are scattered without atomics. The loss adds ``tv_sigma * TV(s) + tv_sh * TV(k)`` (as
 ``extra_losses``) to the photometric MSE.
 
 On the default cloud (64 spp training views), 60 s of 4096-ray steps reached 45.0 dB
@@ -54,6 +57,12 @@ class VoxelMethodConfig(MethodConfig):
     """Skip samples in empty cells of an occupancy grid refreshed from the voxel density (as ngp)."""
     occupancy: OccupancyConfig = param(default_factory=OccupancyConfig)
     """The occupancy grid's settings."""
+    replay: bool = param(True)
+    """Render through the replayed march (:func:`mitsnerf.render.replay.render_rays_replay`): the same samples,
+    skipping and compositing as one loop per ray, its gradient replayed and scattered into the grids, nothing of
+    size rays x samples stored; the same losses to float round-off (4e-7 over 300 steps), 1.07x the steps per
+    second at 64^3 and 1.01x at 32^3 on the default cloud, more where more samples reach the field (1.35x at
+    64^3 with 16% of them) (benchmarks/README.md, "Throughput"). False: the shared renderer's R x N arrays."""
     tv_sigma: float = param(1e-3, lo=0.0)
     """Weight of the total-variation prior on the raw density grid."""
     tv_sh: float = param(1e-3, lo=0.0)
@@ -110,7 +119,8 @@ class VoxelModel(OccupancyModel):
     def __init__(self, config: VoxelMethodConfig, scene: SceneInfo, seed: int = 0) -> None:
         self.config = config
         grids = VoxelField.create(cover_radiance(config.grid, scene), config.initial_resolution, mi.TensorXf, scene.box)
-        super().__init__(grids, config.occupancy if config.use_occupancy else None, scene, seed, config.n_samples)
+        super().__init__(grids, config.occupancy if config.use_occupancy else None, scene, seed, config.n_samples,
+                         replay=config.replay)
 
     def parameters(self) -> Mapping[str, Any]:
         return {SIGMA_KEY: self.base_field.sigma_raw, SH_KEY: self.base_field.sh}
