@@ -8,12 +8,14 @@ writes by hand for the same images: a ``mi.load_dict`` of a cube with a heteroge
 are the dataset's own ``volume/*.vol`` files, the same emitters, and one ``mi.render`` of the full scene per
 view of every split, with the sensors and sampler seeds of the ``transforms_*.json`` files. Under a
 constant environment (or none) the two must give the same images (the composition is the direct render
-sample for sample: checked, ``max_abs_diff``); under a sky they differ by noise only.
+sample for sample, up to the order of float32 sums over a pixel's samples: ``max_rel_diff``, relative to
+the pixel, about ``spp * 1e-7`` at most); under a sky they differ by noise only.
 
-Both paths run in this one process, harness first; the ratio of their wall times is the figure
-(``harness_over_raw``). ``--two-passes`` also times the harness forced into two passes per split (the image
-and the medium alone rendered separately: format 5's cost), ``--plant BUG`` generates once more with a bug
-planted in the transmittance and shows the dataset's transmittance check failing.
+Both paths run in this one process, twice each, as harness, raw, raw, harness (with ``--two-passes`` the
+harness forced into two passes per split, the image and the medium alone rendered separately, format 5's
+cost, runs in the middle), so that a load drifting during the run weighs on both alike; the figure is the
+ratio of their summed wall times (``harness_over_raw``). ``--plant BUG`` generates once more with a bug
+planted in the transmittance and prints the dataset's transmittance check.
 
 Run (measure only on an otherwise idle machine; compare figures of one run only):
     .venv/bin/python benchmarks/throughput_groundtruth.py [--scene cloud] [--train-views 8] [--test-views 2]
@@ -122,7 +124,7 @@ def raw(spec, path: Path, size: int) -> dict:
     start = time.perf_counter()
     scene = mi.load_dict(raw_scene_dict(spec.to_dict(), path))
     load_s = time.perf_counter() - start
-    times, max_diff = [], 0.0
+    times, max_diff, max_rel = [], 0.0, 0.0
     for split in SPLITS:
         transforms = json.loads((path / f"transforms_{split}.json").read_text())
         spp = int(transforms["spp"])
@@ -132,10 +134,12 @@ def raw(spec, path: Path, size: int) -> dict:
             img = np.array(mi.render(scene, sensor=sensor, spp=spp, seed=transforms["render_seeds"][i]),
                            dtype=np.float32)
             times.append(time.perf_counter() - t0)
-            ref = read_image(path / split / f"r_{i:03d}.exr")
-            max_diff = max(max_diff, float(np.max(np.abs(img[..., :3] - ref[..., :3]))))
+            ref = read_image(path / split / f"r_{i:03d}.exr")[..., :3]
+            diff = np.abs(img[..., :3] - ref)
+            max_diff = max(max_diff, float(diff.max()))
+            max_rel = max(max_rel, float((diff / np.maximum(np.abs(ref), 1e-2)).max()))
     return {"path": "raw-mitsuba", "wall_s": load_s + sum(times), "scene_load_s": load_s, "render_s": sum(times),
-            "first_view_s": times[0], "max_abs_diff_vs_harness": max_diff}
+            "first_view_s": times[0], "max_abs_diff_vs_harness": max_diff, "max_rel_diff_vs_harness": max_rel}
 
 
 def plant(spec, out: Path, bug: str) -> dict:
@@ -182,16 +186,27 @@ def main() -> int:
              "spp_train": spec.render.spp_train, "spp_test": spec.render.spp_test, "variant": variant}
     print(json.dumps(shape), flush=True)
     with tempfile.TemporaryDirectory(prefix="mitsnerf-gt-") as tmp:
-        path, mine = harness(spec, Path(tmp) / "one")
-        print(json.dumps(mine), flush=True)
-        theirs = raw(spec, path, args.size)
-        print(json.dumps(theirs), flush=True)
-        summary = {"harness_over_raw": mine["wall_s"] / theirs["wall_s"],
-                   "identical_images": theirs["max_abs_diff_vs_harness"] < 1e-5}
-        if args.two_passes:
-            _, two = harness(spec, Path(tmp) / "two", two_passes=True)
+        # harness, raw, [two passes,] raw, harness: a load that drifts during the run weighs on both paths alike
+        path, first = harness(spec, Path(tmp) / "one")
+        print(json.dumps(first), flush=True)
+        raws = [raw(spec, path, args.size)]
+        print(json.dumps(raws[0]), flush=True)
+        two = harness(spec, Path(tmp) / "two", two_passes=True)[1] if args.two_passes else None
+        if two is not None:
             print(json.dumps(two), flush=True)
-            summary["two_passes_over_raw"] = two["wall_s"] / theirs["wall_s"]
+        raws.append(raw(spec, path, args.size))
+        print(json.dumps(raws[1]), flush=True)
+        last = harness(spec, Path(tmp) / "again")[1]
+        print(json.dumps(last), flush=True)
+        raw_s = sum(r["wall_s"] for r in raws)
+        raw_render_s = sum(r["render_s"] for r in raws)
+        summary = {"harness_over_raw": (first["wall_s"] + last["wall_s"]) / raw_s,
+                   "harness_over_raw_renders_only": (first["render_s"] + last["render_s"]) / raw_render_s,
+                   "max_abs_diff_vs_harness": max(r["max_abs_diff_vs_harness"] for r in raws),
+                   "max_rel_diff_vs_harness": max(r["max_rel_diff_vs_harness"] for r in raws)}
+        if two is not None:
+            summary["two_passes_over_raw"] = two["wall_s"] / (raw_s / 2)
+            summary["one_pass_over_two_passes"] = (first["wall_s"] + last["wall_s"]) / 2 / two["wall_s"]
         if args.plant:
             print(json.dumps(plant(spec, Path(tmp) / "bug", args.plant)), flush=True)
     print(json.dumps(summary), flush=True)
