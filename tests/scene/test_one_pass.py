@@ -8,9 +8,8 @@ z-test and a dispersion ratio per view, the family held at 1e-3):
 - the composed images agree with volpath renders of the full scene, view by view (constant environment,
   sky, no environment), and are as noisy as those (``M`` plus the exact background alone would be noisier);
 - ``medium/``'s alpha agrees with the exact ``1 - T`` (the manifest's ``transmittance_check``);
-- a planted bug in the transmittance (pixel centre at the corner, the grid looked up half a voxel off)
-  fails the transmittance check (the footprint ignored is within the noise at these tiny sizes; at the
-  library cloud's it fails too: benchmarks/throughput_groundtruth.py --plant footprint);
+- a planted bug in the transmittance (pixel centre at the corner, the footprint ignored, the grid looked
+  up half a voxel off) fails the transmittance check;
 - lights that do not allow one pass get two, and the manifest says so.
 """
 
@@ -176,8 +175,14 @@ def _half_voxel_off(real, density, resolution, box, o, d):
     return real(lambda x: density(x + shift), resolution, box, o, d)
 
 
+def _forcing(real, **forced):
+    """``real`` with keyword arguments forced (over those its caller passes)."""
+    return lambda *args, **kwargs: real(*args, **{**kwargs, **forced})
+
+
 BUGS = {
-    "pixel centre at the corner": ("pixel_transmittance", lambda real: functools.partial(real, pixel_center=0.0)),
+    "pixel centre at the corner": ("pixel_transmittance", lambda real: _forcing(real, pixel_center=0.0)),
+    "footprint ignored": ("pixel_transmittance", lambda real: _forcing(real, footprint=1)),
     "grid half a voxel off": ("optical_depths", lambda real: functools.partial(_half_voxel_off, real)),
 }
 
