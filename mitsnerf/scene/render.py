@@ -13,7 +13,7 @@ environment and the other lights scattered in the medium (sampled towards the em
 scattered rays, at depth >= 1). Volpath draws the same random numbers with and without
 ``hide_emitters`` (it only masks that one contribution), so with one seed the two renders trace the
 same paths and differ by exactly the escaped camera samples' environment radiance, which
-``tests/scene/test_one_pass.py`` checks to 1e-6. The film's alpha is the fraction of a pixel's
+``tests/scene/test_one_pass.py`` checks to float rounding. The film's alpha is the fraction of a pixel's
 samples whose camera ray had a real collision (volpath's ``valid_ray``): with delta tracking that
 happens with probability ``1 - T``, so alpha is an unbiased, box-filtered estimate of ``1 - T``.
 
@@ -30,9 +30,9 @@ zero (alpha estimates ``1 - mean T`` without bias), so any coefficient keeps the
 is the one that keeps its noise down. Without that term (coefficient 0: ``M`` plus the exact background
 alone) the image is *noisier* than a direct render wherever the medium is brighter than half the
 background: per sample ``Var(direct) - Var(M + T B) = p (1 - p) B (B - 2 mu)``, ``mu`` the mean radiance
-of a collided sample. Coefficient ``mu`` is the optimum; ``B`` is within 0.1 dB of it on most library
-scenes and better than 0 on all of them, by 0.2-4.4 dB of medium noise floor (benchmarks/README.md, "One
-volpath pass per split"). Under a constant environment the image is then ``M + (1 - alpha) B``, which is
+of a collided sample. Coefficient ``mu`` is the optimum; ``B`` beats 0 on every library scene with an
+environment, by 0.17-4.41 dB of medium noise floor, and is within 0.1 dB of the optimum on four of the
+seven, 0.84 dB on lattice (benchmarks/README.md, "One volpath pass per split"). Under a constant environment the image is then ``M + (1 - alpha) B``, which is
 the direct render with the same seed sample for sample (the paths are the same); under a sky the escaped
 samples' ``L_env(d_k)`` is replaced by the pixel's mean and the exact covariance term
 ``mean(T L) - mean(T) B`` restores the expectation. Without an environment the image is ``M``. Where the
@@ -118,10 +118,11 @@ def one_pass_reason(spec: SceneSpec) -> str | None:
 
 def footprint_for(spp: int) -> int:
     """K, the K x K sub-pixel rays per pixel of a split's background term: 16 at :data:`FINE_FOOTPRINT_SPP`
-    spp or more, else 8. Against K = 32 on the library's scenes the mean transmittance of a pixel is then
-    off by at most 0.27 (K = 16) of one standard deviation of a 2048-spp pixel's alpha for cloud, shell and
-    plume, 0.24 for lattice (its sharp edges; K = 8 leaves 1.9 there), and by under 0.03 in rms
-    (benchmarks/README.md, "One volpath pass per split")."""
+    spp or more, else 8. Against K = 32 (3 test views each of cloud, cloud_thick, lattice, nebula, plume,
+    shell; ``benchmarks/onepass_noise.py --footprint``), in standard deviations of a pixel's alpha
+    (``sqrt(p (1 - p) / spp)``) at the scene's test spp: K = 16 leaves at most 0.24 (lattice's sharp edges;
+    0.48 at 2048 spp), 0.015 rms; K = 8 up to 1.9 on lattice at 512 spp, 0.67 at the 64 spp of the train
+    views, the only ones it is used for there."""
     return 16 if spp >= FINE_FOOTPRINT_SPP else 8
 
 
