@@ -32,12 +32,13 @@ alone) the image is *noisier* than a direct render wherever the medium is bright
 background: per sample ``Var(direct) - Var(M + T B) = p (1 - p) B (B - 2 mu)``, ``mu`` the mean radiance
 of a collided sample. Coefficient ``mu`` is the optimum; ``B`` beats 0 on every library scene with an
 environment, by 0.17-4.41 dB of medium noise floor, and is within 0.1 dB of the optimum on four of the
-seven, 0.84 dB on lattice (benchmarks/README.md, "One volpath pass per split"). Under a constant environment the image is then ``M + (1 - alpha) B``, which is
-the direct render with the same seed sample for sample (the paths are the same); under a sky the escaped
-samples' ``L_env(d_k)`` is replaced by the pixel's mean and the exact covariance term
-``mean(T L) - mean(T) B`` restores the expectation. Without an environment the image is ``M``. Where the
-lights do not allow it (:func:`one_pass_reason`) each split is rendered twice, the image directly and the
-medium alone with the seeds of ``<split>_medium``.
+seven, 0.84 dB on lattice (benchmarks/README.md, "One volpath pass per split"). Under a constant
+environment the image is then ``M + (1 - alpha) B``, which is the direct render with the same seed,
+sample for sample (the paths are the same); under a sky the escaped samples' ``L_env(d_k)`` is replaced
+by the pixel's mean and the exact covariance term ``mean(T L) - mean(T) B`` restores the expectation.
+Without an environment the image is ``M``. Where the lights do not allow it (:func:`one_pass_reason`)
+each split is rendered twice, the image directly and the medium alone with the seeds of
+``<split>_medium``.
 """
 
 from __future__ import annotations
