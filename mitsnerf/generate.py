@@ -9,14 +9,20 @@ run (Ctrl-C, SIGKILL) never leaves a directory that looks complete. Views are re
 :mod:`mitsnerf.scene.render`; the noise floor is scored by :mod:`mitsnerf.scoring` on the same
 medium pixels as every method.
 
-Beside the full images, every split is rendered a second time as **the medium alone**
-(:mod:`mitsnerf.scene.render`: the environment seen through the medium hidden, alpha ``~ 1 - T``)
-into ``medium/``, a NeRF-synthetic dataset of its own (``transforms_{train,val,test,test_ref}.json``,
-``val`` being the test views; RGBA PNGs with straight alpha over a transparent background, and
-premultiplied linear EXRs), which NeRF-synthetic readers load unchanged. The manifest records the
-statistical check that those renders, composited over the environment, reproduce the full images
-(:func:`mitsnerf.scoring.composite_agreement`), and how much of the medium a reader with
-NeRF-synthetic's fixed near/far sees (:func:`mitsnerf.scoring.near_far_coverage`).
+Every split is rendered once by ``volpath``, as **the medium alone** (:mod:`mitsnerf.scene.render`: the
+environment seen straight through the medium hidden, alpha ``~ 1 - T``), and the full image is composed
+from it (:func:`mitsnerf.scene.render.compose`): ``M`` plus each pixel's mean of ``T(d) L_env(d)``, with
+``T`` the exact transmittance of the true grid (:mod:`mitsnerf.scene.transmittance`), minus a zero-mean
+term that keeps the image as little noisy as a direct render, so the image costs no second pass. The
+medium-alone renders are ``medium/``, a NeRF-synthetic dataset of its own
+(``transforms_{train,val,test,test_ref}.json``, ``val`` being the test views; RGBA PNGs with straight alpha
+over a transparent background, and premultiplied linear EXRs), which NeRF-synthetic readers load unchanged.
+The manifest records the statistical check that their alpha agrees with the exact ``1 - T``
+(:func:`mitsnerf.scoring.transmittance_agreement`, per view), and how much of the medium a reader with
+NeRF-synthetic's fixed near/far sees (:func:`mitsnerf.scoring.near_far_coverage`). Where the lights do not
+allow one pass (:func:`mitsnerf.scene.render.one_pass_reason`) every split is rendered twice, as before
+format 6, and the manifest says so (``render.passes``) and records the composite check
+(:func:`mitsnerf.scoring.composite_agreement`) instead.
 """
 
 from __future__ import annotations
@@ -34,7 +40,7 @@ from mitsnerf.data.cache import clean_temps, dataset_lock, is_complete, sha256_f
 from mitsnerf.math.box import Box
 from mitsnerf.math.camera import Camera
 from mitsnerf.scene import ground_truth
-from mitsnerf.scene.render import render_split, split_spp, write_volume
+from mitsnerf.scene.render import compose, footprint_for, one_pass_reason, render_split, split_spp, write_volume
 from mitsnerf.scene.rigs import camera_rig
 from mitsnerf.scene.spec import SceneSpec, list_scenes, load_scene
 from mitsnerf.scene.to_mitsuba import background_description, scene_box, scene_dict, volume_grids
@@ -44,7 +50,9 @@ from mitsnerf.scene.to_mitsuba import background_description, scene_box, scene_d
 #: 3: the plume family rises along the world's up axis z (it lay along y); families are part of the data.
 #: 4: the scene box is recorded (manifest ``box``, transforms ``aabb``); medium masks by ``mitsnerf.scoring``.
 #: 5: the medium alone (``medium/``, a NeRF-synthetic view); the spec's ``world.scale``.
-FORMAT_VERSION = 5
+#: 6: one volpath pass per split: the images composed from ``medium/`` and the exact transmittance, ``medium/``
+#:    rendered with its split's seeds (two passes, as in 5, only where the lights need them: ``render.passes``).
+FORMAT_VERSION = 6
 SPLITS = ("train", "test", "test_ref")
 #: The medium-alone NeRF-synthetic view, relative to the dataset directory.
 MEDIUM_DIR = "medium"
@@ -109,12 +117,12 @@ def dataset_dir(spec: SceneSpec, out_root: str | os.PathLike, splits: Sequence[s
 
 
 def _write_split(root: Path, spec: SceneSpec, split: str, images: list[np.ndarray], cameras: list[Camera],
-                 box: Box, medium: bool = False) -> None:
+                 box: Box, medium: bool = False, seed_split: str | None = None) -> None:
     """The split's EXR and PNG images and its ``transforms_<split>.json`` (with the box as ``aabb``) under ``root``.
 
     ``medium``: the medium-alone view: the EXRs premultiplied RGBA (``"exr_alpha": "premultiplied"``),
-    the PNGs straight RGBA as NeRF-synthetic readers expect, the seeds of ``<split>_medium``, and
-    the test split written also as ``transforms_val.json``.
+    the PNGs straight RGBA as NeRF-synthetic readers expect, and the test split written also as
+    ``transforms_val.json``. ``seed_split``: whose render seeds the views had (default ``split``).
     """
     from mitsnerf.data.images import unpremultiply, write_exr, write_png
     from mitsnerf.data.transforms import write_transforms
@@ -125,7 +133,7 @@ def _write_split(root: Path, spec: SceneSpec, split: str, images: list[np.ndarra
         write_exr(root / split / f"r_{i:03d}.exr", img, alpha=("premultiplied" if medium else "opacity")
                   if img.shape[2] == 4 else None)
         write_png(root / split / f"r_{i:03d}.png", unpremultiply(img) if medium else img[..., :3])
-    seeds = [render_seed(spec.render.seed, f"{split}_medium" if medium else split, i) for i in range(len(cameras))]
+    seeds = [render_seed(spec.render.seed, seed_split or split, i) for i in range(len(cameras))]
     extra = {"aabb": box.to_list(), "split": split, "spp": split_spp(spec, split), "render_seeds": seeds,
              **({"exr_alpha": "premultiplied"} if medium else {})}
     for name in (split, "val") if medium and split == "test" else (split,):
@@ -133,10 +141,19 @@ def _write_split(root: Path, spec: SceneSpec, split: str, images: list[np.ndarra
                          [f"./{split}/r_{i:03d}" for i in range(len(cameras))], aabb_scale=1, extra=extra)
 
 
-def _manifest(spec: SceneSpec, digest: str, splits, box: Box, timings: dict, checks: dict, tmp: Path) -> dict:
+COMPOSITION = ("RGB = M + mean(T L_env) - mean(L_env) (alpha - (1 - mean T)), (M, alpha) medium/'s render of the "
+               "pixel, means over K x K stratified points of the pixel (render.footprint), T the exact transmittance "
+               "of the true sigma_t along each ray (mitsnerf.scene.transmittance: trilinear, two-point "
+               "Gauss-Legendre per cell), L_env the background; the last term has mean zero and keeps the noise "
+               "of a direct render (mitsnerf.scene.render.compose); alpha as render.alpha says")
+
+
+def _manifest(spec: SceneSpec, digest: str, splits, box: Box, timings: dict, checks: dict, tmp: Path,
+              fallback: str | None) -> dict:
     from mitsnerf.env import provenance
 
     files = {p.relative_to(tmp).as_posix(): sha256_file(p) for p in sorted(tmp.rglob("*")) if p.is_file()}
+    one_pass = fallback is None
     return {
         "format_version": FORMAT_VERSION, "name": spec.name, "hash": digest, "spec": spec.to_dict(),
         "source": spec.source, "provenance": provenance(), "box": box.to_list(),
@@ -147,6 +164,10 @@ def _manifest(spec: SceneSpec, digest: str, splits, box: Box, timings: dict, che
             "integrator": "volpath", "max_depth": spec.render.max_depth, "film": "hdrfilm, rgba, box filter",
             "pixel_center": 0.5, "spp": {s: split_spp(spec, s) for s in splits}, "seed": spec.render.seed,
             "seed_rule": "mitsnerf.scene.render.render_seed(render.seed, split, view index)",
+            "passes": 1 if one_pass else 2,
+            "two_passes_because": fallback,
+            "composition": COMPOSITION if one_pass else "the image rendered directly by volpath",
+            "footprint": {s: footprint_for(split_spp(spec, s)) for s in splits},
             "alpha": "1 everywhere with an environment light; else the fraction of samples "
                      "that scattered or were absorbed in the medium (an estimate of 1 - transmittance)",
         },
@@ -158,6 +179,9 @@ def _manifest(spec: SceneSpec, digest: str, splits, box: Box, timings: dict, che
                       "premultiplied linear RGBA",
             "render": "volpath with hide_emitters: the medium's own radiance; alpha is the fraction of a pixel's "
                       "samples whose camera ray collided in the medium, an estimate of 1 - T",
+            "seeds": "its split's: the renders the images are composed from" if one_pass
+                     else "those of the splits <split>_medium, independent of the images'",
+            "transmittance_check": checks["transmittance_check"],
             "composite_check": checks["composite_check"],
         },
         "nerf_synthetic": checks["nerf_synthetic"], "files": files,
@@ -165,12 +189,14 @@ def _manifest(spec: SceneSpec, digest: str, splits, box: Box, timings: dict, che
 
 
 def _checks(tmp: Path, spec: SceneSpec, box: Box, sigma_t: np.ndarray, cams: dict, images: dict,
-            medium: dict) -> dict:
-    """The noise floor, the medium-alone composite check and the near/far coverage of the test views."""
+            medium: dict, transmittance: dict, one_pass: bool) -> dict:
+    """The noise floor, the transmittance check of ``medium/``'s alpha, the composite check (two passes only)
+    and the near/far coverage of the test views."""
     from mitsnerf import scoring
     from mitsnerf.render.background import make_background, pixel_background
 
-    out: dict[str, Any] = {"noise_floor": None, "composite_check": None, "nerf_synthetic": None}
+    out: dict[str, Any] = {"noise_floor": None, "composite_check": None, "nerf_synthetic": None,
+                           "transmittance_check": _transmittance_check(spec, medium, transmittance)}
     if "test" not in images:
         return out
     near, far = NERF_SYNTHETIC_NEAR_FAR
@@ -180,12 +206,66 @@ def _checks(tmp: Path, spec: SceneSpec, box: Box, sigma_t: np.ndarray, cams: dic
         full, full_ref = np.stack(images["test"]), np.stack(images["test_ref"])
         masks = scoring.medium_masks(sigma_t, box, cams["test"])
         out["noise_floor"] = scoring.noise_floor(full, full_ref, masks)
-        env = pixel_background(make_background(background_description(spec), tmp), cams["test"])
-        out["composite_check"] = {
-            **scoring.composite_agreement(full, full_ref, np.stack(medium["test"]), np.stack(medium["test_ref"]), env),
-            "rule": "mitsnerf.scoring.composite_agreement: test and test_ref against medium/test and "
-                    "medium/test_ref composited over the environment (mean over 4 x 4 points of each pixel)"}
+        if not one_pass:
+            env = pixel_background(make_background(background_description(spec), tmp), cams["test"])
+            out["composite_check"] = {
+                **scoring.composite_agreement(full, full_ref, np.stack(medium["test"]), np.stack(medium["test_ref"]),
+                                              env),
+                "rule": "mitsnerf.scoring.composite_agreement: test and test_ref against medium/test and "
+                        "medium/test_ref composited over the environment (mean over 4 x 4 points of each pixel)"}
     return out
+
+
+def _transmittance_check(spec: SceneSpec, medium: dict, transmittance: dict) -> dict[str, Any]:
+    """Per split, :func:`mitsnerf.scoring.transmittance_agreement` of ``medium/``'s alpha against ``1 - T``."""
+    from mitsnerf import scoring
+
+    if spec.render.max_depth == 1:
+        return {"passed": None, "note": "render.max_depth = 1: volpath counts no camera sample as collided, so "
+                                        "medium/'s alpha is 0, not an estimate of 1 - T"}
+    per = {s: scoring.transmittance_agreement(np.stack(medium[s])[..., 3], transmittance[s], split_spp(spec, s))
+           for s in medium}
+    return {"passed": all(c["passed"] for c in per.values()), "splits": per,
+            "rule": "mitsnerf.scoring.transmittance_agreement: per view, medium/'s alpha against 1 - T, T the "
+                    "exact transmittance averaged over the pixel (render.footprint), variance p (1 - p) / spp"}
+
+
+class _Truth:
+    """What the background term needs: the true density, its grid resolution, the box and the environment."""
+
+    def __init__(self, tmp: Path, spec: SceneSpec, sigma_t: np.ndarray, box: Box) -> None:
+        from mitsnerf import scoring
+        from mitsnerf.render.background import make_background
+
+        self.density = scoring.true_density(sigma_t, box)
+        self.resolution = int(sigma_t.shape[0])
+        self.box = box
+        self.background = (make_background(background_description(spec), tmp)
+                           if spec.environment is not None else None)
+
+    def transmittance(self, cameras: list[Camera], footprint: int, with_background: bool):
+        from mitsnerf.scene.transmittance import pixel_transmittance
+
+        return pixel_transmittance(self.density, self.resolution, self.box, cameras, footprint=footprint,
+                                   background=self.background if with_background else None)
+
+
+def _render(scene, spec: SceneSpec, split: str, cameras: list[Camera], truth: _Truth, one_pass: bool,
+            timings: dict, progress: bool) -> tuple[list[np.ndarray], list[np.ndarray], np.ndarray]:
+    """One split: ``(images, medium-alone images, each pixel's mean T)``, its timings into ``timings``."""
+    k = footprint_for(split_spp(spec, split))
+    if one_pass:
+        medium, timings[split] = render_split(scene, spec, split, cameras, progress, medium_alone=True)
+    else:
+        images, timings[split] = render_split(scene, spec, split, cameras, progress)
+        medium, timings[f"{MEDIUM_DIR}/{split}"] = render_split(scene, spec, split, cameras, progress,
+                                                                medium_alone=True, seed_split=f"{split}_medium")
+    start = time.perf_counter()
+    seen = truth.transmittance(cameras, k, with_background=one_pass)
+    timings[split]["transmittance_seconds"] = time.perf_counter() - start
+    if one_pass:
+        images = compose(medium, seen, spec.environment is not None)
+    return images, medium, seen.t
 
 
 def _build(tmp: Path, spec: SceneSpec, splits: tuple[str, ...], digest: str, progress: bool) -> dict:
@@ -198,20 +278,23 @@ def _build(tmp: Path, spec: SceneSpec, splits: tuple[str, ...], digest: str, pro
     ground_truth.check_grids(spec, sigma_t, albedo)
     write_volume(tmp, spec, sigma_t, albedo, box)
     scene = mi.load_dict(scene_dict(spec, sigma_t, albedo))
+    truth = _Truth(tmp, spec, sigma_t, box)
+    fallback = one_pass_reason(spec)
     cams = {s: camera_rig(spec.cameras, "train" if s == "train" else "test") for s in splits}
     images: dict[str, Any] = {}
     medium: dict[str, Any] = {}
+    transmittance: dict[str, Any] = {}
     timings: dict[str, Any] = {}
     for split in splits:
-        images[split], timings[split] = render_split(scene, spec, split, cams[split], progress)
+        images[split], medium[split], transmittance[split] = _render(scene, spec, split, cams[split], truth,
+                                                                     fallback is None, timings, progress)
         ground_truth.check_views(spec, split, images[split])
         _write_split(tmp, spec, split, images[split], cams[split], box)
-        medium[split], timings[f"{MEDIUM_DIR}/{split}"] = render_split(scene, spec, split, cams[split], progress,
-                                                                       medium_alone=True)
-        _write_split(tmp / MEDIUM_DIR, spec, split, medium[split], cams[split], box, medium=True)
-    checks = _checks(tmp, spec, box, sigma_t, cams, images, medium)
+        _write_split(tmp / MEDIUM_DIR, spec, split, medium[split], cams[split], box, medium=True,
+                     seed_split=split if fallback is None else f"{split}_medium")
+    checks = _checks(tmp, spec, box, sigma_t, cams, images, medium, transmittance, fallback is None)
     timings["total_seconds"] = time.perf_counter() - started
-    return _manifest(spec, digest, splits, box, timings, checks, tmp)
+    return _manifest(spec, digest, splits, box, timings, checks, tmp, fallback)
 
 
 def _cache_state(final: Path, digest: str, hashes: bool) -> str:

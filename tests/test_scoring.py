@@ -144,3 +144,57 @@ def test_an_anisotropic_medium_is_also_scored_against_its_reduced_extinction(blo
     assert scores["density_rel_mass_reduced"] == pytest.approx(0.0, abs=1e-4)
     isotropic = Reference(images, tuple(cams), 0.5, UNIT_BOX, blob_grid, None, None)
     assert score_views(images, isotropic, grid_density(blob_grid))[0]["density_rel_l1_reduced"] is None
+
+
+# --------------------------------------------------------------------------- the one-pass ground truth's checks
+
+
+def _transmittance_map(rng, shape=(3, 24, 24)) -> np.ndarray:
+    """A mean-transmittance map with clear pixels (T = 1), thin and thick medium."""
+    t = np.clip(rng.uniform(-0.3, 1.4, size=shape), 0.0, 1.0)
+    t[:, :4] = 1.0
+    return t
+
+
+@pytest.mark.parametrize("spp", [4, 64, 2048])
+def test_transmittance_agreement_holds_its_error_rate_on_binomial_alpha(spp):
+    """Alpha drawn as the film makes it (binomial over spp samples): rejected at about the family's rate."""
+    from mitsnerf.scoring import transmittance_agreement
+
+    rng = np.random.default_rng(spp)
+    t = _transmittance_map(rng)
+    rejected = sum(not transmittance_agreement(rng.binomial(spp, 1 - t) / spp, t, spp)["passed"] for _ in range(300))
+    assert rejected <= 2  # family alpha 1e-3: 0.3 expected
+
+
+def test_transmittance_agreement_rejects_a_shared_bias_a_per_pixel_error_and_impossible_alpha():
+    from mitsnerf.scoring import transmittance_agreement
+
+    rng = np.random.default_rng(7)
+    t = _transmittance_map(rng)
+    alpha = rng.binomial(2048, 1 - t) / 2048
+    good = transmittance_agreement(alpha, t, 2048)
+    assert good["passed"] and good["critical_z"] == pytest.approx(3.76, abs=0.01) and len(good["views"]) == 3
+    assert not transmittance_agreement(alpha, np.clip(t * 1.02, 0, 1), 2048)["passed"]  # z
+    shuffled = t.copy()
+    shuffled[:, 4:] = np.roll(t[:, 4:], 1, axis=2)  # right on average, wrong per pixel
+    bad = transmittance_agreement(alpha, shuffled, 2048)
+    assert not bad["passed"] and bad["max_ratio_z"] > bad["critical_z"]
+    stray = alpha.copy()
+    stray[0, 0, 0] = 1 / 2048  # a clear pixel (T = 1) whose ray collided
+    assert transmittance_agreement(stray, t, 2048)["views"][0]["impossible"] == 1
+
+
+def test_view_agreement_is_per_view_and_has_power():
+    from mitsnerf.scoring import view_agreement
+
+    rng = np.random.default_rng(3)
+    truth = rng.uniform(0.2, 1.0, size=(4, 16, 16, 3))
+    noisy = [truth + rng.normal(0, 0.05, truth.shape) for _ in range(4)]
+    check = view_agreement(*noisy)
+    assert check["passed"] and len(check["views"]) == 4 and check["max_abs_z"] < check["critical_z"]
+    off = [noisy[2].copy(), noisy[3].copy()]
+    for img in off:
+        img[2] += 0.02  # one view biased
+    check = view_agreement(noisy[0], noisy[1], *off)
+    assert not check["passed"] and [v["passed"] for v in check["views"]] == [True, True, False, True]

@@ -79,20 +79,21 @@ def test_transforms_equal_rendered_cameras(generated):
     rendered = iter(used)
     for split, rig_split in (("train", "train"), ("test", "test"), ("test_ref", "test")):
         expected = camera_rig(spec.cameras, rig_split)
-        for root in (path, path / gen.MEDIUM_DIR):  # each split rendered in full, then the medium alone
-            files, cams, meta = read_transforms(root / f"transforms_{split}.json")
+        views = [read_transforms(root / f"transforms_{split}.json") for root in (path, path / gen.MEDIUM_DIR)]
+        for files, cams, meta in views:
             assert files == [f"./{split}/r_{i:03d}" for i in range(len(expected))]
             assert meta["pixel_center"] == 0.5 and meta["spp"] in (4, 8)
             for cam, exp in zip(cams, expected, strict=True):
                 assert np.allclose(cam.c2w, exp.c2w, atol=1e-12)
                 assert (cam.width, cam.height, cam.cx, cam.cy) == (exp.width, exp.height, exp.cx, exp.cy)
                 assert cam.fl_x == pytest.approx(exp.fl_x) and cam.fl_y == pytest.approx(exp.fl_y)
-                # what Mitsuba rendered with is what the file says
-                assert np.allclose(next(rendered), cam.c2w @ GL_TO_MITSUBA, atol=1e-5)
+        for cam in views[0][1]:  # one volpath pass per view: what Mitsuba rendered with is what the files say
+            assert np.allclose(next(rendered), cam.c2w @ GL_TO_MITSUBA, atol=1e-5)
     assert next(rendered, None) is None
-    seeds = [json.loads((root / f"transforms_{s}.json").read_text())["render_seeds"]
-             for root in (path, path / gen.MEDIUM_DIR) for s in ("train", "test", "test_ref")]
-    assert len({seed for split in seeds for seed in split}) == sum(len(split) for split in seeds)  # all independent
+    seeds = {root: [json.loads((root / f"transforms_{s}.json").read_text())["render_seeds"]
+                    for s in ("train", "test", "test_ref")] for root in (path, path / gen.MEDIUM_DIR)}
+    assert seeds[path] == seeds[path / gen.MEDIUM_DIR]  # the images are composed from the medium's renders
+    assert len({seed for split in seeds[path] for seed in split}) == sum(len(split) for split in seeds[path])
 
 
 def test_volume_files(generated):

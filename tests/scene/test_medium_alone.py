@@ -13,7 +13,7 @@ import pytest
 from mitsnerf import generate as gen
 from mitsnerf import scoring
 from mitsnerf.data.dataset import load_dataset
-from mitsnerf.data.images import read_exr, read_png
+from mitsnerf.data.images import over, read_exr, read_png
 from mitsnerf.runs.external import score_renders
 from mitsnerf.math.color import srgb_to_linear
 from mitsnerf.math.rays import camera_rays_numpy
@@ -58,22 +58,20 @@ def _environment(path):
 
 @pytest.mark.parametrize("kind", ["constant", "sky"])
 def test_composite_over_the_environment_reproduces_the_images(datasets, kind):
-    """medium + (1 - alpha) environment == the full image, within Monte Carlo noise; a 3% error in
-    alpha or in the environment is rejected by the same test (it has power)."""
+    """medium + (1 - alpha) environment is the full image (one pass: the image is composed from medium/):
+    to float rounding under a constant environment; under a sky up to the exact term the composition adds,
+    each pixel's covariance of T and L_env over its square, which is small. The statistical checks (the
+    images against direct renders, medium/'s alpha against the exact 1 - T) are in test_one_pass.py."""
     path = datasets[kind]
-    full, full_ref = _stack(path, "test"), _stack(path, "test_ref")
-    med, med_ref = _stack(path / "medium", "test"), _stack(path / "medium", "test_ref")
+    full, med = _stack(path, "test"), _stack(path / "medium", "test")
     env = _environment(path)
-    check = scoring.composite_agreement(full, full_ref, med, med_ref, env)
-    assert check["passed"], check
-    recorded = json.loads((path / "manifest.json").read_text())["medium"]["composite_check"]
-    assert recorded["passed"] and recorded["z_mean"] == pytest.approx(check["z_mean"])
-
-    def alpha_times(m, f):
-        return np.concatenate([m[..., :3], m[..., 3:] * f], axis=-1)
-
-    assert not scoring.composite_agreement(full, full_ref, alpha_times(med, 0.97), alpha_times(med_ref, 0.97), env)["passed"]
-    assert not scoring.composite_agreement(full, full_ref, med, med_ref, env * 1.03)["passed"]
+    diff = np.abs(full[..., :3] - over(med[..., :3], med[..., 3:4], env))
+    if kind == "constant":
+        assert diff.max() < 1e-5
+    else:
+        assert 0 < diff.max() < 0.02 * env.max() and diff.mean() < 1e-3 * env.mean()
+    medium = json.loads((path / "manifest.json").read_text())["medium"]
+    assert medium["composite_check"] is None and medium["transmittance_check"]["passed"]
 
 
 def test_alpha_is_zero_where_rays_miss_the_box_and_full_images_keep_alpha_one(datasets):
