@@ -43,14 +43,16 @@ def _message(exc: BaseException) -> str:
 
 def run_sequential(cells: Sequence[Cell], on_done: OnDone, on_error: OnError, *, progress: bool = True,
                    threads: int = 0, on_start: Callable[[Cell], None] | None = None) -> None:
-    """Run the cells one after another in this process."""
-    from mitsnerf.bench.worker import run_cell
+    """Run the cells one after another in this process, each scene loaded once (:class:`~mitsnerf.bench.worker.
+    SceneLoads`)."""
+    from mitsnerf.bench.worker import SceneLoads, run_cell
 
+    loads = SceneLoads()
     for cell in cells:
         if on_start is not None:
             on_start(cell)
         try:
-            record, artefacts = run_cell(cell, progress=progress, threads=threads, executor="sequential")
+            record, artefacts = run_cell(cell, progress=progress, threads=threads, executor="sequential", loads=loads)
         except CELL_ERRORS as exc:
             on_error(cell, _message(exc), traceback.format_exc())
             continue

@@ -13,7 +13,7 @@ import os
 import platform
 import sys
 import time
-from dataclasses import replace
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
 
@@ -146,6 +146,32 @@ def oracle_summary(oracle, footprint: int) -> dict[str, Any] | None:
 
 
 
+@dataclass
+class SceneLoads:
+    """What the cells of one scene share within one process, loaded once: the dataset (its views read once),
+    its oracle and the test views' reference. Holds the last scene only (cells run scene by scene, so a sweep
+    loads each scene once and memory holds one). The sequential executor passes one to every cell; a pool or
+    Ray worker runs one cell per process and loads its own."""
+
+    key: tuple | None = None
+    loaded: tuple | None = None
+    loads: int = 0
+    """How many times a scene was loaded (what the tests count)."""
+
+    def scene(self, cell: Cell, progress: bool) -> tuple[Any, Any, Any]:
+        """``(dataset, oracle, reference)`` of ``cell``'s scene, loaded unless it was the last one asked for."""
+        import json
+
+        from mitsnerf.scoring import reference
+
+        key = (cell.dataset_dir, json.dumps(cell.oracle, sort_keys=True), cell.eval.get("footprint", 1))
+        if self.key != key or self.loaded is None:
+            dataset = _open_dataset(cell, progress)
+            oracle = cell_oracle(cell, dataset)
+            self.key, self.loaded, self.loads = key, (dataset, oracle, reference(dataset, "test")), self.loads + 1
+        return self.loaded
+
+
 def _resumable(cell: Cell) -> bool:
     """Whether ``CELL/run`` holds an interrupted run of this very cell (same config and code)."""
     from mitsnerf.bench.cells import read_record
@@ -180,11 +206,12 @@ def _fit(cell: Cell, dataset, train_config, evalc, curve: CurveRecorder, ref, or
 
 
 def run_cell(cell: Cell, *, progress: bool = False, threads: int = 0, executor: str = "sequential",
-             fresh_process: bool = False) -> tuple[dict[str, Any], bytes]:
+             fresh_process: bool = False, loads: SceneLoads | None = None) -> tuple[dict[str, Any], bytes]:
     """Train and score one cell; returns ``(record, artefacts)`` (see :mod:`mitsnerf.bench.cells`).
 
     ``threads``: Dr.Jit worker threads for this process (0: leave as is). ``executor`` and
-    ``fresh_process`` are recorded next to the peak-memory figure.
+    ``fresh_process`` are recorded next to the peak-memory figure. ``loads``: the scene loads shared with the
+    cells run before in this process (None: load the scene for this cell alone).
     """
     import mitsnerf  # noqa: F401  (libLLVM before drjit, in a fresh worker)
     from mitsnerf import env
@@ -193,7 +220,6 @@ def run_cell(cell: Cell, *, progress: bool = False, threads: int = 0, executor: 
     import drjit as dr
 
     from mitsnerf.config import from_dict
-    from mitsnerf.scoring import reference
     from mitsnerf.train import TrainConfig
     from mitsnerf.train.evaluate import EvalConfig
 
@@ -203,9 +229,7 @@ def run_cell(cell: Cell, *, progress: bool = False, threads: int = 0, executor: 
     rss_before = peak_rss_mb()
     evalc = from_dict(EvalConfig, dict(cell.eval))
     train_config = from_dict(TrainConfig, dict(cell.train))
-    dataset = _open_dataset(cell, progress)
-    oracle = cell_oracle(cell, dataset)
-    ref = reference(dataset, "test")
+    dataset, oracle, ref = (loads if loads is not None else SceneLoads()).scene(cell, progress)
     k = len(ref.cameras) if evalc.curve_views == 0 else min(evalc.curve_views, len(ref.cameras))
     curve_ref = replace(ref, images=ref.images[:k], cameras=ref.cameras[:k],
                         masks=None if ref.masks is None else ref.masks[:k])

@@ -38,8 +38,16 @@ def interrupted_then_resumed(tiny_bench, monkeypatch_module):
     cells = plan_cells(config, opts)
     saved = {c.key: (c.path / RESULT_FILE).read_bytes() for c in cells if (c.path / RESULT_FILE).exists()}
     calls.clear()
+    opened = []
+    real_open = worker._open_dataset
+
+    def open_dataset(cell, progress):
+        opened.append(cell.scene)
+        return real_open(cell, progress)
+
+    monkeypatch_module.setattr(worker, "_open_dataset", open_dataset)
     result = run_benchmark(config, opts)
-    return cells, first, saved, list(calls), result
+    return cells, first, saved, list(calls), result, opened
 
 
 @pytest.fixture(scope="module")
@@ -50,7 +58,7 @@ def monkeypatch_module():
 
 
 def test_resume_computes_only_the_missing_cells(interrupted_then_resumed):
-    cells, first, saved, second, result = interrupted_then_resumed
+    cells, first, saved, second, result, _ = interrupted_then_resumed
     keys = [c.key for c in cells]
     assert len(keys) == 4 and first == keys[:3]
     assert sorted(saved) == keys[:2]
@@ -61,7 +69,7 @@ def test_resume_computes_only_the_missing_cells(interrupted_then_resumed):
 
 
 def test_sweep_writes_every_output(interrupted_then_resumed):
-    cells, _, _, _, result = interrupted_then_resumed
+    cells, _, _, _, result, _ = interrupted_then_resumed
     root = result.out_root
     for name in ("table.md", "table.csv", "average.csv", "cells.csv", "results.json", "report.html"):
         assert (root / name).is_file(), name
@@ -122,7 +130,7 @@ def _ceilings(result):
 
 def test_pool_executor_gives_the_same_table(tiny_bench, interrupted_then_resumed):
     config, options = tiny_bench
-    sequential = interrupted_then_resumed[-1]
+    sequential = interrupted_then_resumed[4]
     pooled = run_benchmark(config, options("pool", executor="pool", workers=2, report=False))
     assert len(pooled.computed) == 4
     assert _quality(pooled) == pytest.approx(_quality(sequential), rel=1e-6)  # threads: 1 per cell, not 2
@@ -133,9 +141,16 @@ def test_pool_executor_gives_the_same_table(tiny_bench, interrupted_then_resumed
 def test_ray_executor_on_a_local_instance_gives_the_same_table(tiny_bench, interrupted_then_resumed):
     pytest.importorskip("ray")
     config, options = tiny_bench
-    sequential = interrupted_then_resumed[-1]
+    sequential = interrupted_then_resumed[4]
     on_ray = run_benchmark(config, options("ray", executor="ray", workers=2, report=False))
     assert len(on_ray.computed) == 4
     assert _quality(on_ray) == pytest.approx(_quality(sequential), rel=1e-6)
     assert _ceilings(on_ray) == _ceilings(sequential)
     assert all(r["worker"]["executor"] == "ray" and r["worker"]["fresh_process"] for r in on_ray.records)
+
+
+def test_the_sequential_sweep_loads_each_scene_once(interrupted_then_resumed):
+    """The resumed run computes both cells of the second scene: its dataset, oracle and reference are loaded
+    once for the two (worker.SceneLoads), not once per cell."""
+    cells, _, _, second, _, opened = interrupted_then_resumed
+    assert [c.scene for c in cells if c.key in second] == ["tblobs", "tblobs"] and opened == ["tblobs"]
