@@ -81,6 +81,19 @@ def _interrupted(exc: KeyboardInterrupt) -> int:
     return exc.exit_status if isinstance(exc, Interrupted) else 130
 
 
+def _drop_stdout() -> None:
+    """Point stdout at /dev/null, so the interpreter's final flush of a closed pipe raises nothing."""
+    import os
+
+    devnull = os.open(os.devnull, os.O_WRONLY)
+    try:
+        os.dup2(devnull, sys.stdout.fileno())
+    except (OSError, ValueError):  # stdout is not a real file (a test's capture): nothing to redirect
+        pass
+    finally:
+        os.close(devnull)
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
@@ -95,6 +108,9 @@ def main(argv: list[str] | None = None) -> int:
             return int(args.func(args) or 0)
     except KeyboardInterrupt as exc:
         return _interrupted(exc)
+    except BrokenPipeError:  # the reader went away (`mitsnerf methods | head`): stop quietly, as Unix tools do
+        _drop_stdout()
+        return 128 + 13  # SIGPIPE's status, what a shell reports for a writer whose pipe closed
     except Exception as exc:  # one line for errors a user can act on; tracebacks for bugs
         from mitsnerf.errors import signal_cause
 

@@ -49,3 +49,16 @@ def test_a_bad_option_value_is_blamed_on_the_option(world, tmp_path, capsys):
 def test_resume_refuses_a_setting_the_checkpoint_fixes(world, tmp_path, capsys):
     assert main(["train", "--resume", "--out", str(world.run), "--no-pixel-jitter"]) == 2
     assert "--no-pixel-jitter come from the checkpoint" in capsys.readouterr().err
+
+
+def test_a_reader_that_goes_away_stops_the_command_quietly():
+    """`mitsnerf scenes | head -1`: the pipe closes before the command writes; it stops with SIGPIPE's status and
+    no traceback (it used to end in BrokenPipeError's)."""
+    import subprocess
+    import sys
+
+    proc = subprocess.Popen([sys.executable, "-m", "mitsnerf", "scenes"], stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE)
+    proc.stdout.close()  # long before the child has imported anything, let alone written
+    _, err = proc.communicate(timeout=300)
+    assert proc.returncode == 141 and b"Traceback" not in err and b"BrokenPipe" not in err, err.decode()
