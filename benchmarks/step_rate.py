@@ -53,7 +53,7 @@ def main() -> int:
     from mitsnerf.runs.fit import build_model, scene_info
     from mitsnerf.train import PixelData, TrainConfig, make_optimizer
     from mitsnerf.train.schedule import learning_rate, step_rng
-    from mitsnerf.train.step import step_loss
+    from mitsnerf.train.step import apply_step, step_loss
 
     dataset = load_dataset(args.dataset)
     views = dataset.views("train")
@@ -72,12 +72,7 @@ def main() -> int:
         out = step_loss(model, data, train_config, step, step_rng(train_config.seed, step))
         dr.backward(out.loss)
         loss = float(out.loss[0])
-        opt.step()
-        model.set_parameters(opt)
-        new = model.after_step(step, opt)
-        if new:
-            opt.update(new)
-            model.set_parameters(opt)
+        apply_step(model, opt, step)
         dr.sync_thread()
         return loss
 

@@ -252,6 +252,8 @@ def test_the_tiny_config_is_valid_and_learns(tensorf):
     from mitsnerf.math.box import UNIT_BOX
     from mitsnerf.methods.base import SceneInfo
     from mitsnerf.render.volume import render_rays
+    from mitsnerf.train import make_optimizer
+    from mitsnerf.train.step import apply_step
 
     model_type = tensorf.TensoRFModel
     config = from_dict(model_type.config_type, dict(model_type.tiny))
@@ -273,21 +275,15 @@ def test_the_tiny_config_is_valid_and_learns(tensorf):
             return float(dr.mean(dr.square(model.render_rays(o, d).rgb - target), axis=None)[0])
 
     before = mse()
-    opt = dr.opt.Adam(lr=config.lr)
-    opt.update(model.parameters())
+    opt = make_optimizer(model, config.lr)
+    model.set_parameters(opt)  # the optimiser's differentiable copies, as the trainer hands them over
     for step in range(40):
-        model.set_parameters(opt)
         out = model.render_rays(o, d, u=rng.random(mi.Float, n * model.jitter_size()), training=True)
         loss = dr.mean(dr.square(out.rgb - target), axis=None)
         for extra in out.extra_losses.values():
             loss = loss + extra
         dr.backward(loss)
-        opt.step()
-        model.set_parameters(opt)
-        new = model.after_step(step, opt)
-        if new:
-            opt.update(new)
-    model.set_parameters(opt)
+        apply_step(model, opt, step)  # as the trainer does
     assert model.resolution == 8 and math.isfinite(mse())
     assert mse() < 0.25 * before, (before, mse())
 

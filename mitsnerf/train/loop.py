@@ -29,7 +29,7 @@ from mitsnerf.train.data import PixelData
 from mitsnerf.train.monitor import LossMonitor
 from mitsnerf.train.progress import Progress
 from mitsnerf.train.schedule import learning_rate, step_rng
-from mitsnerf.train.step import step_loss
+from mitsnerf.train.step import apply_step, step_loss
 
 
 @dataclass
@@ -106,12 +106,7 @@ class _Loop:
         if not math.isfinite(loss):
             raise TrainingError(None, f"step {step}", f"loss became {loss}; stopped, parameters of step {step - 1} "
                                                       f"kept; {self.policy.where()}")
-        opt.step()
-        model.set_parameters(opt)
-        new = model.after_step(step, opt)
-        if new:
-            opt.update(new)
-            model.set_parameters(opt)
+        apply_step(model, opt, step)
         self.step, self.rays, self.loss, self.lr = step + 1, self.rays + out.rays, loss, lr
         self.monitor.add(loss)
         entry = (

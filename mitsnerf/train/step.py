@@ -39,3 +39,15 @@ def step_loss(model: Model, data: PixelData, config: TrainConfig, step: int, rng
         return model.training_loss(data, step, rng)
     raise TypeError(f"{type(model).__name__}: a Model must render rays (RendersRays: subclass RayModel) or "
                     "train on views (TrainsOnViews: subclass ViewModel)")
+
+
+def apply_step(model: Model, opt, step: int) -> None:
+    """The optimiser's step and what follows it (methods/base.py): the optimiser's values handed to the model,
+    then the values the model returns from ``after_step`` (resampled, clamped) written into the optimiser and
+    handed back. ``opt``: a ``drjit.opt`` optimiser whose gradients are set."""
+    opt.step()
+    model.set_parameters(opt)
+    new = model.after_step(step, opt)
+    if new:
+        opt.update(new)
+        model.set_parameters(opt)

@@ -27,7 +27,7 @@ and what each is compared with:
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Any
 
 import numpy as np
@@ -266,6 +266,24 @@ class TrainingPathCase:
 _sun = np.array([0.3, 0.5, -0.8]) / np.linalg.norm([0.3, 0.5, -0.8])
 SUN = (float(_sun[0]), float(_sun[1]), float(_sun[2]))
 
+#: The oracle's J by volpath (shared with its anisotropic variants below).
+MULTIPLE_SCATTER = VolpathScenario(
+    "multiple_scatter",
+    "front-heavy, albedo < 1, sky + sun, unlimited depth: the oracle's J by volpath",
+    "front_heavy",
+    sigma_t_max=8.0,
+    albedo="procedural",
+    environment="constant",
+    source="in_scattered",
+    env_radiance=(0.5, 0.55, 0.6),
+    sun_direction=SUN,
+    sun_irradiance=(3.0, 2.5, 2.0),
+    max_depth=-1,
+    spp_factor=4.0,
+    max_rel_error=0.02,
+    detects=("T_off_by_one", "delta_wrong_end", "no_background"),
+)
+
 SCENARIOS: tuple[VolpathScenario, ...] = (
     VolpathScenario(
         "absorption_constant",
@@ -345,56 +363,12 @@ SCENARIOS: tuple[VolpathScenario, ...] = (
         max_rel_error=0.02,
         detects=("T_off_by_one",),
     ),
-    VolpathScenario(
-        "multiple_scatter",
-        "front-heavy, albedo < 1, sky + sun, unlimited depth: the oracle's J by volpath",
-        "front_heavy",
-        sigma_t_max=8.0,
-        albedo="procedural",
-        environment="constant",
-        source="in_scattered",
-        env_radiance=(0.5, 0.55, 0.6),
-        sun_direction=SUN,
-        sun_irradiance=(3.0, 2.5, 2.0),
-        max_depth=-1,
-        spp_factor=4.0,
-        max_rel_error=0.02,
-        detects=("T_off_by_one", "delta_wrong_end", "no_background"),
-    ),
-    VolpathScenario(
-        "forward_scatter_g50",
-        "front-heavy, albedo < 1, sky + sun, unlimited depth, Henyey-Greenstein g = 0.5: the directional oracle",
-        "front_heavy",
-        sigma_t_max=8.0,
-        albedo="procedural",
-        environment="constant",
-        source="in_scattered",
-        env_radiance=(0.5, 0.55, 0.6),
-        sun_direction=SUN,
-        sun_irradiance=(3.0, 2.5, 2.0),
-        max_depth=-1,
-        spp_factor=4.0,
-        max_rel_error=0.02,
-        phase_g=0.5,
-        detects=("hg_sign", "cosine_reversed"),
-    ),
-    VolpathScenario(
-        "forward_scatter_g85",
-        "the same with g = 0.85 (water clouds): the sun's forward lobe",
-        "front_heavy",
-        sigma_t_max=8.0,
-        albedo="procedural",
-        environment="constant",
-        source="in_scattered",
-        env_radiance=(0.5, 0.55, 0.6),
-        sun_direction=SUN,
-        sun_irradiance=(3.0, 2.5, 2.0),
-        max_depth=-1,
-        spp_factor=4.0,
-        max_rel_error=0.02,
-        phase_g=0.85,
-        detects=("hg_sign", "cosine_reversed"),
-    ),
+    MULTIPLE_SCATTER,
+    replace(MULTIPLE_SCATTER, name="forward_scatter_g50", phase_g=0.5, detects=("hg_sign", "cosine_reversed"),
+            title="front-heavy, albedo < 1, sky + sun, unlimited depth, Henyey-Greenstein g = 0.5: the directional "
+                  "oracle"),
+    replace(MULTIPLE_SCATTER, name="forward_scatter_g85", phase_g=0.85, detects=("hg_sign", "cosine_reversed"),
+            title="the same with g = 0.85 (water clouds): the sun's forward lobe"),
 )
 
 MITSUBA_FURNACE = MitsubaFurnace()
