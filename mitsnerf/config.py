@@ -485,8 +485,18 @@ def _convert_union(tp, value: Any, path: str, bounds: Bounds | None, source) -> 
         try:
             return _convert(member, value, path, bounds, source)
         except SpecError as exc:
-            errors.append(exc)
-    raise errors[0]
+            errors.append((exc, _same_kind(member, value)))
+    raise next((exc for exc, same in errors if same), errors[0][0])
+
+
+def _same_kind(tp, value: Any) -> bool:
+    """Whether ``value`` is of ``tp``'s kind (a list for a tuple type, a table for a dataclass), so that
+    its error, not another member's, is the one to report."""
+    if isinstance(value, (list, tuple)):
+        return typing.get_origin(tp) is tuple
+    if isinstance(value, Mapping):
+        return dataclasses.is_dataclass(tp) or typing.get_origin(tp) in (dict, collections.abc.Mapping)
+    return typing.get_origin(tp) is not tuple
 
 
 def _convert_tagged(members: list, value: Any, path: str, source) -> Any:

@@ -36,6 +36,7 @@ from typing import Any
 
 import numpy as np
 
+from mitsnerf.config import to_dict
 from mitsnerf.data.cache import clean_temps, dataset_lock, is_complete, sha256_file
 from mitsnerf.math.box import Box
 from mitsnerf.math.camera import Camera
@@ -148,6 +149,18 @@ COMPOSITION = ("RGB = M + mean(T L_env) - mean(L_env) (alpha - (1 - mean T)), (M
                "of a direct render (mitsnerf.scene.render.compose); alpha as render.alpha says")
 
 
+def volume_description(spec: SceneSpec) -> dict[str, Any]:
+    """What the manifest says of the medium's grids and phase function (docs/conventions.md)."""
+    v = spec.volume
+    shape = "(R, R, R, 3) [z, y, x, rgb]: one extinction per colour channel" if v.chromatic else "(R, R, R) [z, y, x]"
+    return {
+        "sigma_t": f"volume/sigma_t.npy float32 {shape}, per unit of world length",
+        "chromatic": v.chromatic, "sigma_t_scale": list(v.sigma_t_rgb) if v.chromatic else v.sigma_t_scale,
+        "albedo": "volume/albedo.npy float32 (R, R, R, 3) [z, y, x, rgb], sigma_s / sigma_t per channel",
+        "phase": to_dict(v.phase),
+    }
+
+
 def _manifest(spec: SceneSpec, digest: str, splits, box: Box, timings: dict, checks: dict, tmp: Path,
               fallback: str | None) -> dict:
     from mitsnerf.env import provenance
@@ -159,7 +172,7 @@ def _manifest(spec: SceneSpec, digest: str, splits, box: Box, timings: dict, che
         "source": spec.source, "provenance": provenance(), "box": box.to_list(),
         "inputs": {str(path): {"field": f"volume.{field}", "sha256": sha256_file(path)}
                    for field, path in spec.volume.input_files().items()},
-        "background": background_description(spec),
+        "background": background_description(spec), "volume": volume_description(spec),
         "render": {
             "integrator": "volpath", "max_depth": spec.render.max_depth, "film": "hdrfilm, rgba, box filter",
             "pixel_center": 0.5, "spp": {s: split_spp(spec, s) for s in splits}, "seed": spec.render.seed,
@@ -178,7 +191,9 @@ def _manifest(spec: SceneSpec, digest: str, splits, box: Box, timings: dict, che
                       "r_NNN.png RGBA with straight alpha (sRGB, colour clipped to [0, 1]), r_NNN.exr "
                       "premultiplied linear RGBA",
             "render": "volpath with hide_emitters: the medium's own radiance; alpha is the fraction of a pixel's "
-                      "samples whose camera ray collided in the medium, an estimate of 1 - T",
+                      "samples whose camera ray collided in the medium, an estimate of 1 - T" + (
+                          " in a grey medium (this chromatic one's estimates no single 1 - T: see transmittance_check)"
+                          if spec.volume.chromatic else ""),
             "seeds": "its split's: the renders the images are composed from" if one_pass
                      else "those of the splits <split>_medium, independent of the images'",
             "transmittance_check": checks["transmittance_check"],
@@ -223,6 +238,10 @@ def _transmittance_check(spec: SceneSpec, medium: dict, transmittance: dict) -> 
     if spec.render.max_depth == 1:
         return {"passed": None, "note": "render.max_depth = 1: volpath counts no camera sample as collided, so "
                                         "medium/'s alpha is 0, not an estimate of 1 - T"}
+    if spec.volume.chromatic:
+        return {"passed": None, "note": "chromatic extinction: volpath draws a camera path's real collisions with "
+                                        "probabilities that mix the colour channels by the path's throughput, so "
+                                        "medium/'s alpha estimates no single transmittance (mitsnerf.scene.render)"}
     per = {s: scoring.transmittance_agreement(np.stack(medium[s])[..., 3], transmittance[s], split_spp(spec, s))
            for s in medium}
     return {"passed": all(c["passed"] for c in per.values()), "splits": per,
@@ -239,6 +258,7 @@ class _Truth:
 
         self.density = scoring.true_density(sigma_t, box)
         self.resolution = int(sigma_t.shape[0])
+        self.channels = int(sigma_t.shape[3]) if sigma_t.ndim == 4 else 1
         self.box = box
         self.background = (make_background(background_description(spec), tmp)
                            if spec.environment is not None else None)
@@ -247,6 +267,7 @@ class _Truth:
         from mitsnerf.scene.transmittance import pixel_transmittance
 
         return pixel_transmittance(self.density, self.resolution, self.box, cameras, footprint=footprint,
+                                   channels=self.channels,
                                    background=self.background if with_background else None)
 
 
@@ -264,7 +285,7 @@ def _render(scene, spec: SceneSpec, split: str, cameras: list[Camera], truth: _T
     seen = truth.transmittance(cameras, k, with_background=one_pass)
     timings[split]["transmittance_seconds"] = time.perf_counter() - start
     if one_pass:
-        images = compose(medium, seen, spec.environment is not None)
+        images = compose(medium, seen, spec.environment is not None, spec.volume.chromatic)
     return images, medium, seen.t
 
 

@@ -46,14 +46,34 @@ from mitsnerf.data.images import over
 from mitsnerf.math.box import Box, optical_depth
 from mitsnerf.math.color import linear_to_srgb
 from mitsnerf.math.metrics import SSIM_WINDOW, density_error, psnr, ssim
-from mitsnerf.math.rays import camera_rays_numpy, to_array3f
+from mitsnerf.math.rays import camera_rays_numpy, host, to_array3f
 
 MEDIUM_OPACITY = 1e-3
 """Opacity along a pixel's ray above which the pixel sees the medium."""
 NO_DENSITY = "no queryable density (model.field().density)"
 
 Density = Callable[[Any], Any]
-"""``x -> sigma``: Dr.Jit Array3f (M,) -> Float (M,)."""
+"""``x -> sigma``: Dr.Jit Array3f (M,) -> Float (M,), or Array3f (M,) for a chromatic extinction."""
+
+
+def broadcast_channels(a: np.ndarray, b: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Two grids (or per-ray arrays) of which one may have a trailing colour axis (chromatic) and the other
+    not: the grey one is repeated over the three channels, so a grey density stands for every colour.
+
+    >>> a, b = broadcast_channels(np.ones((2, 2)), np.ones((2, 2, 3)))
+    >>> a.shape, b.shape
+    ((2, 2, 3), (2, 2, 3))
+    """
+    if a.ndim == b.ndim:
+        return a, b
+    if a.ndim < b.ndim:
+        return np.broadcast_to(a[..., None], b.shape), b
+    return a, np.broadcast_to(b[..., None], a.shape)
+
+
+def grey(sigma_t: np.ndarray, channel_axis: bool) -> np.ndarray:
+    """The channels' mean of a chromatic ``sigma_t`` (``channel_axis``: it has a trailing RGB axis), else itself."""
+    return np.asarray(sigma_t).mean(axis=-1) if channel_axis else np.asarray(sigma_t)
 
 
 def finite(x) -> float | None:
@@ -74,37 +94,36 @@ def mean_of(values: Sequence[float | None]) -> float | None:
 
 
 def true_density(sigma_t: np.ndarray, box: Box) -> Density:
-    """The true ``sigma_t`` grid (R, R, R) over ``box`` as ``x -> sigma`` (trilinear, clamped: Mitsuba's lookup)."""
+    """The true ``sigma_t`` grid (R, R, R) over ``box`` as ``x -> sigma`` (trilinear, clamped: Mitsuba's lookup);
+    a chromatic (R, R, R, 3) grid gives an Array3f ``sigma``."""
     from mitsnerf.fields.grid import GridField
 
     return GridField.from_arrays(sigma_t, box).density
 
 
 def query_density(fn: Density, points: np.ndarray, chunk: int = 1 << 18) -> np.ndarray:
-    """``fn`` at ``points`` ``(M, 3)``, in chunks, without gradients: float64 ``(M,)``."""
+    """``fn`` at ``points`` ``(M, 3)``, in chunks, without gradients: float64 ``(M,)`` (``(M, 3)`` chromatic)."""
     import drjit as dr
     import mitsuba as mi
 
-    out = np.empty(len(points), dtype=np.float64)
     with dr.suspend_grad():
-        for start in range(0, len(points), chunk):
-            out[start:start + chunk] = np.asarray(fn(to_array3f(mi.Array3f, points[start:start + chunk])), np.float64)
-    return out
+        parts = [host(fn(to_array3f(mi.Array3f, points[start:start + chunk])))
+                 for start in range(0, len(points), chunk)]
+    return np.concatenate(parts) if parts else np.empty(0)
 
 
 def ray_optical_depths(fn: Density, o: np.ndarray, d: np.ndarray, box: Box, n: int,
                        chunk_samples: int = 1 << 20) -> np.ndarray:
-    """``tau = int_{t_n}^{t_f} sigma dt`` (M,) of numpy rays (M, 3) through ``box``, ``n`` midpoints each."""
+    """``tau = int_{t_n}^{t_f} sigma dt`` (M,) of numpy rays (M, 3) through ``box``, ``n`` midpoints each
+    (``(M, 3)`` for a chromatic ``fn``)."""
     import drjit as dr
     import mitsuba as mi
 
-    tau = np.zeros(len(o))
     per = max(1, chunk_samples // n)
     with dr.suspend_grad():
-        for s in range(0, len(o), per):
-            oo, dd = to_array3f(mi.Array3f, o[s:s + per]), to_array3f(mi.Array3f, d[s:s + per])
-            tau[s:s + per] = np.asarray(optical_depth(fn, oo, dd, box, n), np.float64)
-    return tau
+        parts = [host(optical_depth(fn, to_array3f(mi.Array3f, o[s:s + per]), to_array3f(mi.Array3f, d[s:s + per]),
+                                    box, n)) for s in range(0, len(o), per)]
+    return np.concatenate(parts) if parts else np.zeros(0)
 
 
 def mask_samples(sigma_t: np.ndarray, box: Box) -> int:
@@ -121,8 +140,9 @@ def medium_masks(sigma_t: np.ndarray, box: Box, cameras, pixel_center: float = 0
     masks = []
     for cam in cameras:
         o, d = camera_rays_numpy([cam], pixel_center)
-        tau = ray_optical_depths(fn, o, d, box, n)
-        masks.append((-np.expm1(-tau) > opacity).reshape(cam.height, cam.width))
+        alpha = -np.expm1(-ray_optical_depths(fn, o, d, box, n))
+        alpha = alpha.mean(axis=-1) if alpha.ndim == 2 else alpha  # chromatic: the channels' mean opacity
+        masks.append((alpha > opacity).reshape(cam.height, cam.width))
     return np.stack(masks)
 
 
@@ -343,7 +363,7 @@ def near_far_coverage(sigma_t: np.ndarray, box: Box, cameras, near: float, far: 
     midpoint rule with :func:`mask_samples` samples per chord of the box; None when no ray meets
     the medium.
     """
-    fn, n = true_density(sigma_t, box), mask_samples(sigma_t, box)
+    fn, n = true_density(grey(sigma_t, sigma_t.ndim == 4), box), mask_samples(sigma_t, box)
     u = (np.arange(n) + 0.5) / n
     inside = total = 0.0
     for cam in cameras:  # one view at a time: (H W, n, 3) points
@@ -367,7 +387,9 @@ def _slices(grid: np.ndarray) -> dict[str, np.ndarray]:
 def density_scores(fn: Density | None, sigma_t: np.ndarray, box: Box,
                    resolution: int = 0) -> tuple[dict[str, Any], dict[str, np.ndarray]]:
     """Learned (``fn``) against true density on the voxel centres of an ``R^3`` grid over ``box`` (0: the true
-    grid's R).
+    grid's R). A chromatic ``sigma_t`` (R, R, R, 3) is scored channel by channel, a grey learned density
+    standing for all three (:func:`broadcast_channels`), and so is a chromatic learned density against a grey
+    truth.
 
     Returns ``(scores, slices)``: ``density_rel_l1``, ``density_rel_l2``, ``density_rel_mass`` (signed, see
     :func:`mitsnerf.math.metrics.density_error`), ``density_psnr``,
@@ -377,13 +399,14 @@ def density_scores(fn: Density | None, sigma_t: np.ndarray, box: Box,
     r = int(resolution or sigma_t.shape[0])
     points = box.voxel_centres(r).reshape(-1, 3)
     truth = (np.asarray(sigma_t, dtype=np.float64) if r == sigma_t.shape[0]
-             else query_density(true_density(sigma_t, box), points).reshape(r, r, r))
+             else query_density(true_density(sigma_t, box), points).reshape((r, r, r) + sigma_t.shape[3:]))
     slices = {f"true_{a}": s for a, s in _slices(truth).items()}
     if fn is None:
         return {"density_rel_l1": None, "density_rel_l2": None, "density_rel_mass": None, "density_psnr": None,
                 "density_resolution": r, "density_note": NO_DENSITY}, slices
-    learned = query_density(fn, points).reshape(r, r, r)
-    err = density_error(learned, truth)
+    learned = query_density(fn, points)
+    learned = learned.reshape((r, r, r) + learned.shape[1:])
+    err = density_error(*broadcast_channels(learned, truth))
     slices.update({f"learned_{a}": s for a, s in _slices(learned).items()})
     return {"density_rel_l1": finite(err["rel_l1"]), "density_rel_l2": finite(err["rel_l2"]),
             "density_rel_mass": finite(err["rel_mass"]),
@@ -408,6 +431,7 @@ def optical_depth_scores(fn: Density | None, sigma_t: np.ndarray, box: Box, came
     tau_learned = ray_optical_depths(fn, o[hit], d[hit], box, n)
     if tau_true.sum() <= 0:
         return empty
+    tau_learned, tau_true = broadcast_channels(tau_learned, tau_true)
     diff = tau_learned - tau_true
     return {
         "tau_rel_l1": finite(np.abs(diff).sum() / tau_true.sum()),
@@ -465,11 +489,17 @@ def reduced_extinction(sigma_t: np.ndarray, albedo: np.ndarray, g: float) -> np.
     Henyey-Greenstein ``g`` (exactly in the diffusion limit), so an emission-absorption density fitted to the
     images may land on it as well as on ``sigma_t``: the density scores are given against both.
 
+    A chromatic ``sigma_t`` (R, R, R, 3) is scaled per channel by that channel's albedo.
+
     >>> reduced_extinction(np.full((1, 1, 1), 10.0), np.full((1, 1, 1, 3), 0.8), 0.5).tolist()
     [[[6.0]]]
+    >>> reduced_extinction(np.full((1, 1, 1, 3), 10.0), np.array([[[[0.0, 0.5, 1.0]]]]), 0.5).tolist()
+    [[[[10.0, 7.5, 5.0]]]]
     """
-    mean_albedo = np.asarray(albedo, dtype=np.float64).reshape(np.shape(sigma_t) + (-1,)).mean(axis=-1)
-    return (np.asarray(sigma_t, dtype=np.float64) * (1.0 - mean_albedo * float(g))).astype(np.float32)
+    sigma = np.asarray(sigma_t, dtype=np.float64)
+    a = np.asarray(albedo, dtype=np.float64)
+    a = a.reshape(sigma.shape) if sigma.ndim == 4 else a.reshape(sigma.shape + (-1,)).mean(axis=-1)
+    return (sigma * (1.0 - a * float(g))).astype(np.float32)
 
 
 def _reduced_sigma_t(dataset, sigma_t: np.ndarray | None) -> np.ndarray | None:

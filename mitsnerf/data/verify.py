@@ -7,7 +7,8 @@ naming the file (and the field) of the first problem:
    lists exists and has the sha256 recorded there (a swapped, edited, truncated or deleted
    image, grid or camera file).
 2. **Grids** (mitsnerf datasets): ``volume/sigma_t.npy`` and ``volume/albedo.npy`` are plain
-   numpy arrays of the manifest's resolution, finite, ``sigma_t >= 0``, albedo in ``[0, 1]``.
+   numpy arrays of the manifest's resolution (``sigma_t`` (R, R, R), or (R, R, R, 3) for a chromatic
+   extinction), finite, ``sigma_t >= 0``, albedo in ``[0, 1]``.
 3. **Views**: every split loads (:meth:`mitsnerf.data.dataset.Dataset.views`: image sizes
    match their cameras and each other, no NaN or inf), as many views as the spec asks for, and
    in a mitsnerf dataset no negative radiance (a box-filtered pixel is a mean of radiance >= 0).
@@ -114,10 +115,18 @@ def _resolution(root: Path, manifest: dict) -> int:
         raise DatasetError(root / "manifest.json", "spec.volume.resolution", "missing or not an integer") from None
 
 
+def _chromatic(manifest: dict) -> bool:
+    """Whether the manifest's spec has a chromatic extinction (``volume.sigma_t_scale`` an RGB triple)."""
+    volume = (manifest.get("spec") or {}).get("volume") or {}
+    return isinstance(volume.get("sigma_t_scale"), (list, tuple))
+
+
 def check_grids(root: Path, manifest: dict) -> None:
-    """The true grids of a mitsnerf dataset: readable, the manifest's resolution, in range."""
+    """The true grids of a mitsnerf dataset: readable, the manifest's resolution (``sigma_t`` with a trailing
+    RGB axis when the extinction is chromatic), in range."""
     r = _resolution(root, manifest)
-    for name, hi, shape in (("sigma_t", None, (r, r, r)), ("albedo", 1.0, (r, r, r, 3))):
+    sigma_shape = (r, r, r, 3) if _chromatic(manifest) else (r, r, r)
+    for name, hi, shape in (("sigma_t", None, sigma_shape), ("albedo", 1.0, (r, r, r, 3))):
         path = true_grid_path(root, name)
         problem = grid_problem(read_npy(path, f"{name} grid"), lo=0.0, hi=hi, shape=shape)
         if problem is not None:

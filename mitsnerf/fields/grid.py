@@ -18,7 +18,7 @@ import numpy as np
 from mitsnerf.math.box import Box
 
 
-def _texture(Texture3f, TensorXf, data, channels: int):
+def _texture(Texture3f, TensorXf, data, channels: int | tuple[int, ...]):
     if isinstance(data, np.ndarray):
         data = np.ascontiguousarray(data, dtype=np.float32)
         if data.ndim == 3:
@@ -26,7 +26,7 @@ def _texture(Texture3f, TensorXf, data, channels: int):
         data = TensorXf(data)
     if data.ndim == 3:
         data = dr.reshape(TensorXf, data, (*data.shape, 1))
-    if data.shape[-1] != channels:
+    if data.shape[-1] not in ((channels,) if isinstance(channels, int) else channels):
         raise ValueError(f"grid has {data.shape[-1]} channels, expected {channels}")
     return Texture3f(
         data,
@@ -36,13 +36,19 @@ def _texture(Texture3f, TensorXf, data, channels: int):
     )
 
 
+def extinction(channels, Array3f):
+    """A lookup's channels as the extinction: the Float of one channel, an ``Array3f`` of three (chromatic)."""
+    return channels[0] if len(channels) == 1 else Array3f(channels[0], channels[1], channels[2])
+
+
 @dataclass(frozen=True)
 class GridField:
     """``sigma(x)`` and ``c(x)`` from voxel grids; colour may instead be a constant RGB.
 
-    Build with :meth:`from_arrays`. ``sigma_t`` (z, y, x[, 1]), ``color`` (z, y, x, 3)
-    numpy arrays or Dr.Jit tensors (tensors keep their AD graph, so gradients reach
-    the grid values).
+    Build with :meth:`from_arrays`. ``sigma_t`` (z, y, x[, 1]), or (z, y, x, 3) for a chromatic
+    medium (then ``sigma`` is an Array3f, one extinction per colour channel: see
+    :func:`mitsnerf.math.composite.composite`), ``color`` (z, y, x, 3) numpy arrays or Dr.Jit
+    tensors (tensors keep their AD graph, so gradients reach the grid values).
 
     >>> import numpy as np, mitsuba as mi
     >>> from mitsnerf.env import set_variant; _ = set_variant("llvm_ad_rgb")
@@ -53,7 +59,7 @@ class GridField:
     ([3], [[0.5, 0.5, 0.5]])
     """
 
-    sigma_t: Any  # Texture3f, 1 channel
+    sigma_t: Any  # Texture3f, 1 channel (3: chromatic)
     color: Any  # Texture3f, 3 channels, or an RGB tuple
     box: Box
 
@@ -61,16 +67,21 @@ class GridField:
     def from_arrays(cls, sigma_t, box: Box, color=(0.0, 0.0, 0.0)) -> GridField:
         import mitsuba as mi
 
-        sigma_tex = _texture(mi.Texture3f, mi.TensorXf, sigma_t, 1)
+        sigma_tex = _texture(mi.Texture3f, mi.TensorXf, sigma_t, (1, 3))
         if isinstance(color, (tuple, list)):
             color_tex = tuple(float(c) for c in color)
         else:
             color_tex = _texture(mi.Texture3f, mi.TensorXf, color, 3)
         return cls(sigma_tex, color_tex, box)
 
+    @property
+    def sigma_channels(self) -> int:
+        """1, or 3 for a chromatic extinction (``sigma`` an Array3f)."""
+        return int(self.sigma_t.tensor().shape[-1])
+
     def density(self, x):
-        """``sigma(x)``, Float (M,)."""
-        return self.sigma_t.eval(self.box.to_unit(x))[0]
+        """``sigma(x)``, Float (M,) (Array3f for a chromatic grid)."""
+        return extinction(self.sigma_t.eval(self.box.to_unit(x)), type(x))
 
     def textures(self) -> tuple:
         """The textures looked up (a :class:`~mitsnerf.fields.protocols.TextureField`): sigma_t, and the
@@ -79,8 +90,8 @@ class GridField:
 
     def head(self, values, x, d):
         """``(rgb, sigma)`` from the lookups of :meth:`textures` (the values themselves: no activation)."""
-        sigma = values[0][0]
         Array3f = type(x)
+        sigma = extinction(values[0], Array3f)
         if isinstance(self.color, tuple):
             return Array3f(*self.color) + 0.0 * sigma, sigma
         c = values[1]

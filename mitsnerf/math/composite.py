@@ -55,16 +55,20 @@ class Composite:
     """What compositing a batch of rays gives, each entry of shape (R,)."""
 
     rgb: Any  # Array3f: sum_i w_i c_i + T_N * background
-    opacity: Any  # Float: sum_i w_i = 1 - T_N
-    depth: Any  # Float: sum_i w_i t_i (expected termination distance, unnormalised)
-    T_final: Any  # Float: T_N
+    opacity: Any  # Float: sum_i w_i = 1 - T_N (chromatic: the channels' mean)
+    depth: Any  # Float: sum_i w_i t_i (expected termination distance, unnormalised; chromatic: the mean)
+    T_final: Any  # Float: T_N (chromatic: Array3f, per channel)
 
 
 def composite(sigma, delta, rgb, n: int, background=0.0, t=None) -> Composite:
     """Composite per-sample density and colour into per-ray colour.
 
+    A chromatic medium's ``sigma`` is an Array3f, one extinction per colour channel: channel ``k`` of
+    ``rgb`` and ``T_final`` is composited with ``sigma[k]`` alone, and ``opacity`` and ``depth`` are the
+    channels' means (one map per view).
+
     Args:
-        sigma: Float (R*N,), extinction ``sigma_t`` at the samples (>= 0).
+        sigma: Float (R*N,), extinction ``sigma_t`` at the samples (>= 0); Array3f (R*N,) per channel.
         delta: Float (R*N,), interval lengths.
         rgb: Array3f (R*N,), colour (radiance) at the samples.
         n: samples per ray.
@@ -85,4 +89,19 @@ def composite(sigma, delta, rgb, n: int, background=0.0, t=None) -> Composite:
     color = dr.block_sum(w * rgb, n) + T_final * background
     opacity = one_minus_exp_neg(dr.block_sum(sigma * delta, n))
     depth = dr.block_sum(w * t, n) if t is not None else dr.zeros(type(T_final), dr.width(T_final))
-    return Composite(rgb=color, opacity=opacity, depth=depth, T_final=T_final)
+    return Composite(rgb=color, opacity=channel_mean(opacity), depth=channel_mean(depth), T_final=T_final)
+
+
+def is_chromatic(sigma) -> bool:
+    """Whether ``sigma`` holds one extinction per colour channel (an Array3f) rather than one (a Float)."""
+    return dr.depth_v(sigma) > 1
+
+
+def channel_mean(v):
+    """``v`` itself for a Float; the mean of its three channels for an Array3f (a chromatic ray's opacity, depth).
+
+    >>> from drjit.llvm import Float, Array3f
+    >>> channel_mean(Array3f(0.3, 0.6, 0.9)), channel_mean(Float(0.5))  # doctest: +ELLIPSIS
+    ([0.6...], [0.5])
+    """
+    return (v[0] + v[1] + v[2]) * (1.0 / 3.0) if is_chromatic(v) else v

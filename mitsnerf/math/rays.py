@@ -65,6 +65,18 @@ def to_array3f(Array3f, values: np.ndarray):
     return Array3f(values[:, 0], values[:, 1], values[:, 2])
 
 
+def host(v) -> np.ndarray:
+    """A Dr.Jit Float (M,) as float64 ``(M,)``; an Array3f (say a chromatic extinction) as ``(M, 3)``.
+
+    >>> from drjit.llvm import Array3f, Float
+    >>> host(Float(1, 2)).shape, host(Array3f(Float(1, 2), 0, 0)).shape
+    ((2,), (2, 3))
+    """
+    if dr.depth_v(v) > 1:
+        return np.stack([np.asarray(v[k], np.float64) for k in range(3)], axis=-1)
+    return np.asarray(v, np.float64)
+
+
 @dataclass(frozen=True)
 class RayBatch:
     """Rays as Dr.Jit Array3f (M,): origins ``o`` and unit directions ``d``."""

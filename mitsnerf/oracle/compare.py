@@ -26,6 +26,7 @@ import numpy as np
 
 from mitsnerf.math.box import Box
 from mitsnerf.math.composite import weights
+from mitsnerf.math.rays import host
 from mitsnerf.oracle.source import (
     delta_irradiance,
     delta_lights,
@@ -75,7 +76,8 @@ class PointSource:
         if self._last.get("key") != key:
             albedo, sigma = self.medium(x, x)
             alb = np.stack([np.asarray(c, dtype=np.float64) for c in albedo], axis=-1)
-            active = np.asarray(sigma) > 0
+            positive = host(sigma) > 0
+            active = np.asarray(positive.any(axis=-1) if positive.ndim == 2 else positive)  # chromatic: any channel
             lbar, se = np.zeros_like(pts), np.zeros_like(pts)
             if self.scene is not None and active.any():
                 lbar[active], se[active] = self._in_scattered(pts[active], None if dirs is None else dirs[active])
@@ -116,7 +118,8 @@ def render_with_variance(source: PointSource, o, d, n_samples: int, box: Box,
         s, _ = sample_rays(o, d, n_samples, box)
         _, se, sigma = source.estimate(s.x, s.d)
         w, _ = weights(sigma, s.delta, n_samples)
-        var = [np.asarray(dr.block_sum(w * w * type(w)(se[:, k] ** 2), n_samples), dtype=np.float64)
+        w_k = [w[k] for k in range(3)] if dr.depth_v(w) > 1 else [w] * 3  # chromatic: each channel's weights
+        var = [np.asarray(dr.block_sum(w_k[k] * w_k[k] * type(w_k[k])(se[:, k] ** 2), n_samples), dtype=np.float64)
                for k in range(3)]
     mean = np.stack([np.asarray(c, dtype=np.float64) for c in comp.rgb], axis=-1)
     return mean, np.stack(var, axis=-1)

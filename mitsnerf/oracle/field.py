@@ -57,6 +57,11 @@ class OracleField:
         return cls(GridField.from_arrays(sigma_t, box, color=albedo), colour(mc),
                    None if delta is None else colour(delta))
 
+    @property
+    def sigma_channels(self) -> int:
+        """3 when ``sigma_t`` is chromatic (the march then composites each colour with its own extinction)."""
+        return self.medium.sigma_channels
+
     def __call__(self, x, d):
         albedo, sigma = self.medium(x, d)
         lbar, _ = self.mc(x, d)
@@ -137,6 +142,11 @@ class DirectionalOracleField:
                 terms.append((None, tuple(float(v) for v in light.position), grid))
         return cls(GridField.from_arrays(sigma_t, box, color=albedo), _sh_texture(scaled), order, float(g),
                    tuple(terms), box, clamp)
+
+    @property
+    def sigma_channels(self) -> int:
+        """3 when ``sigma_t`` is chromatic (the march then composites each colour with its own extinction)."""
+        return self.medium.sigma_channels
 
     def __call__(self, x, d):
         from mitsnerf.math.phase import hg, scattering_cosine

@@ -253,7 +253,8 @@ def toward_light(light: Any, x: np.ndarray) -> np.ndarray:
 def delta_irradiance(lights: Sequence[Any], density, points: np.ndarray, box: Box, m: int,
                      chunk: int = 1 << 16) -> np.ndarray:
     """``E_l T_l`` at ``points`` (M, 3) for each delta light ``l`` of :func:`delta_lights`: float64 (M, n, 3),
-    the light's irradiance there after the medium between (``density``: ``x -> sigma_t``, ``m`` midpoints)."""
+    the light's irradiance there after the medium between (``density``: ``x -> sigma_t``, ``m`` midpoints; a
+    chromatic ``density`` (Array3f) attenuates each colour channel by its own ``T``)."""
     import drjit as dr
     import mitsuba as mi
 
@@ -301,7 +302,8 @@ def needed_voxels(sigma_t: np.ndarray, resolution: int) -> np.ndarray:
     (8, 64)
     """
     rs = sigma_t.shape[0]
-    occupied = (np.asarray(sigma_t) > 0).astype(np.int64)
+    nonzero = np.asarray(sigma_t) > 0
+    occupied = (nonzero.any(axis=-1) if nonzero.ndim == 4 else nonzero).astype(np.int64)  # chromatic: any channel
     sat = np.zeros((rs + 1,) * 3, dtype=np.int64)
     sat[1:, 1:, 1:] = occupied.cumsum(0).cumsum(1).cumsum(2)
     centre = (np.arange(resolution) + 0.5) / resolution

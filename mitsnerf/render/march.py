@@ -23,13 +23,16 @@ from typing import Any
 import drjit as dr
 
 from mitsnerf.math.box import Box
-from mitsnerf.math.composite import Composite, one_minus_exp_neg
+from mitsnerf.math.composite import Composite, channel_mean, one_minus_exp_neg
 from mitsnerf.render.volume import background_radiance
 
 
 def march_rays(field: Callable[[Any, Any], tuple[Any, Any]], o, d, n_samples: int, *, box: Box,
                background=None) -> Composite:
     """Render rays ``o + t d`` (Array3f (R,)) through ``field`` at the stratum midpoints, one loop per ray.
+
+    A field with ``sigma_channels == 3`` (a chromatic grid, :class:`mitsnerf.fields.grid.GridField`) gives an
+    Array3f ``sigma``, composited per channel as :func:`mitsnerf.math.composite.composite` does.
 
     Example: a homogeneous slab of ``sigma = 2`` seen along the z axis has opacity
     ``1 - exp(-2 * 15/16)`` with 8 samples, as :func:`render_rays`::
@@ -50,7 +53,9 @@ def march_rays(field: Callable[[Any, Any], tuple[Any, Any]], o, d, n_samples: in
         t_n, t_f, _ = box.intersect(o, d)
         span = t_f - t_n
         n = dr.opaque(UInt32, n_samples)
-        state = (UInt32(0), dr.zeros(Float, dr.width(o)), dr.zeros(Array3f, dr.width(o)), dr.zeros(Float, dr.width(o)))
+        tau_type = Array3f if getattr(field, "sigma_channels", 1) == 3 else Float
+        state = (UInt32(0), dr.zeros(tau_type, dr.width(o)), dr.zeros(Array3f, dr.width(o)),
+                 dr.zeros(tau_type, dr.width(o)))
 
         def body(i, tau, rgb, depth):
             fi = Float(i)
@@ -64,4 +69,5 @@ def march_rays(field: Callable[[Any, Any], tuple[Any, Any]], o, d, n_samples: in
         _, tau, rgb, depth = dr.while_loop(state, lambda i, *_: i < n, body, label="march_rays")
         T_final = dr.exp(-tau)
         rgb = rgb + T_final * background_radiance(background, d)
-        return Composite(rgb=rgb, opacity=one_minus_exp_neg(tau), depth=depth, T_final=T_final)
+        return Composite(rgb=rgb, opacity=channel_mean(one_minus_exp_neg(tau)), depth=channel_mean(depth),
+                         T_final=T_final)

@@ -132,6 +132,9 @@ class VolumeSpec:
 
     ``sigma_t = sigma_t_scale * density / world.scale`` in world units, density in [0, 1]: the
     optical depth across the box is ``sigma_t_scale`` times the mean density whatever the scale.
+    ``sigma_t_scale`` may be an RGB triple: chromatic extinction, ``sigma_t`` a 3-channel grid
+    (channel ``k`` is ``sigma_t_scale[k] * density / world.scale``), as Mitsuba's ``*_rgb`` variants
+    take it (each path follows one colour channel).
     ``params`` holds the family's parameters with every default filled in (converted by
     :func:`mitsnerf.config.from_dict` against the family's params dataclass), read-only.
     """
@@ -139,8 +142,10 @@ class VolumeSpec:
     family: str = param(doc="a mitsnerf.volumes family: cloud, plume, blobs, shell, lattice, nebula; grid (a file)")
     resolution: int = param(lo=8, hi=512, doc="grid R (R^3 voxels)")
     seed: int = param(0, lo=0, hi=2**32 - 1, doc="the family's seed")
-    sigma_t_scale: float = param(lo=0.0, hi=SIGMA_T_SCALE_MAX, lo_open=True,
-                                 doc="sigma_t = sigma_t_scale * density / world.scale (density in [0, 1])",
+    sigma_t_scale: float | tuple[float, float, float] = param(
+        lo=0.0, hi=SIGMA_T_SCALE_MAX, lo_open=True,
+        doc="sigma_t = sigma_t_scale * density / world.scale (density in [0, 1]); an RGB triple [r, g, b]: "
+            "chromatic extinction, a 3-channel sigma_t",
                                  hi_why=f"a mean free path below {1 / SIGMA_T_SCALE_MAX:g} of the box side is under "
                                         "1/19 of the finest grid's voxel (1/512 of it): the medium would render as an "
                                         "opaque surface")
@@ -160,7 +165,22 @@ class VolumeSpec:
         object.__setattr__(self, "params", _freeze(to_dict(params)))  # the filled-in, read-only table
         if getattr(params, "values", "density") == "sigma_t" and self.sigma_t_scale != 1.0:
             raise ValueError(f"sigma_t_scale: must be 1 when params.values is 'sigma_t' (the grid is the "
-                             f"extinction itself, not scaled), got {self.sigma_t_scale:g}")
+                             f"extinction itself, not scaled), got {self.sigma_t_scale}")
+
+    @property
+    def chromatic(self) -> bool:
+        """Whether the extinction depends on the colour channel (``sigma_t_scale`` an RGB triple).
+
+        >>> VolumeSpec(family="cloud", resolution=8, sigma_t_scale=(4.0, 6.0, 9.0)).chromatic
+        True
+        """
+        return isinstance(self.sigma_t_scale, tuple)
+
+    @property
+    def sigma_t_rgb(self) -> tuple[float, float, float]:
+        """``sigma_t_scale`` per colour channel (a scalar repeated three times)."""
+        s = self.sigma_t_scale
+        return s if isinstance(s, tuple) else (s, s, s)
 
     @property
     def file_fields(self) -> tuple[str, ...]:

@@ -44,18 +44,22 @@ def _box_transform(box: Box):
 
 
 def volume_grids(spec: SceneSpec) -> tuple[np.ndarray, np.ndarray]:
-    """``(sigma_t float32 (R, R, R), albedo float32 (R, R, R, 3))`` of the spec, ``[z, y, x]``.
+    """``(sigma_t float32 (R, R, R) or (R, R, R, 3), albedo float32 (R, R, R, 3))`` of the spec, ``[z, y, x]``.
 
     ``sigma_t = volume.sigma_t_scale * density / world.scale`` (world units: a box ``scale`` times
     larger with ``sigma_t`` divided by ``scale`` has the same optical depths), or the family's grid
-    itself when it holds ``sigma_t`` (``VolumeGrids.values``); deterministic in the spec.
+    itself when it holds ``sigma_t`` (``VolumeGrids.values``); deterministic in the spec. A chromatic
+    medium (``sigma_t_scale`` an RGB triple) gets one channel per colour, last.
     """
     from mitsnerf.volumes import generate_volume
 
     v = spec.volume
     grids = generate_volume(v.family, v.resolution, v.seed, dict(v.params))
-    per_unit = np.float32(1.0 if grids.values == "sigma_t" else v.sigma_t_scale / spec.world.scale)
-    sigma_t = (per_unit * np.asarray(grids.density, dtype=np.float32)).astype(np.float32)
+    scale = np.asarray(v.sigma_t_scale, dtype=np.float64)
+    per_unit = np.ones_like(scale) if grids.values == "sigma_t" else scale / spec.world.scale
+    density = np.asarray(grids.density, dtype=np.float32)
+    sigma_t = (per_unit.astype(np.float32) * density[..., None] if v.chromatic
+               else np.float32(per_unit) * density).astype(np.float32)
     return np.ascontiguousarray(sigma_t), np.ascontiguousarray(grids.albedo, dtype=np.float32)
 
 
@@ -78,7 +82,8 @@ def grid_volume(data: np.ndarray, box: Box) -> dict[str, Any]:
 def medium_box(sigma_t: np.ndarray, albedo, box: Box, phase: Mapping[str, Any] | None = None) -> dict[str, Any]:
     """The box: a ``cube`` with a ``null`` BSDF around a heterogeneous medium.
 
-    ``sigma_t`` (R, R, R) holds the true extinction (``scale = 1``); ``albedo`` is an (R, R, R, 3)
+    ``sigma_t`` (R, R, R), or (R, R, R, 3) for a chromatic medium, holds the true extinction
+    (``scale = 1``); ``albedo`` is an (R, R, R, 3)
     grid or one float; ``phase`` the phase plugin's entry (None: isotropic).
     """
     import mitsuba as mi
@@ -103,8 +108,9 @@ def medium_box(sigma_t: np.ndarray, albedo, box: Box, phase: Mapping[str, Any] |
 def scene_dict(spec: SceneSpec, sigma_t: np.ndarray, albedo: np.ndarray) -> dict[str, Any]:
     """The ``mi.load_dict`` dictionary of the scene (no sensor), for the current Mitsuba variant."""
     r = sigma_t.shape[0]
-    if sigma_t.shape != (r, r, r) or albedo.shape != (r, r, r, 3):
-        raise ValueError(f"grids must be (R, R, R) and (R, R, R, 3), got {sigma_t.shape} and {albedo.shape}")
+    if sigma_t.shape not in ((r, r, r), (r, r, r, 3)) or albedo.shape != (r, r, r, 3):
+        raise ValueError(f"grids must be (R, R, R) or (R, R, R, 3) and (R, R, R, 3), got {sigma_t.shape} and "
+                         f"{albedo.shape}")
     d: dict[str, Any] = {
         "type": "scene",
         "integrator": {"type": "volpath", "max_depth": int(spec.render.max_depth)},

@@ -42,10 +42,13 @@ FOOTPRINT = 8
 _GAUSS = float(0.5 / np.sqrt(3.0))  # the two Gauss-Legendre nodes at mid -+ this fraction of the segment
 
 
-def optical_depths(density: Callable[[Any], Any], resolution: int, box: Box, o, d):
+def optical_depths(density: Callable[[Any], Any], resolution: int, box: Box, o, d, channels: int = 1):
     """``tau`` (Float (M,)) of rays ``o + t d`` (Array3f (M,), ``d`` unit) through a trilinear ``R^3`` grid
-    over ``box``: exact per cell (module docstring). ``density``: Array3f -> Float, the grid's lookup."""
+    over ``box``: exact per cell (module docstring). ``density``: Array3f -> Float, the grid's lookup, or
+    Array3f -> Array3f with ``channels = 3`` (a chromatic grid: ``tau`` an Array3f, the ray followed until
+    every channel's passes :data:`TAU_STOP`)."""
     Float = type(o.x)
+    Tau = type(o) if channels == 3 else Float
     Int32 = dr.int32_array_t(Float)
     t_n, t_f, _ = box.intersect(o, d)
     lo, size = dr.scalar.Array3f(box.lo), dr.scalar.Array3f(box.size)
@@ -69,10 +72,15 @@ def optical_depths(density: Callable[[Any], Any], resolution: int, box: Box, o, 
         moved = [dr.select(t_axis[i] <= t_next, planes[i] + step[i], planes[i]) for i in range(3)]
         return t_next, tau, moved[0], moved[1], moved[2]
 
-    state = (Float(t_n), dr.zeros(Float, dr.width(o)), plane[0], plane[1], plane[2])
-    _, tau, *_ = dr.while_loop(state, lambda t, tau, *_: (t < t_f) & (tau < TAU_STOP), body,
+    state = (Float(t_n), dr.zeros(Tau, dr.width(o)), plane[0], plane[1], plane[2])
+    _, tau, *_ = dr.while_loop(state, lambda t, tau, *_: (t < t_f) & (_least(tau) < TAU_STOP), body,
                                label="optical_depths")
     return tau
+
+
+def _least(tau):
+    """The smallest channel of a chromatic ``tau`` (Array3f), or ``tau`` itself (Float)."""
+    return dr.minimum(dr.minimum(tau[0], tau[1]), tau[2]) if dr.depth_v(tau) > 1 else tau
 
 
 @dataclass(frozen=True)
@@ -80,7 +88,8 @@ class PixelTransmittance:
     """What each pixel of a set of views sees through the medium, means over the pixel's square."""
 
     t: np.ndarray
-    """``(V, H, W)`` float64: the mean transmittance ``mean T``."""
+    """``(V, H, W)`` float64: the mean transmittance ``mean T`` (a chromatic medium: also the mean over the
+    three channels, what ``medium/``'s alpha estimates: volpath follows one channel per path, drawn uniformly)."""
     through: np.ndarray | None
     """``(V, H, W, 3)``: the mean of ``T(d) L(d)``, the environment seen through the medium (None: no background)."""
     env: np.ndarray | None
@@ -89,12 +98,14 @@ class PixelTransmittance:
 
 def pixel_transmittance(density: Callable[[Any], Any], resolution: int, box: Box, cameras: Sequence[Camera], *,
                         pixel_center: float = 0.5, footprint: int = FOOTPRINT, background=None,
-                        chunk: int = 1 << 21) -> PixelTransmittance:
+                        chunk: int = 1 << 21, channels: int = 1) -> PixelTransmittance:
     """Each pixel's mean transmittance over its square and, with ``background`` (``d -> Array3f``, the radiance
     a ray leaving in direction ``d`` sees), the means of ``T(d) L(d)`` and of ``L(d)``, at the K x K stratum
-    centres of the pixel (``footprint`` K). ``density``: the grid's lookup (Array3f -> Float) over ``box``."""
+    centres of the pixel (``footprint`` K). ``density``: the grid's lookup (Array3f -> Float) over ``box``;
+    with ``channels = 3`` a chromatic grid's (Array3f -> Array3f): ``T L`` is then per channel."""
     import mitsuba as mi
 
+    from mitsnerf.math.composite import channel_mean
     from mitsnerf.math.rays import PixelRays, footprint_offsets
 
     rays = PixelRays(mi.Float, cameras, pixel_center)
@@ -109,8 +120,8 @@ def pixel_transmittance(density: Callable[[Any], Any], resolution: int, box: Box
         idx = dr.arange(mi.UInt32, n * kk)
         pixel, k = idx // kk + start, idx % kk
         o, d = rays.rays(pixel, dr.gather(mi.Float, du_all, k), dr.gather(mi.Float, dv_all, k))
-        t = dr.exp(-optical_depths(density, resolution, box, o, d))
-        t_mean[start:start + n] = _pixel_means(t, kk)
+        t = dr.exp(-optical_depths(density, resolution, box, o, d, channels))
+        t_mean[start:start + n] = _pixel_means(channel_mean(t), kk)
         if env is not None:
             radiance = dr.zeros(mi.Array3f, dr.width(d)) + mi.Array3f(background(d))  # a constant has width 1
             for out, value in zip(env, (radiance * t, radiance)):

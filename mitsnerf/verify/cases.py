@@ -127,6 +127,8 @@ class VolpathScenario:
     phase_g: float = 0.0
     """The medium's phase function: 0 isotropic, else Henyey-Greenstein with this ``g`` (the in-scattered
     source then depends on the view direction)."""
+    sigma_t_rgb: tuple[float, float, float] | None = None
+    """Chromatic extinction: channel ``k`` of ``sigma_t`` is the medium's grid times ``sigma_t_rgb[k]`` (None: grey)."""
 
     def phase(self) -> dict[str, Any]:
         """The Mitsuba phase plugin's entry."""
@@ -369,6 +371,9 @@ SCENARIOS: tuple[VolpathScenario, ...] = (
                   "oracle"),
     replace(MULTIPLE_SCATTER, name="forward_scatter_g85", phase_g=0.85, detects=("hg_sign", "cosine_reversed"),
             title="the same with g = 0.85 (water clouds): the sun's forward lobe"),
+    replace(MULTIPLE_SCATTER, name="chromatic", sigma_t_rgb=(0.5, 1.0, 2.0), detects=("extinction_first_channel",),
+            title="the multiple-scattering scene with chromatic extinction (sigma_t x 0.5, 1, 2 in R, G, B): the "
+                  "oracle per channel"),
 )
 
 MITSUBA_FURNACE = MitsubaFurnace()
@@ -486,8 +491,10 @@ def medium_sigma_t(medium: str, resolution: int, sigma_t_max: float) -> np.ndarr
 
 
 def scenario_grids(s: VolpathScenario, resolution: int) -> tuple[np.ndarray, np.ndarray | float]:
-    """``(sigma_t (R, R, R), albedo (R, R, R, 3) or a float)`` of a scenario."""
+    """``(sigma_t (R, R, R), or (R, R, R, 3) chromatic, albedo (R, R, R, 3) or a float)`` of a scenario."""
     sigma = medium_sigma_t(s.medium, resolution, s.sigma_t_max)
+    if s.sigma_t_rgb is not None:
+        sigma = (sigma[..., None] * np.asarray(s.sigma_t_rgb, np.float32)).astype(np.float32)
     albedo: np.ndarray | float = {"zero": 0.0, "one": 1.0}.get(s.albedo, None)  # type: ignore[assignment]
     if albedo is None:
         albedo = procedural_albedo(resolution)

@@ -133,7 +133,7 @@ MUTATION_LIST: tuple[Mutation, ...] = (
         "background_T_before_last", "background weighted by T_{N-1} (before the last interval) instead of T_N",
         _COMPOSITE, "composite",
         "+ T_final * background",
-        "+ (T_final + dr.gather(type(w), w, dr.arange(dr.uint32_array_t(type(w)), dr.width(T_final)) * n + n - 1))"
+        "+ (T_final + dr.gather(type(w), w, dr.arange(dr.uint32_array_t(type(delta)), dr.width(T_final)) * n + n - 1))"
         " * background",
     ),
     Mutation(
@@ -207,6 +207,11 @@ MUTATION_LIST: tuple[Mutation, ...] = (
         "cosine_reversed", "the scattering angle's cosine taken against the reversed view direction (-d)",
         "mitsnerf.math.phase", "scattering_cosine",
         "zip(_xyz(w), _xyz(d))", "zip(_xyz(w), _xyz(-d))",
+    ),
+    Mutation(
+        "extinction_first_channel", "a chromatic grid's red extinction taken for every colour channel",
+        "mitsnerf.fields.grid", "extinction",
+        "Array3f(channels[0], channels[1], channels[2])", "Array3f(channels[0], channels[0], channels[0])",
     ),
 )
 
