@@ -190,6 +190,8 @@ class OccupancyGrid:
             for start in range(0, n, chunk):
                 idx = dr.arange(self.UInt32, start, min(n, start + chunk))
                 s = density(dr.gather(self.Array3f, points, idx))
+                if dr.depth_v(s) > 1:  # one density per colour: a cell is empty only if every channel is
+                    s = dr.maximum(dr.maximum(s[0], s[1]), s[2])
                 dr.scatter(sigma, dr.detach(s), idx)
                 dr.eval(sigma)
             rho = dr.maximum(cfg.decay * self.rho, dr.maximum(sigma, 0.0))
@@ -278,7 +280,7 @@ def eval_masked(field: Callable[[Any, Any], tuple[Any, Any]], x, d, mask, pad: b
         d = d + dr.zeros(Array3f, m)
     idx = dr.compress(mask)
     k = dr.width(idx)
-    sigma = dr.zeros(Float, m)
+    sigma = dr.zeros(Array3f if getattr(field, "sigma_channels", 1) == 3 else Float, m)  # chromatic: per colour
     rgb = dr.zeros(Array3f, m)
     if k == 0 and not pad:
         return rgb, sigma
@@ -314,6 +316,11 @@ class OccupancyMaskedField:
     def __init__(self, field, grid: OccupancyGrid) -> None:
         self.field = field
         self.grid = grid
+
+    @property
+    def sigma_channels(self) -> int:
+        """The wrapped field's density channels (3: one per colour)."""
+        return getattr(self.field, "sigma_channels", 1)
 
     def density(self, x):
         return dr.select(self.grid.is_occupied(x), self.field.density(x), 0.0)

@@ -5,10 +5,13 @@ docs/conventions.md, are looked up trilinearly (``dr.Texture3f``, ``use_accel=Fa
 clamped borders: the lookup of :class:`mitsnerf.fields.grid.GridField`) and then
 activated::
 
-    sigma(x)   = sigma_scale * softplus(s(x))                   s: raw density grid (R, R, R, 1)
+    sigma(x)   = sigma_scale * softplus(s(x))                   s: raw density grid (R, R, R, 1) (or 3)
     c(x, d)    = c_max * sigmoid(sum_k k_k(x) Y_k(d))           k: SH grid (R, R, R, 3 K), K = (L+1)^2
 
-(interpolate, then activate, as Plenoxels does for density). Gradients reach both grids
+(interpolate, then activate, as Plenoxels does for density). With ``density_channels = 3`` the
+density grid holds one extinction per colour channel, for chromatic media: ``sigma`` is then an
+Array3f and each colour is composited with its own (:func:`mitsnerf.math.composite.composite`).
+Gradients reach both grids
 through the texture lookups. The total variation prior ::
 
     TV(g) = 1/C sum_c sum_{a in x,y,z} mean_v (g_c(v + e_a) - g_c(v))^2
@@ -43,6 +46,8 @@ class VoxelFieldConfig:
     """Initial density everywhere (world units^-1)."""
     c_max: float = param(1.0, lo=0.0, lo_open=True)
     """Largest colour (radiance)."""
+    density_channels: int = param(1, choices=(1, 3))
+    """1: one density for every colour; 3: one per colour channel (chromatic media, a 3-channel sigma_t)."""
 
     def __post_init__(self) -> None:
         check_fields(self)
@@ -97,7 +102,7 @@ class VoxelField:
     def create(cls, config: VoxelFieldConfig, resolution: int, TensorXf, box: Box) -> VoxelField:
         """Uniform grids: density ``sigma_init`` everywhere, SH coefficients 0 (grey ``c_max / 2``)."""
         r = int(resolution)
-        sigma_raw = dr.full(TensorXf, config.raw_sigma_init, (r, r, r, 1))
+        sigma_raw = dr.full(TensorXf, config.raw_sigma_init, (r, r, r, config.density_channels))
         sh = dr.zeros(TensorXf, (r, r, r, 3 * num_coefficients(config.sh_degree)))
         return cls(config, sigma_raw, sh, box)
 
@@ -114,9 +119,18 @@ class VoxelField:
             self.box,
         )
 
+    @property
+    def sigma_channels(self) -> int:
+        """The density's channels: 1, or 3 (``sigma`` an Array3f, one extinction per colour)."""
+        return self.config.density_channels
+
+    def _sigma(self, raw, Array3f):
+        s = [self.config.sigma_scale * softplus(v) for v in raw]
+        return s[0] if len(s) == 1 else Array3f(*s)
+
     def density(self, x):
-        """``sigma(x)``, Float (M,)."""
-        return self.config.sigma_scale * softplus(self._sigma_tex.eval(self.box.to_unit(x))[0])
+        """``sigma(x)``, Float (M,) (an Array3f with ``density_channels = 3``)."""
+        return self._sigma(self._sigma_tex.eval(self.box.to_unit(x)), type(x))
 
     def textures(self) -> tuple:
         """The raw density and the SH textures (a :class:`~mitsnerf.fields.protocols.TextureField`)."""
@@ -128,7 +142,7 @@ class VoxelField:
 
     def head(self, values, x, d):
         """``(rgb, sigma)`` from the two grids' lookups at ``x``: the activations of the module docstring."""
-        sigma = self.config.sigma_scale * softplus(values[0][0])
+        sigma = self._sigma(values[0], type(x))
         coeffs = values[1]
         Y = sh_basis(d, self.config.sh_degree)
         raw = [sum(coeffs[3 * k + c] * Y[k] for k in range(self.n_coeffs)) for c in range(3)]

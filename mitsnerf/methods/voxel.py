@@ -92,6 +92,9 @@ class VoxelMethodConfig(MethodConfig):
             )
         if any(b <= a for a, b in zip(self.upsample_steps, self.upsample_steps[1:])):
             raise ValueError(f"upsample_steps: must be increasing, got {list(self.upsample_steps)}")
+        if self.grid.density_channels == 3 and self.replay:
+            raise ValueError("replay: the replayed march carries one extinction per ray; with "
+                             "grid.density_channels = 3 set replay = false")
 
     def resolution_at(self, step: int) -> int:
         """Grid resolution used at (0-based) ``step``.
@@ -102,10 +105,10 @@ class VoxelMethodConfig(MethodConfig):
         return self.initial_resolution * 2 ** sum(1 for s in self.upsample_steps if step > s)
 
 
-def _check_grids(sigma, sh, channels: int) -> None:
-    """Both grids cubes of one resolution ``R``: sigma ``(R, R, R, 1)``, sh ``(R, R, R, channels)``."""
+def _check_grids(sigma, sh, channels: int, density_channels: int = 1) -> None:
+    """Both grids cubes of one resolution ``R``: sigma ``(R, R, R, density_channels)``, sh ``(R, R, R, channels)``."""
     r = int(sigma.shape[0]) if len(sigma.shape) else 0
-    for key, grid, c in ((SIGMA_KEY, sigma, 1), (SH_KEY, sh, channels)):
+    for key, grid, c in ((SIGMA_KEY, sigma, density_channels), (SH_KEY, sh, channels)):
         if r < 1 or tuple(grid.shape) != (r, r, r, c):
             raise ParameterShapeError(key, tuple(grid.shape), (max(r, 1),) * 3 + (c,))
 
@@ -133,7 +136,8 @@ class VoxelModel(OccupancyModel):
         if sigma is not None or sh is not None:
             field = self.base_field
             _check_grids(
-                field.sigma_raw if sigma is None else sigma, field.sh if sh is None else sh, field.sh.shape[-1]
+                field.sigma_raw if sigma is None else sigma, field.sh if sh is None else sh, field.sh.shape[-1],
+                self.config.grid.density_channels,
             )
             self.base_field = self.base_field.with_grids(sigma, sh)
 

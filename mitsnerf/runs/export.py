@@ -16,9 +16,10 @@ return exactly the sampled values there.
 
 Files written to ``OUT`` (atomically, all or none: :func:`mitsnerf.data.atomic.atomic_files`)::
 
-    sigma_t.vol   (R, R, R, 1) float32 extinction per unit length, Mitsuba's .vol format
+    sigma_t.vol   (R, R, R, 1) float32 extinction per unit length, Mitsuba's .vol format (3 channels for a
+                  field with one density per colour: Mitsuba's rgb variants render it as a chromatic medium)
     albedo.vol    (R, R, R, 3) the colour clipped to [0, 1]
-    sigma_t.npy   (R, R, R) float32, indexed [z, y, x]
+    sigma_t.npy   (R, R, R) float32, indexed [z, y, x] ((R, R, R, 3): one density per colour)
     color.npy     (R, R, R, 3) float32, unclipped
     export.json   resolution, directions, box, source run and method, variant/versions/commit
 
@@ -97,7 +98,8 @@ def sample_field(
     box: Box,
     chunk_points: int = 1 << 17,
 ) -> tuple[np.ndarray, np.ndarray]:
-    """``(sigma_t (R, R, R), color (R, R, R, 3))`` float32: the field averaged over ``directions``.
+    """``(sigma_t (R, R, R), color (R, R, R, 3))`` float32: the field averaged over ``directions`` (``sigma_t``
+    (R, R, R, 3) for a field with one density per colour channel).
 
     ``directions``: (M, 3) or one (3,) direction (normalised here); None: the
     :data:`DEFAULT_DIRECTIONS` Fibonacci directions.
@@ -113,8 +115,10 @@ def sample_field(
     if not np.all(norms > 0) or not np.all(np.isfinite(dirs)):
         raise ValueError(f"direction: must be finite and non-zero, got {dirs.tolist()}")
     dirs = dirs / norms
+    from mitsnerf.math.rays import host
+
     points = box.voxel_centres(resolution).reshape(-1, 3).astype(np.float32)
-    sigma = np.zeros(len(points), dtype=np.float64)
+    sigma: np.ndarray | float = 0.0
     color = np.zeros((len(points), 3), dtype=np.float64)
     with dr.suspend_grad():
         for start in range(0, len(points), chunk_points):
@@ -123,10 +127,14 @@ def sample_field(
             x = mi.Array3f(p[:, 0], p[:, 1], p[:, 2])
             for d in dirs:
                 rgb, s = field(x, mi.Array3f(*(float(c) for c in d)) + dr.zeros(mi.Array3f, n))
-                sigma[start:start + n] += np.asarray(s, dtype=np.float64)
+                s = host(s + dr.zeros(type(x.x), n))  # (n,), or (n, 3) for one density per colour
+                if np.ndim(sigma) == 0:
+                    sigma = np.zeros((len(points),) + s.shape[1:])
+                sigma[start:start + n] += s
                 color[start:start + n] += np.stack([np.asarray(c, dtype=np.float64) for c in rgb], axis=-1)
     r = resolution
-    return ((sigma / len(dirs)).astype(np.float32).reshape(r, r, r),
+    sigma = np.asarray(sigma, dtype=np.float64)
+    return ((sigma / len(dirs)).astype(np.float32).reshape((r, r, r) + sigma.shape[1:]),
             (color / len(dirs)).astype(np.float32).reshape(r, r, r, 3))
 
 

@@ -6,6 +6,7 @@ import pytest
 from mitsnerf.math.box import UNIT_BOX
 from mitsnerf.fields.voxel import VoxelField, VoxelFieldConfig, total_variation, upsample
 from mitsnerf.methods import get_method
+from mitsnerf.methods.base import ParameterShapeError
 from mitsnerf.methods.voxel import SH_KEY, SIGMA_KEY, VoxelMethodConfig, VoxelModel
 from mitsnerf.train import TrainConfig, make_optimizer, train
 
@@ -126,3 +127,42 @@ def test_total_variation_value_and_gradient_match_numpy():
         gm[index] -= eps
         fd = 2.0 * (_tv_numpy(gp) - _tv_numpy(gm)) / (2 * eps)
         assert grad[index] == pytest.approx(fd, rel=1e-3, abs=1e-5)
+
+
+def test_one_density_per_colour_trains_and_renders_each_channel_with_its_own():
+    """``grid.density_channels = 3`` (chromatic media): a (R, R, R, 3) density grid, an Array3f sigma, each colour
+    composited with its own extinction; the replayed march, which carries one extinction per ray, is refused."""
+    from mitsnerf.render.volume import render_rays
+
+    with pytest.raises(ValueError, match="replay: .* set replay = false"):
+        VoxelMethodConfig(grid=VoxelFieldConfig(density_channels=3))
+    config = VoxelFieldConfig(density_channels=3, sh_degree=0)
+    raw = np.stack([np.full((4, 4, 4), v, np.float32) for v in (-3.0, 0.0, 2.0)], axis=-1)
+    field = VoxelField(config, mi.TensorXf(raw), dr.zeros(mi.TensorXf, (4, 4, 4, 3)), UNIT_BOX)
+    assert field.sigma_channels == 3
+    o, d = mi.Array3f(0, 0, -2), mi.Array3f(0, 0, 1)
+    out = render_rays(field, o, d, 32, box=UNIT_BOX, background=1.0)
+    tau = config.sigma_scale * np.log1p(np.exp([-3.0, 0.0, 2.0])) * (1.0 - 1.0 / 64)  # seed's rule: L - h/2
+    np.testing.assert_allclose(np.asarray(out.T_final).ravel(), np.exp(-tau), rtol=1e-4)
+    assert float(out.rgb.x[0]) > float(out.rgb.y[0]) > float(out.rgb.z[0])  # red sees most of the white background
+    model = VoxelModel(VoxelMethodConfig(grid=config, replay=False, resolution=8, initial_resolution=8,
+                                         upsample_steps=(), use_occupancy=False), _info())
+    with pytest.raises(ParameterShapeError) as err:  # a grey grid (a run of the default config) is refused
+        model.set_parameters({SIGMA_KEY: dr.zeros(mi.TensorXf, (8, 8, 8, 1))})
+    assert err.value.key == SIGMA_KEY and err.value.want == (8, 8, 8, 3)
+
+
+def _info():
+    from mitsnerf.methods.base import SceneInfo
+
+    return SceneInfo(box=UNIT_BOX, background=lambda d: mi.Array3f(0.0), radiance_max=1.0)
+
+
+def test_a_per_colour_model_trains(tiny_views):
+    data, info = tiny_views()
+    config = VoxelMethodConfig(grid=VoxelFieldConfig(density_channels=3), replay=False, resolution=8,
+                               initial_resolution=8, upsample_steps=(), n_samples=16)
+    model = VoxelModel(config, info)
+    result, opt = train(model, data, TrainConfig(steps=30, batch_rays=128, log_every=10), 0.3, progress=False)
+    assert opt[SIGMA_KEY].shape == (8, 8, 8, 3)
+    assert result.history[-1]["loss"] < result.history[0]["loss"]
