@@ -118,7 +118,7 @@ def sample_field(
     from mitsnerf.math.rays import host
 
     points = box.voxel_centres(resolution).reshape(-1, 3).astype(np.float32)
-    sigma: np.ndarray | float = 0.0
+    sigma = np.zeros(0)
     color = np.zeros((len(points), 3), dtype=np.float64)
     with dr.suspend_grad():
         for start in range(0, len(points), chunk_points):
@@ -128,12 +128,11 @@ def sample_field(
             for d in dirs:
                 rgb, s = field(x, mi.Array3f(*(float(c) for c in d)) + dr.zeros(mi.Array3f, n))
                 s = host(s + dr.zeros(type(x.x), n))  # (n,), or (n, 3) for one density per colour
-                if np.ndim(sigma) == 0:
+                if sigma.shape[:1] != (len(points),):
                     sigma = np.zeros((len(points),) + s.shape[1:])
                 sigma[start:start + n] += s
                 color[start:start + n] += np.stack([np.asarray(c, dtype=np.float64) for c in rgb], axis=-1)
     r = resolution
-    sigma = np.asarray(sigma, dtype=np.float64)
     return ((sigma / len(dirs)).astype(np.float32).reshape((r, r, r) + sigma.shape[1:]),
             (color / len(dirs)).astype(np.float32).reshape(r, r, r, 3))
 
