@@ -8,6 +8,7 @@ Architecture (Mueller et al. 2022, sizes configurable)::
               while it fits in 2^T entries, a hash table of 2^T entries beyond
     [s, g]  = MLP_sigma(h)                  one hidden layer, ReLU; g: geometry features
     sigma   = exp(min(s + sigma_bias, 15))                                (position only)
+              (density_channels = 3: s has 3 entries, one extinction per colour, for chromatic media)
     c       = c_max * sigmoid(MLP_c([g, SH_0..(L_sh+1)^2-1(d)]))          (features + direction)
 
 Grid sizes and SH degrees measured on the default cloud (64^3 fBm, 40 training views at
@@ -95,6 +96,8 @@ class NGPConfig:
     """Highest SH band of the direction encoding (0: constant, no direction input)."""
     sigma_bias: float = param(0.0)
     """Added to the density pre-activation (0: sigma starts near 1)."""
+    density_channels: int = param(1, choices=(1, 3))
+    """1: one density for every colour; 3: one per colour channel (chromatic media, a 3-channel sigma_t)."""
     c_max: float = param(1.0, lo=0.0, lo_open=True)
     """Largest colour (radiance) the colour MLP can output."""
     init_scale: float = param(1e-4, lo=0.0, lo_open=True)
@@ -150,7 +153,8 @@ class NGPField:
         n_dir = num_coefficients(config.sh_degree)
         self.params = {
             "encoding.data": self.encoding.data,
-            **dense_init([n_in, config.hidden, 1 + config.geo_features], TensorXf, rng, "density."),
+            **dense_init([n_in, config.hidden, config.density_channels + config.geo_features], TensorXf, rng,
+                         "density."),
             **dense_init([config.geo_features + n_dir] + [config.color_hidden] * config.color_layers + [3],
                          TensorXf, rng, "color."),
         }
@@ -177,22 +181,34 @@ class NGPField:
         return self.encoding(dr.clip(self.box.to_unit(x), 0.0, 1.0))
 
     def _density_coop(self, x, half: bool) -> list:
-        """1 + geo_features Floats: the density MLP on cooperative vectors (fp16 if ``half``)."""
+        """density_channels + geo_features Floats: the density MLP on cooperative vectors (fp16 if ``half``)."""
         return dense_apply_coop(self.params, "density.", 2, nn.CoopVec(*self._features(x)), half)
 
     def _density_mlp(self, x):
-        """(M, 1 + geo_features): the density pre-activation and the geometry features (tensor path)."""
+        """(M, density_channels + geo_features): the density pre-activations and the geometry features (tensor
+        path)."""
         return dense_apply(self.params, "density.", 2, rows_tensor(self.TensorXf, self._features(x), dr.width(x)))
 
-    def _sigma(self, raw):
-        return dr.exp(dr.minimum(raw + self.config.sigma_bias, SIGMA_RAW_MAX))
+    @property
+    def sigma_channels(self) -> int:
+        """The density's channels: 1, or 3 (``sigma`` an Array3f, one extinction per colour)."""
+        return self.config.density_channels
+
+    def _sigma(self, raw: list, Array3f):
+        """``sigma`` from the density pre-activations (a list of ``density_channels`` Floats)."""
+        s = [dr.exp(dr.minimum(v + self.config.sigma_bias, SIGMA_RAW_MAX)) for v in raw]
+        return s[0] if len(s) == 1 else Array3f(*s)
+
+    def _raw_columns(self, out) -> list:
+        return [column(out, k) for k in range(self.config.density_channels)]
 
     def density(self, x):
-        """``sigma(x)``, Float (M,)."""
+        """``sigma(x)``, Float (M,) (an Array3f with ``density_channels = 3``)."""
         half = self._coop_half()
+        n = self.config.density_channels
         if half is not None:
-            return self._sigma(self._density_coop(x, half)[0])
-        return self._sigma(column(self._density_mlp(x), 0))
+            return self._sigma(list(self._density_coop(x, half)[:n]), type(x))
+        return self._sigma(self._raw_columns(self._density_mlp(x)), type(x))
 
     def loop_field(self) -> PackedNGP:
         """This field for a symbolic loop (:mod:`mitsnerf.render.replay`): the MLPs on cooperative vectors, their
@@ -207,17 +223,18 @@ class NGPField:
         sh = sh_basis(d, self.config.sh_degree)
         n_color = self.config.color_layers + 1
         half = self._coop_half()
+        n = self.config.density_channels
         if half is not None:
             out = self._density_coop(x, half)
-            c = dense_apply_coop(self.params, "color.", n_color, nn.CoopVec(*out[1:], *sh), half)
-            return type(x)(*(sigmoid(c_k) * self.config.c_max for c_k in c)), self._sigma(out[0])
+            c = dense_apply_coop(self.params, "color.", n_color, nn.CoopVec(*out[n:], *sh), half)
+            return type(x)(*(sigmoid(c_k) * self.config.c_max for c_k in c)), self._sigma(list(out[:n]), type(x))
         out = self._density_mlp(x)
         sh_rows = rows_tensor(self.TensorXf, sh, width)
         c = (
-            sigmoid(dense_apply(self.params, "color.", n_color, dr.concat([out[:, 1:], sh_rows], axis=1)))
+            sigmoid(dense_apply(self.params, "color.", n_color, dr.concat([out[:, n:], sh_rows], axis=1)))
             * self.config.c_max
         )
-        return type(x)(column(c, 0), column(c, 1), column(c, 2)), self._sigma(column(out, 0))
+        return type(x)(column(c, 0), column(c, 1), column(c, 2)), self._sigma(self._raw_columns(out), type(x))
 
 
 class PackedNGP:
@@ -243,5 +260,6 @@ class PackedNGP:
             d = d + dr.zeros(type(d), width)
         out = coop_apply(self.density_views, 2, nn.CoopVec(*f._features(x)), self.half)
         sh = sh_basis(d, f.config.sh_degree)
-        c = coop_apply(self.color_views, self.n_color, nn.CoopVec(*out[1:], *sh), self.half)
-        return type(x)(*(sigmoid(c_k) * f.config.c_max for c_k in c)), f._sigma(out[0])
+        n = f.config.density_channels
+        c = coop_apply(self.color_views, self.n_color, nn.CoopVec(*out[n:], *sh), self.half)
+        return type(x)(*(sigmoid(c_k) * f.config.c_max for c_k in c)), f._sigma(list(out[:n]), type(x))

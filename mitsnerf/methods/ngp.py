@@ -48,6 +48,9 @@ class NGPMethodConfig(MethodConfig):
 
     def __post_init__(self) -> None:
         check_fields(self)
+        if self.network.density_channels == 3 and self.replay:
+            raise ValueError("replay: the replayed march carries one extinction per ray; with "
+                             "network.density_channels = 3 set replay = false")
 
 
 class NGPModel(OccupancyModel):

@@ -68,3 +68,28 @@ def test_parameters_of_another_shape_are_refused_by_name(tiny_views):
     with pytest.raises(ParameterShapeError, match="the method's config builds") as e:
         model.set_parameters({key: wrong})
     assert e.value.key == key
+
+
+def test_one_density_per_colour_on_both_network_paths():
+    """``network.density_channels = 3`` (chromatic media): the density MLP's first three outputs are the three
+    extinctions (an Array3f sigma), the colour MLP takes the features after them; both paths agree."""
+    import drjit as dr
+    import mitsuba as mi
+
+    from mitsnerf.fields.ngp import NGPConfig, NGPField
+    from mitsnerf.math.box import UNIT_BOX
+    from mitsnerf.methods.ngp import NGPMethodConfig
+
+    with pytest.raises(ValueError, match="replay: .* set replay = false"):
+        NGPMethodConfig(network=NGPConfig(density_channels=3), replay=True)
+    small = dict(n_levels=2, max_resolution=16, hidden=8, color_hidden=8, density_channels=3)
+    f = NGPField(NGPConfig(**small), mi.TensorXf, UNIT_BOX, seed=3)
+    assert f.sigma_channels == 3 and f.params["density.1.bias"].shape[-1] == 3 + f.config.geo_features
+    x, d = mi.Array3f([0.1, -0.2, 0.3], [0.0, 0.2, -0.1], 0.05), mi.Array3f(0, 0, 1)
+    rgb, sigma = f(x, d)
+    assert dr.depth_v(sigma) == 2 and np.allclose(np.asarray(f.density(x)), np.asarray(sigma))
+    coop = NGPField(NGPConfig(**small, network_path="coopvec-fp32"), mi.TensorXf, UNIT_BOX, seed=3)
+    coop.set_parameters(f.params)
+    rgb_c, sigma_c = coop(x, d)
+    np.testing.assert_allclose(np.asarray(sigma_c), np.asarray(sigma), rtol=1e-4)
+    np.testing.assert_allclose(np.asarray(rgb_c), np.asarray(rgb), rtol=1e-4)
