@@ -241,7 +241,7 @@ def _transmittance_check(spec: SceneSpec, medium: dict, transmittance: dict) -> 
     if spec.volume.chromatic:
         return {"passed": None, "note": "chromatic extinction: volpath draws a camera path's real collisions with "
                                         "probabilities that mix the colour channels by the path's throughput, so "
-                                        "medium/'s alpha estimates no single transmittance (mitsnerf.scene.render)"}
+                                        "medium/'s alpha is not a channel's 1 - T (mitsnerf.scene.render)"}
     per = {s: scoring.transmittance_agreement(np.stack(medium[s])[..., 3], transmittance[s], split_spp(spec, s))
            for s in medium}
     return {"passed": all(c["passed"] for c in per.values()), "splits": per,
