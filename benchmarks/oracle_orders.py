@@ -101,7 +101,8 @@ def main() -> int:
     for spp in args.spp:
         for window in args.window:
             config = OracleConfig(spp=spp, resolution=args.resolution,
-                                  directional=DirectionalConfig(order=args.order, window=window, report_orders=orders))
+                                  directional=DirectionalConfig(spp=spp, order=args.order, window=window,
+                                                                report_orders=orders))
             start, load = time.perf_counter(), os.getloadavg()[0]
             oracle = ensure_oracle(dataset, config, args.footprint)
             info = oracle.info

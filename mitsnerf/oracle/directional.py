@@ -32,9 +32,11 @@ from mitsnerf.math.phase import WINDOWS
 
 @dataclass(frozen=True)
 class DirectionalConfig:
-    """The directional oracle's settings (anisotropic media only); the volpath directions, grid resolution and
-    seed are the oracle's own (:class:`mitsnerf.oracle.cache.OracleConfig`)."""
+    """The directional oracle's settings (anisotropic media only); the grid resolution and seed are the oracle's
+    own (:class:`mitsnerf.oracle.cache.OracleConfig`), and so are the volpath directions unless ``spp`` is set."""
 
+    spp: int = param(0, lo=0, doc="volpath directions per grid point (0: the oracle's spp); the high orders' "
+                                  "coefficients are noisy and need more than an isotropic oracle's Lbar_mc")
     order: int = param(6, lo=0, hi=9, doc="spherical-harmonic order L of the in-scattered radiance (Dr.Jit: <= 9)")
     window: str = param("lanczos", choices=WINDOWS, doc="taper of the truncated series' bands (none: g^l only)")
     report_orders: tuple[int, ...] = param((0, 1, 2, 4), lo=0, hi=9,
