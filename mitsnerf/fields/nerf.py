@@ -8,6 +8,7 @@ CPU-sized trunk of 4 x 64 instead of 8 x 256)::
     h      = MLP_trunk(gamma(p))        depth D, width W, ReLU, the input re-injected at `skip`
     sigma  = softplus(h_0 + sigma_bias) * sigma_scale              (position only)
     c      = c_max * sigmoid(MLP_head([h_1.., gamma((d + 1) / 2)]))  (features [+ direction])
+             the head's output bias starts at logit(1 / (2 c_max)): c starts at 1/2 (colour_bias)
 
 ``gamma((d + 1) / 2)`` is NeRF's ``sin(2^k pi d)`` up to sign, for ``d`` in ``[-1, 1]^3``.
 
@@ -33,6 +34,7 @@ their gradients in their own order.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import drjit as dr
@@ -176,7 +178,23 @@ def build_network(config: NeRFConfig, TensorXf, seed: int = 0, head: bool = True
         return NeRFNetwork(trunk, out, [])
     h1 = nn.Linear(config.features + in_dir, config.head_width).alloc(TensorXf, 0, rng)
     h2 = nn.Linear(config.head_width, 3).alloc(TensorXf, 0, rng)
+    h2.bias = TensorXf([colour_bias(config.c_max)] * 3)
     return NeRFNetwork(trunk, out, [h1, h2])
+
+
+def colour_bias(c_max: float, c_0: float = 0.5) -> float:
+    """The colour head's initial output bias ``b = logit(c_0 / c_max)``: the colour ``c_max sigmoid(b)`` starts
+    at ``c_0`` (the middle of ``[0, 1]``) whatever ``c_max`` is; 0 at ``c_max = 1``, as before.
+
+    A start at ``c_max / 2`` made nerf learn an empty medium on cloud_hg85 (benchmarks/README.md, "The physics
+    table"): ``c_max`` follows the brightest training pixels (:func:`mitsnerf.methods.base.cover_radiance`:
+    ~12 where the sun's forward peak is seen through the cloud), a start ~10x brighter than the medium, which
+    the fit darkens fastest by clearing the density, whose softplus and occupancy grid then keep it cleared.
+
+    >>> colour_bias(1.0), round(colour_bias(12.0), 4)
+    (0.0, -3.1355)
+    """
+    return math.log(c_0 / (c_max - c_0)) if c_max > c_0 else 0.0
 
 
 @dataclass(frozen=True)

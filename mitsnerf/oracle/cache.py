@@ -30,7 +30,7 @@ from __future__ import annotations
 import json
 import time
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
 
@@ -179,7 +179,7 @@ def _directional(spec, sigma_t: np.ndarray, albedo: np.ndarray, box, config: Ora
     r = config.resolution or sigma_t.shape[0]
     r_delta = config.delta_resolution or sigma_t.shape[0]
     grids = D.estimate(_inner_scene(spec, sigma_t, albedo), spec.lights, spec.volume.phase.g, sigma_t, box, r,
-                       r_delta, config.spp, dc.order, config.seed, config.noise_replicas)
+                       r_delta, dc.spp or config.spp, dc.order, config.seed, config.noise_replicas)
     by_order = {o: D.oracle_field(grids, sigma_t, albedo, box, o, dc.window) for o in dc.orders()}
 
     def variance(cameras, footprint: int, pixel_center: float) -> np.ndarray:
@@ -232,8 +232,10 @@ def compute_oracle(dataset, config: OracleConfig, footprint: int,
     if inputs is None:
         return None
     spec, sigma_t, albedo = inputs
+    config = resolved(config, spec)
     ref = reference(dataset, "test")
-    log(f"oracle: the in-scattered light by volpath from inside the medium ({config.spp} directions per point) ...")
+    spp = config.directional.spp or config.spp if config.directional is not None else config.spp
+    log(f"oracle: the in-scattered light by volpath from inside the medium ({spp} directions per point) ...")
     est = (_isotropic if is_isotropic(spec.volume.phase) else _directional)(spec, sigma_t, albedo, dataset.box, config)
     seconds = est.info.pop("seconds")
     start = time.perf_counter()
@@ -266,8 +268,19 @@ def compute_oracle(dataset, config: OracleConfig, footprint: int,
     return info, scores, arrays
 
 
+def resolved(config: OracleConfig, spec) -> OracleConfig:
+    """``config`` as it applies to the medium of ``spec``: an anisotropic one's with its directional settings
+    spelt out (None: :class:`DirectionalConfig`'s defaults), so that they are part of its key."""
+    from mitsnerf.scene.spec import is_isotropic
+
+    if spec is None or config.directional is not None or is_isotropic(spec.volume.phase):
+        return config
+    return replace(config, directional=DirectionalConfig())
+
+
 def oracle_path(dataset, config: OracleConfig, footprint: int) -> Path:
-    """Where ``dataset``'s oracle for these settings is cached."""
+    """Where ``dataset``'s oracle for these settings is cached (:func:`resolved` settings)."""
+    config = resolved(config, (_grids(dataset) or (None,))[0])
     return Path(dataset.root) / ORACLE_DIR / oracle_key(str(dataset.manifest.get("hash")), config, footprint)[:12]
 
 
@@ -291,8 +304,10 @@ def ensure_oracle(dataset, config: OracleConfig, footprint: int,
     from mitsnerf.data.atomic import atomic_dir, atomic_write_json, clean_stale_temps
     from mitsnerf.data.cache import dataset_lock
 
-    if _grids(dataset) is None:
+    inputs = _grids(dataset)
+    if inputs is None:
         return None
+    config = resolved(config, inputs[0])
     path = oracle_path(dataset, config, footprint)
     found = load_oracle(path)
     if found is not None:

@@ -32,12 +32,20 @@ from mitsnerf.math.phase import WINDOWS
 
 @dataclass(frozen=True)
 class DirectionalConfig:
-    """The directional oracle's settings (anisotropic media only); the volpath directions, grid resolution and
-    seed are the oracle's own (:class:`mitsnerf.oracle.cache.OracleConfig`)."""
+    """The directional oracle's settings (anisotropic media only); the grid resolution and seed are the oracle's
+    own (:class:`mitsnerf.oracle.cache.OracleConfig`), and so are the volpath directions if ``spp`` is 0.
 
-    order: int = param(6, lo=0, hi=9, doc="spherical-harmonic order L of the in-scattered radiance (Dr.Jit: <= 9)")
+    The defaults, measured on cloud_hg85 at library size (benchmarks/README.md, "Anisotropic media: the
+    directional oracle per order"): the order has converged by 6 (6 -> 8 -> 9 within 0.2 dB), and the ceiling
+    is then limited by the Monte Carlo noise of the coefficients, 55% of its error at 512 directions per point;
+    2048 put it under a quarter (the variance halves per doubling), at 16x the isotropic oracle's volpath time.
+    """
+
+    spp: int = param(2048, lo=0, doc="volpath directions per grid point (0: the oracle's spp); the high orders' "
+                                     "coefficients are noisy and need more than an isotropic oracle's Lbar_mc")
+    order: int = param(8, lo=0, hi=9, doc="spherical-harmonic order L of the in-scattered radiance (Dr.Jit: <= 9)")
     window: str = param("lanczos", choices=WINDOWS, doc="taper of the truncated series' bands (none: g^l only)")
-    report_orders: tuple[int, ...] = param((0, 1, 2, 4), lo=0, hi=9,
+    report_orders: tuple[int, ...] = param((0, 1, 2, 4, 6), lo=0, hi=9,
                                            doc="lower orders the ceiling is also scored at (its convergence)")
 
     def __post_init__(self) -> None:

@@ -224,3 +224,24 @@ def test_parameters_of_another_shape_are_refused_by_name():
     with pytest.raises(ParameterShapeError, match=r"has shape \(16, 3\), the method's config builds \(16, 27\)") as e:
         model.set_parameters({"fine.trunk.0.weights": wrong})
     assert e.value.key == "fine.trunk.0.weights"
+
+
+def test_a_bright_colour_range_does_not_start_the_medium_empty(tiny_views, blob_grid):
+    """cloud_hg85's training views hold the sun's forward peak (radiance ~10), so ``cover_radiance`` raises
+    ``c_max`` to ~12: a colour head starting at ``c_max / 2`` (~6) on dim images made the fit clear the medium
+    (the quickest way to darken every pixel) and the density never came back. It starts where it does with
+    ``c_max = 1`` (0.5), so the fit finds the blob."""
+    from dataclasses import replace
+
+    data, info = tiny_views()
+    bright = replace(info, radiance_max=10.0)
+    model = NeRFModel(NeRFMethodConfig(network=SMALL, coarse_network=NeRFConfig(width=16, depth=1, pos_octaves=4),
+                                       n_samples=12, n_importance=12), bright)
+    assert model.base_field.config.c_max == pytest.approx(12.5)
+    x = mi.Array3f(*(np.random.default_rng(1).uniform(-0.5, 0.5, (3, 512)).astype(np.float32)))
+    rgb, _ = model.base_field(x, mi.Array3f(0.0, 0.0, 1.0))
+    assert np.all(np.abs(np.asarray(rgb.x) - 0.5) < 0.3)
+    train(model, data, TrainConfig(steps=60, batch_rays=256, log_every=10), 2e-2, progress=False)
+    learned = float(np.mean(np.asarray(model.field().density(x))))
+    true = float(np.mean(blob_grid))
+    assert learned > 0.3 * true, (learned, true)

@@ -91,3 +91,18 @@ def test_settings_are_validated():
         from_dict(OracleConfig, {"resolution": 1}, source="bench.toml", prefix="oracle")
     with pytest.raises(SpecError, match="spp"):
         from_dict(OracleConfig, {"spp": 1}, source="bench.toml", prefix="oracle")
+
+
+def test_an_anisotropic_mediums_key_spells_out_the_directional_defaults():
+    """With ``directional = None`` the defaults apply to an anisotropic medium, and are part of its key (a change
+    of the defaults is another oracle); an isotropic medium's settings and key are left as they are."""
+    from mitsnerf.oracle.cache import resolved
+    from mitsnerf.oracle.directional import DirectionalConfig
+
+    hg = parse_scene(json.loads(json.dumps({**TINY, "volume": {**TINY["volume"], "phase": {"type": "hg", "g": 0.85}}})),
+                     "hg.toml")
+    iso = parse_scene(json.loads(json.dumps(TINY)), "tiny.toml")
+    assert resolved(CONFIG, iso) is CONFIG
+    assert resolved(CONFIG, hg).directional == DirectionalConfig()
+    custom = OracleConfig(directional=DirectionalConfig(spp=64, order=3))
+    assert resolved(custom, hg) is custom

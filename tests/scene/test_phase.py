@@ -83,7 +83,8 @@ def test_an_anisotropic_medium_gets_the_directional_oracle(tmp_path):
     spec = with_phase({"type": "hg", "g": 0.5}).with_overrides(small)
     dataset = load_dataset(generate_dataset(spec, tmp_path, progress=False))
     assert dataset.manifest["spec"]["volume"]["phase"] == {"type": "hg", "g": 0.5}
-    config = OracleConfig(spp=4, resolution=8, directional=DirectionalConfig(order=2, report_orders=(0,)))
+    config = OracleConfig(spp=4, resolution=8, directional=DirectionalConfig(spp=4, order=2,
+                                                                            report_orders=(0,)))
     oracle = ensure_oracle(dataset, config, 1)
     assert oracle is not None and set(oracle.info["directional"]["psnr_test_medium_by_order"]) == {"0", "2"}
     assert (oracle.path / "lbar_sh.npy").is_file() and not (oracle.path / "lbar_mc.npy").exists()
