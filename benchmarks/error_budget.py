@@ -6,8 +6,9 @@ the default footprint, next to the dataset's noise floor and the emission-absorp
 any emission-absorption model can do on the dataset):
 
 - ``baseline``: the default run;
-- ``clean views``: the same scene with noise-free-ish training views (``render.spp_train = 1024``
-  instead of 64): what the training views' Monte Carlo noise costs;
+- ``clean views``: the same scene with nearly noise-free training views (``render.spp_train = S_clean``,
+  ``--clean-spp``, 2048 unless told, instead of the scene's): what the training views' Monte Carlo noise
+  costs, the clean-views row minus the baseline;
 - ``finer``: a representation with twice the resolution (voxel grid 128^3; ngp's finest level 48;
   nerf one more position octave, twice its finest frequency):
   what the representation's resolution costs;
@@ -15,9 +16,12 @@ any emission-absorption model can do on the dataset):
 - ``4x steps``: the optimisation budget;
 - ``K = 1`` / ``centre rays``: the pixel footprint in evaluation / in training.
 
-Budgets are steps, so the figures do not depend on the machine's load.
+``--spp-train S`` renders every variant's training views at ``S`` spp instead of the scene's (a candidate
+default: the baseline row is then that candidate's). Budgets are steps, so the figures do not depend on the
+machine's load.
 
     .venv/bin/python benchmarks/error_budget.py [--scene cloud] [--methods voxel ngp] [--data DIR]
+        [--spp-train S] [--clean-spp S_clean]
 """
 
 from __future__ import annotations
@@ -30,12 +34,16 @@ from pathlib import Path
 VARIANTS = ("baseline", "clean views", "finer", "less prior", "more prior", "4x steps", "K = 1", "centre rays")
 
 
-def variant(method: str, name: str, settings: dict) -> dict | None:
-    """``settings`` (``config``, ``train``, ``eval``, ``spec``) changed for one variant, or None if it does not apply."""
+CLEAN_SPP = 2048
+
+
+def variant(method: str, name: str, settings: dict, clean_spp: int = CLEAN_SPP) -> dict | None:
+    """``settings`` (``config``, ``train``, ``eval``, ``spec``) changed for one variant, or None if it does not apply;
+    ``clean_spp``: the training views' spp of ``clean views``."""
     s = copy.deepcopy(settings)
     config, train, evalc = s["config"], s["train"], s["eval"]
     if name == "clean views":
-        s["spec"] = {"render.spp_train": 1024}
+        s["spec"] = {**(s["spec"] or {}), "render.spp_train": clean_spp}
     elif name == "finer" and method == "voxel":
         config.update(resolution=128, initial_resolution=32, upsample_steps=[150, 400])
     elif name == "finer" and method == "ngp":
@@ -78,22 +86,25 @@ def run_one(method: str, name: str, s: dict, data_root: Path, scene: str) -> dic
     run = fit(dataset, method, s["config"], from_dict(TrainConfig, s["train"]), None, eval_config=evalc,
               progress=False, reference=scoring.reference(dataset, "test"), oracle=oracle)
     m = run.metrics()
-    return {"method": method, "variant": name, "steps": m["steps"], "footprint": m["footprint"],
+    return {"method": method, "variant": name, "spp_train": spec.render.spp_train, "steps": m["steps"],
+            "footprint": m["footprint"],
             "psnr_medium": m["psnr_test_medium"], "psnr": m["psnr_test"], "psnr_train": m["psnr_train"],
             "oracle_medium": m.get("oracle_psnr_test_medium"), "floor_medium": m.get("noise_floor_psnr_medium"),
             "gap_to_oracle": m.get("gap_to_oracle"), "train_seconds": m["train_seconds"]}
 
 
 def table(rows: list[dict]) -> str:
-    lines = ["| method | variant | steps | K | medium PSNR | change | gap to oracle | oracle | floor | train PSNR |",
-             "|---|---|---|---|---|---|---|---|---|---|"]
+    lines = ["| method | variant | train spp | steps | K | medium PSNR | change | gap to oracle | oracle | floor "
+             "| train PSNR |",
+             "|---|---|---|---|---|---|---|---|---|---|---|"]
     base = {r["method"]: r["psnr_medium"] for r in rows if r["variant"] == "baseline"}
 
     def f(v, fmt="{:.2f}"):
         return "-" if v is None else fmt.format(v)
     for r in rows:
         change = None if base.get(r["method"]) is None else r["psnr_medium"] - base[r["method"]]
-        lines.append(f"| {r['method']} | {r['variant']} | {r['steps']} | {r['footprint']} | {f(r['psnr_medium'])} | "
+        lines.append(f"| {r['method']} | {r['variant']} | {r['spp_train']} | {r['steps']} | {r['footprint']} | "
+                     f"{f(r['psnr_medium'])} | "
                      f"{f(change, '{:+.2f}')} | {f(r['gap_to_oracle'])} | {f(r['oracle_medium'])} | "
                      f"{f(r['floor_medium'])} | {f(r['psnr_train'])} |")
     return "\n".join(lines)
@@ -105,6 +116,8 @@ def main() -> None:
     parser.add_argument("--methods", nargs="+", default=["voxel", "ngp"])
     parser.add_argument("--variants", nargs="+", default=list(VARIANTS), choices=VARIANTS)
     parser.add_argument("--data", default="data", help="dataset cache root")
+    parser.add_argument("--spp-train", type=int, help="training views' spp of every variant (default: the scene's)")
+    parser.add_argument("--clean-spp", type=int, default=CLEAN_SPP, help="training views' spp of 'clean views'")
     args = parser.parse_args()
 
     import mitsnerf  # noqa: F401  (libLLVM before drjit)
@@ -119,9 +132,10 @@ def main() -> None:
         if method.name not in args.methods:
             continue
         config, train = bench.method_settings(method, quick=False)
-        settings = {"config": config, "train": train, "eval": to_dict(bench.eval), "spec": None}
+        spec = None if args.spp_train is None else {"render.spp_train": args.spp_train}
+        settings = {"config": config, "train": train, "eval": to_dict(bench.eval), "spec": spec}
         for name in args.variants:
-            s = variant(method.name, name, settings)
+            s = variant(method.name, name, settings, args.clean_spp)
             if s is not None:
                 rows.append(run_one(method.name, name, s, Path(args.data), args.scene))
                 print(json.dumps(rows[-1]), flush=True)

@@ -117,7 +117,7 @@ def test_library_loads_and_names_resolve():
     assert families >= {"cloud", "plume", "blobs", "shell", "lattice", "nebula"}
     cloud = load_scene("cloud")
     assert (cloud.cameras.width, cloud.cameras.n_train, cloud.cameras.n_test) == (64, 40, 8)
-    assert (cloud.render.spp_train, cloud.render.spp_test, cloud.volume.resolution) == (64, 2048, 64)
+    assert (cloud.render.spp_train, cloud.render.spp_test, cloud.volume.resolution) == (768, 2048, 64)
 
 
 def test_unknown_name_lists_known():
@@ -203,7 +203,7 @@ def test_malformed_file_reports_the_file(tmp_path):
 # (computed with the spec reader before the config mechanism was unified, commit 04756f5).
 SHIPPED_HASHES = {
     "blobs": "d8b5f2dce212d206da87a41984589eb668d90d714f5b7ba7e355253c41bf08c2",
-    "cloud": "29f8e19170f27107730e1a8e70b4ecd95900857801130baa04f93f74c46249d4",
+    "cloud": "3414ceef2c609b037c853351b56eb9923ff9977c50ac98fcd9dbf195a3392320",  # spp_train 768 (was 64)
     "cloud_thick": "6604073a66e2b4cab6ffe2cd7717180767f69aa6aad0a68d1a7d402eacac5865",
     "lattice": "b48e19b0df38a335720c68d55ce691b03deeb7c560a6dabdddb303e29bcc21de",
     "nebula": "284852ca52707c7a2b65e0edb8f64ed4928a42febe68247b9648e7ee63bb77d1",
@@ -217,6 +217,12 @@ def test_shipped_scene_content_hashes_are_pinned(name):
     spec = load_scene(name)
     assert spec.content_hash() == SHIPPED_HASHES[name]
     assert parse_scene(spec.to_dict(), "again").content_hash() == SHIPPED_HASHES[name]
+
+
+def test_the_cloud_at_its_old_training_spp_keeps_its_old_hash():
+    """The cloud's hash moved only because its spec did (render.spp_train 64 -> 768), not its serialisation."""
+    old = load_scene("cloud").with_overrides({"render.spp_train": 64})
+    assert old.content_hash() == "29f8e19170f27107730e1a8e70b4ecd95900857801130baa04f93f74c46249d4"
 
 
 MORE_MALFORMED = [  # (path, value, field, exact message)
