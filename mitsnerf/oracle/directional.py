@@ -36,9 +36,9 @@ class DirectionalConfig:
     own (:class:`mitsnerf.oracle.cache.OracleConfig`), and so are the volpath directions if ``spp`` is 0.
 
     The defaults, measured on cloud_hg85 at library size (benchmarks/README.md, "Anisotropic media: the
-    directional oracle per order"): the order has converged by 6 (6 -> 8 -> 9 within 0.2 dB), and the ceiling
-    is then limited by the Monte Carlo noise of the coefficients, 55% of its error at 512 directions per point;
-    2048 put it under a quarter (the variance halves per doubling), at 16x the isotropic oracle's volpath time.
+    directional oracle per order"): at 1024 directions per point the order has converged by 8 (8 -> 9: +0.05
+    dB), and the ceiling is limited by the Monte Carlo noise of the coefficients, 47% of its error; it halves
+    per doubling, so 2048 puts it at about 0.3, at 16x the isotropic oracle's volpath time.
     """
 
     spp: int = param(2048, lo=0, doc="volpath directions per grid point (0: the oracle's spp); the high orders' "
