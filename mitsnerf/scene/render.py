@@ -46,9 +46,9 @@ that mixes the channels by the path's throughput (``Medium::get_interaction_prob
 not the collision probability of any channel, nor their mean (``benchmarks/chromatic_alpha.py`` on the
 library's ``smoke``, 8 views at 2048 spp: z from 61 to 668 against each channel's ``1 - T`` and the
 channels' mean; it agrees with ``1 - T`` of the channels' mean extinction, z -1.2 and +0.4, an observation
-rather than a derived identity, since the mixing weights change along the path). The image is then ``M + mean(T L_env)`` per channel,
-without the alpha term: unbiased whatever alpha estimates (a camera path escapes with weighted
-throughput ``T_k`` in channel ``k`` on average), and alpha is recorded, not checked.
+rather than a derived identity, since the mixing weights change along the path). The image is then
+``M + mean(T L_env)`` per channel, without the alpha term: unbiased whatever alpha estimates (a camera path
+escapes with weighted throughput ``T_k`` in channel ``k`` on average), and alpha is recorded, not checked.
 """
 
 from __future__ import annotations
