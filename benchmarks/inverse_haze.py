@@ -6,11 +6,13 @@ whole-image PSNR of the test views, the density's relative L1 error (epsilon) an
 (delta, > 0 when the learned medium holds more), and the transmittance MAE along the test rays.
 
 - ``baseline``: the settings as they are (``init_sigma_t = 1``);
-- ``init 0.1``: a low initial extinction (``init_sigma_t = 0.1``);
+- ``init 0.1`` / ``init 0``: a low or zero initial extinction (``init_sigma_t``);
 - ``l1 X``: the sparsity prior ``X * mean(sigma_t)`` added to the loss;
 - ``4 views``: four training views per step instead of one;
 - ``spp 32 late``: 32 instead of 8 samples per pixel in the last half of the steps;
 - ``carve``: the emptiness mask from training pixels that show the environment unattenuated;
+- ``majorant 40``: delta tracking's majorant fixed at 40 (the true maximum is 30) instead of the grid's
+  maximum, and ``init 0, majorant 40``: the zero start it makes possible;
 - ``best``: the combination that ``--combo`` names (fields as in ``--set``).
 
 Budgets are steps, so the figures do not depend on the machine's load (the train seconds do).
@@ -30,12 +32,13 @@ VARIANTS: dict[str, dict] = {
     "baseline": {},
     "init 0.1": {"init_sigma_t": 0.1},
     "init 0": {"init_sigma_t": 0.0},
-    "l1 0.01": {"l1": 0.01},
-    "l1 0.1": {"l1": 0.1},
-    "l1 1": {"l1": 1.0},
+    "l1 1e-3": {"l1": 1e-3},
+    "l1 1e-2": {"l1": 1e-2},
     "4 views": {"views_per_step": 4},
     "spp 32 late": {"spp_late": 32, "spp_late_at": -1},  # -1: half the steps
     "carve": {"carve": True},
+    "majorant 40": {"majorant": 40.0},
+    "init 0, majorant 40": {"init_sigma_t": 0.0, "majorant": 40.0},
 }
 
 

@@ -76,6 +76,11 @@ class MitsubaInverseConfig(MethodConfig):
     """Learning-rate factor applied once per upsampling."""
     sigma_t_max: float = param(200.0, lo=0.0, lo_open=True)
     """Clamp of sigma_t after each step (one spiking voxel raises the global majorant)."""
+    majorant: float = param(0.0, lo=0.0)
+    """Fixed majorant of delta tracking (world units^-1; the sigma_t ``gridvolume``'s ``max_value``), and
+    then the clamp of sigma_t too when below ``sigma_t_max``; 0: Mitsuba's default, the grid's maximum
+    after each update. Differentiable delta tracking gets sigma_t's gradient only at the collisions,
+    real and null, that it samples at this rate: a zero grid under the default majorant has none."""
     spp: int = param(8, lo=1)
     """Samples per pixel of each training render."""
     spp_late: int = param(0, lo=0)
@@ -111,6 +116,13 @@ class MitsubaInverseConfig(MethodConfig):
             raise ValueError("spp_late_at: needs the step from which spp_late applies (> 0), got 0")
         if self.init_sigma_t > self.sigma_t_max:
             raise ValueError(f"init_sigma_t: must be <= sigma_t_max ({self.sigma_t_max:g}), got {self.init_sigma_t:g}")
+        if self.majorant and self.init_sigma_t > self.majorant:
+            raise ValueError(f"init_sigma_t: must be <= majorant ({self.majorant:g}), got {self.init_sigma_t:g}")
+
+    @property
+    def sigma_t_clamp(self) -> float:
+        """The largest sigma_t kept after a step: ``sigma_t_max``, or the fixed ``majorant`` if lower."""
+        return min(self.sigma_t_max, self.majorant) if self.majorant else self.sigma_t_max
 
 
 def unattenuated_pixels(images: np.ndarray, cameras, background, tol: float) -> list[np.ndarray]:
@@ -183,6 +195,8 @@ class MitsubaInverseModel(ViewModel):
         albedo = np.full((r, r, r, 3), config.init_albedo, dtype=np.float32)
         desc = scene_dict(self.spec, sigma_t, albedo)
         desc["integrator"] = {"type": "prbvolpath", "max_depth": int(self.max_depth)}
+        if config.majorant:
+            desc["medium_box"]["interior"]["sigma_t"]["max_value"] = float(config.majorant)
         self.scene = mi.load_dict(desc)
         self.params = mi.traverse(self.scene)
         self._key_sigma = self._find_key(SIGMA_T_SUFFIX)
@@ -233,14 +247,15 @@ class MitsubaInverseModel(ViewModel):
         return scales
 
     def after_step(self, step: int, params: Mapping[str, Any]) -> Mapping[str, Any]:
-        """The grids resampled after ``upsample_at`` steps; sigma_t clamped to [0, sigma_t_max], albedo to [0, 1]."""
+        """The grids resampled after ``upsample_at`` steps; sigma_t clamped to [0, sigma_t_clamp] and carved,
+        albedo clamped to [0, 1]."""
         done = step + 1
         new = {key: params[key] for key in ("sigma_t", "albedo") if key in params}
         if done in self.config.upsample_at:
             r = self.config.resolutions[self.config.upsample_at.index(done) + 1]
             new = {key: dr.resample(v, (r, r, r, v.shape[-1]), filter="linear", boundary="nearest")
                    for key, v in new.items()}
-        new["sigma_t"] = self._carved(dr.clip(new["sigma_t"], 0.0, self.config.sigma_t_max))
+        new["sigma_t"] = self._carved(dr.clip(new["sigma_t"], 0.0, self.config.sigma_t_clamp))
         if "albedo" in new:
             new["albedo"] = dr.clip(new["albedo"], 0.0, 1.0)
         self.set_parameters(new)

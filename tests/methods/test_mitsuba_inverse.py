@@ -132,3 +132,16 @@ def test_late_samples_are_used_from_their_step(tiny):
     assert [model.spp_at(s) for s in (0, 4, 5, 9)] == [4, 4, 16, 16]
     with pytest.raises(ValueError, match="spp_late_at"):
         MitsubaInverseConfig(spp_late=32)
+
+
+def test_a_zero_start_learns_only_under_a_fixed_majorant(tiny):
+    _, info, data = tiny
+    means = {}
+    for majorant in (0.0, 20.0):
+        config = MitsubaInverseConfig(resolutions=(8,), upsample_at=(), spp=4, init_sigma_t=0.0, majorant=majorant,
+                                      sigma_t_max=40.0)
+        model = MitsubaInverseModel(config, info)
+        train(model, data, TrainConfig(steps=4, log_every=4), 0.5, progress=False)
+        means[majorant] = float(np.mean(np.asarray(model.sigma_t)))
+        assert np.asarray(model.sigma_t).max() <= config.sigma_t_clamp == (majorant or 40.0)
+    assert means[0.0] == 0.0 and means[20.0] > 0.01, means  # no collisions, no gradient under a zero maximum
