@@ -13,7 +13,7 @@ whole-image PSNR of the test views, the density's relative L1 error (epsilon) an
 - ``carve``: the emptiness mask from training pixels that show the environment unattenuated;
 - ``majorant 40``: delta tracking's majorant fixed at 40 (the true maximum is 30) instead of the grid's
   maximum, and ``init 0, majorant 40``: the zero start it makes possible;
-- ``best``: the combination that ``--combo`` names (fields as in ``--set``).
+- combinations: ``--combo '{"NAME": {FIELD: VALUE, ...}}'`` adds variants (MitsubaInverseConfig fields).
 
 Budgets are steps, so the figures do not depend on the machine's load (the train seconds do).
 
@@ -42,9 +42,9 @@ VARIANTS: dict[str, dict] = {
 }
 
 
-def settings(name: str, steps: int, combo: dict) -> dict:
-    """The config overrides of variant ``name`` at ``steps`` steps."""
-    config = dict(combo) if name == "best" else dict(VARIANTS[name])
+def settings(name: str, steps: int, combos: dict) -> dict:
+    """The config overrides of variant ``name`` (one of VARIANTS or of ``combos``) at ``steps`` steps."""
+    config = dict(combos[name]) if name in combos else dict(VARIANTS[name])
     if config.get("spp_late_at") == -1:
         config["spp_late_at"] = steps // 2
     return config
@@ -91,8 +91,9 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--scene", default="cloud")
     parser.add_argument("--steps", type=int, default=400)
-    parser.add_argument("--variants", nargs="+", default=list(VARIANTS), choices=[*VARIANTS, "best"])
-    parser.add_argument("--combo", default="{}", help="JSON overrides of the 'best' variant")
+    parser.add_argument("--variants", nargs="+", default=None,
+                        help="names of VARIANTS or of --combo (default: the combos if any, else VARIANTS)")
+    parser.add_argument("--combo", default="{}", help='JSON {"NAME": {overrides}}: more variants')
     parser.add_argument("--data", default="data", help="dataset cache root")
     parser.add_argument("--jsonl", default=None, help="append each row to this file as it finishes")
     args = parser.parse_args()
@@ -101,9 +102,14 @@ def main() -> None:
     from mitsnerf import env
 
     env.set_variant()
+    combos = json.loads(args.combo)
+    names = args.variants or ([*combos] if combos else [*VARIANTS])
+    unknown = [n for n in names if n not in VARIANTS and n not in combos]
+    if unknown:
+        parser.error(f"unknown variants {unknown}: choose from {[*VARIANTS, *combos]}")
     rows = []
-    for name in args.variants:
-        rows.append(run_one(name, settings(name, args.steps, json.loads(args.combo)), args.steps,
+    for name in names:
+        rows.append(run_one(name, settings(name, args.steps, combos), args.steps,
                             Path(args.data), args.scene))
         print(json.dumps(rows[-1]), flush=True)
         if args.jsonl:

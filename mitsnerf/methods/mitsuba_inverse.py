@@ -21,6 +21,29 @@ here). After every step ``sigma_t`` is clamped to ``[0, sigma_t_max]`` -- Mitsub
 heterogeneous medium uses one global majorant, so a single spiking voxel would slow every
 step -- and ``albedo`` to ``[0, 1]``.
 
+What it knows that the emission-absorption methods do not: the dataset's spec gives it the lights
+(the constant sky and the sun, with their radiance), the phase function, the medium's box and the path
+length, so it fits only ``sigma_t`` and the albedo, and its ``sigma_t`` is an extinction in the same
+units as the truth's; the other methods learn a radiance field that must also absorb the lighting.
+
+The haze. Under a nearly uniform environment a scattering haze of the right albedo is almost invisible
+(the white-furnace ambiguity), so from ``init_sigma_t = 1`` the images leave a haze of sigma_t ~ 5 in the
+empty part of the box. The remedies, each a setting (benchmarks/README.md, "mitsuba-inverse: removing the
+haze", measures each):
+
+- ``carve``: an emptiness mask. A training pixel whose value is the environment seen straight through
+  (``max over channels |image - background(d)| <= carve_tol``; in the generated datasets exactly the
+  pixels whose samples all missed the medium) says the medium is empty along its ray, so every voxel that
+  its centre ray crosses is held at 0 (space carving, at each resolution);
+- ``l1``: a sparsity prior ``l1 * mean(sigma_t)`` in the loss;
+- ``init_sigma_t``: a low start; a zero start needs ``majorant``, a fixed delta-tracking majorant
+  (the grid's ``max_value``), since under the grid's own maximum a zero grid gets no collisions and so
+  no gradient;
+- ``views_per_step`` and ``spp_late`` / ``spp_late_at``: less noise in each step's gradient.
+
+Mitsuba 3.9's ``prbvolpath`` has no other estimator to choose: its gradients of a heterogeneous medium
+come from differentiable delta tracking (unbiased, one global majorant); the majorant is its one knob.
+
 The settings (a bench file's ``[[methods]] config`` table, ``--set`` on the command line) are
 :class:`MitsubaInverseConfig`'s fields.
 
