@@ -145,3 +145,12 @@ def test_a_zero_start_learns_only_under_a_fixed_majorant(tiny):
         means[majorant] = float(np.mean(np.asarray(model.sigma_t)))
         assert np.asarray(model.sigma_t).max() <= config.sigma_t_clamp == (majorant or 40.0)
     assert means[0.0] == 0.0 and means[20.0] > 0.01, means  # no collisions, no gradient under a zero maximum
+
+
+def test_several_views_per_step_are_rendered_and_averaged(tiny):
+    from mitsnerf.train.schedule import step_rng
+
+    _, info, data = tiny
+    model = MitsubaInverseModel(MitsubaInverseConfig(resolutions=(8,), upsample_at=(), spp=2, views_per_step=3), info)
+    step = model.training_loss(data, 0, step_rng(0, 0))
+    assert step.rays == 3 * 12 * 12 and np.isfinite(float(step.mse[0]))
