@@ -96,3 +96,61 @@ def test_it_needs_a_generated_dataset_and_valid_settings():
         MitsubaInverseModel(CONFIG, info)
     with pytest.raises(ValueError, match="upsample_at"):
         MitsubaInverseConfig(resolutions=(8, 16), upsample_at=())
+
+
+def test_the_sparsity_prior_lowers_the_extinction(tiny):
+    _, info, data = tiny
+    means = {}
+    for l1 in (0.0, 50.0):
+        model = MitsubaInverseModel(MitsubaInverseConfig(resolutions=(8,), upsample_at=(), spp=4, l1=l1), info)
+        train(model, data, TrainConfig(steps=4, log_every=4, seed=3), 0.5, progress=False)
+        means[l1] = float(np.mean(np.asarray(model.sigma_t)))
+    assert means[50.0] < means[0.0] - 0.1, means
+
+
+def test_the_emptiness_mask_zeroes_the_voxels_that_unattenuated_pixels_cross(tiny):
+    from mitsnerf.methods.mitsuba_inverse import carve_mask, unattenuated_pixels
+
+    _, info, data = tiny
+    empty = unattenuated_pixels(data.images, data.cameras, info.background, 1e-4)
+    assert 0 < np.mean(np.concatenate(empty)) < 1  # the views show both the sky and the medium
+    assert carve_mask(data.cameras, [np.zeros_like(e) for e in empty], info.box, 8).all()
+    assert not carve_mask(data.cameras, [np.ones_like(e) for e in empty], info.box, 8)[4, 4, 4]  # centre seen
+    config = MitsubaInverseConfig(resolutions=(8, 16), upsample_at=(2,), spp=4, carve=True)
+    model = MitsubaInverseModel(config, info)
+    train(model, data, TrainConfig(steps=3, log_every=3), 0.5, progress=False)
+    keep = carve_mask(data.cameras, empty, info.box, 16)
+    assert 0 < keep.mean() < 1, keep.mean()
+    sigma = np.asarray(model.sigma_t)[..., 0]
+    assert np.all(sigma[~keep] == 0) and sigma[keep].mean() > 0
+
+
+def test_late_samples_are_used_from_their_step(tiny):
+    _, info, _ = tiny
+    model = MitsubaInverseModel(MitsubaInverseConfig(resolutions=(8,), upsample_at=(), spp=4, spp_late=16,
+                                                     spp_late_at=5), info)
+    assert [model.spp_at(s) for s in (0, 4, 5, 9)] == [4, 4, 16, 16]
+    with pytest.raises(ValueError, match="spp_late_at"):
+        MitsubaInverseConfig(spp_late=32)
+
+
+def test_a_zero_start_learns_only_under_a_fixed_majorant(tiny):
+    _, info, data = tiny
+    means = {}
+    for majorant in (0.0, 20.0):
+        config = MitsubaInverseConfig(resolutions=(8,), upsample_at=(), spp=4, init_sigma_t=0.0, majorant=majorant,
+                                      sigma_t_max=40.0)
+        model = MitsubaInverseModel(config, info)
+        train(model, data, TrainConfig(steps=4, log_every=4), 0.5, progress=False)
+        means[majorant] = float(np.mean(np.asarray(model.sigma_t)))
+        assert np.asarray(model.sigma_t).max() <= config.sigma_t_clamp == (majorant or 40.0)
+    assert means[0.0] == 0.0 and means[20.0] > 0.01, means  # no collisions, no gradient under a zero maximum
+
+
+def test_several_views_per_step_are_rendered_and_averaged(tiny):
+    from mitsnerf.train.schedule import step_rng
+
+    _, info, data = tiny
+    model = MitsubaInverseModel(MitsubaInverseConfig(resolutions=(8,), upsample_at=(), spp=2, views_per_step=3), info)
+    step = model.training_loss(data, 0, step_rng(0, 0))
+    assert step.rays == 3 * 12 * 12 and np.isfinite(float(step.mse[0]))

@@ -1,0 +1,123 @@
+"""mitsuba-inverse's haze: each remedy of the inverse-rendering literature on its own, then together.
+
+Every run starts from ``mitsuba-inverse``'s settings in the ``targets`` benchmark, changes one thing and
+trains for the same number of steps on the default cloud; it is scored like a bench cell: medium and
+whole-image PSNR of the test views, the density's relative L1 error (epsilon) and relative mass error
+(delta, > 0 when the learned medium holds more), and the transmittance MAE along the test rays.
+
+- ``baseline``: the settings as they are (``init_sigma_t = 1``);
+- ``init 0.1`` / ``init 0``: a low or zero initial extinction (``init_sigma_t``);
+- ``l1 X``: the sparsity prior ``X * mean(sigma_t)`` added to the loss;
+- ``4 views``: four training views per step instead of one;
+- ``spp 32 late``: 32 instead of 8 samples per pixel in the last half of the steps;
+- ``carve``: the emptiness mask from training pixels that show the environment unattenuated;
+- ``majorant 40``: delta tracking's majorant fixed at 40 (the true maximum is 30) instead of the grid's
+  maximum, and ``init 0, majorant 40``: the zero start it makes possible;
+- combinations: ``--combo '{"NAME": {FIELD: VALUE, ...}}'`` adds variants (MitsubaInverseConfig fields).
+
+Budgets are steps, so the figures do not depend on the machine's load (the train seconds do).
+
+    .venv/bin/python benchmarks/inverse_haze.py [--steps 400] [--variants baseline carve ...] [--data DIR]
+        [--jsonl FILE]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+from pathlib import Path
+
+#: One change each from the targets config (``config`` overrides of MitsubaInverseConfig).
+VARIANTS: dict[str, dict] = {
+    "baseline": {},
+    "init 0.1": {"init_sigma_t": 0.1},
+    "init 0": {"init_sigma_t": 0.0},
+    "l1 1e-3": {"l1": 1e-3},
+    "l1 1e-2": {"l1": 1e-2},
+    "4 views": {"views_per_step": 4},
+    "spp 32 late": {"spp_late": 32, "spp_late_at": -1},  # -1: half the steps
+    "carve": {"carve": True},
+    "majorant 40": {"majorant": 40.0},
+    "init 0, majorant 40": {"init_sigma_t": 0.0, "majorant": 40.0},
+}
+
+
+def settings(name: str, steps: int, combos: dict) -> dict:
+    """The config overrides of variant ``name`` (one of VARIANTS or of ``combos``) at ``steps`` steps."""
+    config = dict(combos[name]) if name in combos else dict(VARIANTS[name])
+    if config.get("spp_late_at") == -1:
+        config["spp_late_at"] = steps // 2
+    return config
+
+
+def run_one(name: str, config: dict, steps: int, data_root: Path, scene: str) -> dict:
+    from mitsnerf import scoring
+    from mitsnerf.bench.config import load_bench_config
+    from mitsnerf.config import from_dict, to_dict
+    from mitsnerf.data.dataset import load_dataset
+    from mitsnerf.generate import generate_dataset
+    from mitsnerf.runs.fit import fit
+    from mitsnerf.scene.spec import load_scene
+    from mitsnerf.train import TrainConfig
+    from mitsnerf.train.evaluate import EvalConfig
+
+    bench = load_bench_config("targets")
+    method = next(m for m in bench.methods if m.name == "mitsuba-inverse")
+    base, train = bench.method_settings(method, quick=False)
+    dataset = load_dataset(generate_dataset(load_scene(scene), data_root))
+    run = fit(dataset, "mitsuba-inverse", {**base, **config}, from_dict(TrainConfig, {**train, "steps": steps}),
+              None, eval_config=from_dict(EvalConfig, to_dict(bench.eval)), progress=False,
+              reference=scoring.reference(dataset, "test"))
+    m = run.metrics()
+    keys = ("psnr_test_medium", "psnr_test", "density_rel_l1", "density_rel_mass", "transmittance_mae",
+            "train_seconds", "psnr_train")
+    return {"variant": name, "config": config, "steps": m["steps"], **{k: m.get(k) for k in keys}}
+
+
+def table(rows: list[dict]) -> str:
+    lines = ["| choice | steps | medium PSNR | whole PSNR | density rel L1 (epsilon) | delta | T MAE | train s |",
+             "|---|---|---|---|---|---|---|---|"]
+
+    def f(v, fmt="{:.2f}"):
+        return "-" if v is None else fmt.format(v)
+    for r in rows:
+        lines.append(f"| {r['variant']} | {r['steps']} | {f(r['psnr_test_medium'])} | {f(r['psnr_test'])} | "
+                     f"{f(r['density_rel_l1'], '{:.3f}')} | {f(r['density_rel_mass'], '{:+.3f}')} | "
+                     f"{f(r['transmittance_mae'], '{:.4f}')} | {f(r['train_seconds'], '{:.0f}')} |")
+    return "\n".join(lines)
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--scene", default="cloud")
+    parser.add_argument("--steps", type=int, default=400)
+    parser.add_argument("--variants", nargs="+", default=None,
+                        help="names of VARIANTS or of --combo (default: the combos if any, else VARIANTS)")
+    parser.add_argument("--combo", default="{}", help='JSON {"NAME": {overrides}}: more variants')
+    parser.add_argument("--data", default="data", help="dataset cache root")
+    parser.add_argument("--jsonl", default=None, help="append each row to this file as it finishes")
+    args = parser.parse_args()
+
+    import mitsnerf  # noqa: F401  (libLLVM before drjit)
+    from mitsnerf import env
+
+    env.set_variant()
+    combos = json.loads(args.combo)
+    names = args.variants or ([*combos] if combos else [*VARIANTS])
+    unknown = [n for n in names if n not in VARIANTS and n not in combos]
+    if unknown:
+        parser.error(f"unknown variants {unknown}: choose from {[*VARIANTS, *combos]}")
+    rows = []
+    for name in names:
+        rows.append(run_one(name, settings(name, args.steps, combos), args.steps,
+                            Path(args.data), args.scene))
+        print(json.dumps(rows[-1]), flush=True)
+        if args.jsonl:
+            with open(args.jsonl, "a") as fh:
+                fh.write(json.dumps(rows[-1]) + "\n")
+    print()
+    print(table(rows))
+
+
+if __name__ == "__main__":
+    main()
