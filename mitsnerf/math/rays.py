@@ -69,10 +69,11 @@ def host(v) -> np.ndarray:
     """A Dr.Jit Float (M,) as float64 ``(M,)``; an Array3f (say a chromatic extinction) as ``(M, 3)``.
 
     >>> from drjit.llvm import Array3f, Float
-    >>> host(Float(1, 2)).shape, host(Array3f(Float(1, 2), 0, 0)).shape
+    >>> host(Float(1, 2)).shape, host(Array3f(Float(1, 2), 0, 0)).shape   # a constant channel is broadcast
     ((2,), (2, 3))
     """
     if dr.depth_v(v) > 1:
+        v = v + dr.zeros(type(v), dr.width(v))
         return np.stack([np.asarray(v[k], np.float64) for k in range(3)], axis=-1)
     return np.asarray(v, np.float64)
 

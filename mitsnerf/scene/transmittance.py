@@ -120,7 +120,7 @@ def pixel_transmittance(density: Callable[[Any], Any], resolution: int, box: Box
         idx = dr.arange(mi.UInt32, n * kk)
         pixel, k = idx // kk + start, idx % kk
         o, d = rays.rays(pixel, dr.gather(mi.Float, du_all, k), dr.gather(mi.Float, dv_all, k))
-        t = dr.exp(-optical_depths(density, resolution, box, o, d, channels))
+        t = dr.exp(-optical_depths(density, resolution, box, o, d, channels=channels))
         t_mean[start:start + n] = _pixel_means(channel_mean(t), kk)
         if env is not None:
             radiance = dr.zeros(mi.Array3f, dr.width(d)) + mi.Array3f(background(d))  # a constant has width 1

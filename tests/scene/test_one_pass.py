@@ -167,12 +167,12 @@ def test_medium_alpha_agrees_with_the_exact_transmittance(datasets):
     assert not scoring.transmittance_agreement(alpha * 0.97, t_mean, 256)["passed"]  # it has power
 
 
-def _half_voxel_off(real, density, resolution, box, o, d):
+def _half_voxel_off(real, density, resolution, box, o, d, **kwargs):
     """optical_depths of the grid looked up half a voxel off (voxel corners taken for centres)."""
     import mitsuba as mi
 
     shift = mi.ScalarArray3f(*(s / (2 * resolution) for s in box.size))
-    return real(lambda x: density(x + shift), resolution, box, o, d)
+    return real(lambda x: density(x + shift), resolution, box, o, d, **kwargs)
 
 
 def _forcing(real, **forced):
