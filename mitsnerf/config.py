@@ -494,9 +494,10 @@ def _same_kind(tp, value: Any) -> bool:
     its error, not another member's, is the one to report."""
     if isinstance(value, (list, tuple)):
         return typing.get_origin(tp) is tuple
+    table = dataclasses.is_dataclass(tp) or typing.get_origin(tp) in (dict, collections.abc.Mapping)
     if isinstance(value, Mapping):
-        return dataclasses.is_dataclass(tp) or typing.get_origin(tp) in (dict, collections.abc.Mapping)
-    return typing.get_origin(tp) is not tuple
+        return table
+    return not (table or typing.get_origin(tp) is tuple)
 
 
 def _convert_tagged(members: list, value: Any, path: str, source) -> Any:

@@ -147,6 +147,11 @@ COMPOSITION = ("RGB = M + mean(T L_env) - mean(L_env) (alpha - (1 - mean T)), (M
                "of the true sigma_t along each ray (mitsnerf.scene.transmittance: trilinear, two-point "
                "Gauss-Legendre per cell), L_env the background; the last term has mean zero and keeps the noise "
                "of a direct render (mitsnerf.scene.render.compose); alpha as render.alpha says")
+COMPOSITION_CHROMATIC = ("RGB_k = M_k + mean(T_k L_env,k) per colour channel k, (M, alpha) medium/'s render of "
+                         "the pixel, T_k the exact transmittance of sigma_t's channel k "
+                         "(mitsnerf.scene.transmittance), means over K x K stratified points of the pixel "
+                         "(render.footprint); no alpha term: in a "
+                         "chromatic medium volpath's alpha is not a channel's 1 - T (mitsnerf.scene.render)")
 
 
 def volume_description(spec: SceneSpec) -> dict[str, Any]:
@@ -179,10 +184,12 @@ def _manifest(spec: SceneSpec, digest: str, splits, box: Box, timings: dict, che
             "seed_rule": "mitsnerf.scene.render.render_seed(render.seed, split, view index)",
             "passes": 1 if one_pass else 2,
             "two_passes_because": fallback,
-            "composition": COMPOSITION if one_pass else "the image rendered directly by volpath",
+            "composition": ((COMPOSITION_CHROMATIC if spec.volume.chromatic else COMPOSITION) if one_pass
+                            else "the image rendered directly by volpath"),
             "footprint": {s: footprint_for(split_spp(spec, s)) for s in splits},
             "alpha": "1 everywhere with an environment light; else the fraction of samples "
-                     "that scattered or were absorbed in the medium (an estimate of 1 - transmittance)",
+                     "that scattered or were absorbed in the medium (an estimate of 1 - transmittance" + (
+                         "; not of a channel's in this chromatic medium)" if spec.volume.chromatic else ")"),
         },
         "splits": list(splits), "timings": timings, "noise_floor": checks["noise_floor"],
         "medium": {
@@ -221,7 +228,10 @@ def _checks(tmp: Path, spec: SceneSpec, box: Box, sigma_t: np.ndarray, cams: dic
         full, full_ref = np.stack(images["test"]), np.stack(images["test_ref"])
         masks = scoring.medium_masks(sigma_t, box, cams["test"])
         out["noise_floor"] = scoring.noise_floor(full, full_ref, masks)
-        if not one_pass:
+        if not one_pass and spec.volume.chromatic:
+            out["composite_check"] = {"passed": None, "note": "chromatic extinction: medium/'s alpha is not a "
+                                                              "channel's 1 - T, so M + (1 - alpha) B is not the image"}
+        elif not one_pass:
             env = pixel_background(make_background(background_description(spec), tmp), cams["test"])
             out["composite_check"] = {
                 **scoring.composite_agreement(full, full_ref, np.stack(medium["test"]), np.stack(medium["test_ref"]),

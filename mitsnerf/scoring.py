@@ -380,6 +380,8 @@ def near_far_coverage(sigma_t: np.ndarray, box: Box, cameras, near: float, far: 
 
 
 def _slices(grid: np.ndarray) -> dict[str, np.ndarray]:
+    """The central z, y and x slices of a grid; a chromatic one's channels' mean (one image per slice)."""
+    grid = grey(grid, grid.ndim == 4)
     r = grid.shape[0] // 2
     return {"z": grid[r].astype(np.float32), "y": grid[:, r].astype(np.float32), "x": grid[:, :, r].astype(np.float32)}
 

@@ -45,6 +45,7 @@ import drjit as dr
 import drjit.nn as nn
 
 from mitsnerf.config import check_fields, param
+from mitsnerf.fields.grid import extinction
 from mitsnerf.fields.mlp import (
     NETWORK_PATHS,
     column,
@@ -196,8 +197,7 @@ class NGPField:
 
     def _sigma(self, raw: list, Array3f):
         """``sigma`` from the density pre-activations (a list of ``density_channels`` Floats)."""
-        s = [dr.exp(dr.minimum(v + self.config.sigma_bias, SIGMA_RAW_MAX)) for v in raw]
-        return s[0] if len(s) == 1 else Array3f(*s)
+        return extinction([dr.exp(dr.minimum(v + self.config.sigma_bias, SIGMA_RAW_MAX)) for v in raw], Array3f)
 
     def _raw_columns(self, out) -> list:
         return [column(out, k) for k in range(self.config.density_channels)]

@@ -262,7 +262,7 @@ def eval_masked(field: Callable[[Any, Any], tuple[Any, Any]], x, d, mask, pad: b
     field through the active samples only. With ``pad``, the compacted batch is padded
     (repeating sample 0, results discarded) to :func:`padded_size`, so that varying
     batch sizes reuse compiled kernels. Shapes: x, d Array3f (M,), mask Bool (M,)
-    -> (Array3f (M,), Float (M,)).
+    -> (Array3f (M,), Float (M,)) (sigma an Array3f for a field with ``sigma_channels = 3``).
 
     >>> import mitsuba as mi
     >>> from mitsnerf.env import set_variant; _ = set_variant("llvm_ad_rgb")

@@ -5,6 +5,11 @@ A :class:`Field` is ``field(x, d) -> (rgb, sigma)``: Array3f positions and direc
 Array3f colour and Float extinction of width M out. A :class:`DensityField` also answers ``density(x)``, the
 extinction from the position alone, which is what the density scores and ``mitsnerf export`` read.
 
+A field of a chromatic medium returns an Array3f ``sigma``, one extinction per colour channel, and says so
+with an attribute ``sigma_channels = 3`` (absent: 1). ``render_rays`` and ``composite`` need nothing more;
+``march_rays`` and ``eval_masked`` read the attribute to size their loop state, and the replayed march
+(one extinction per ray) refuses such a field.
+
 >>> def constant(x, d):
 ...     return x, 1.0
 >>> isinstance(constant, Field), isinstance(constant, DensityField)

@@ -29,6 +29,7 @@ import drjit as dr
 import numpy as np
 
 from mitsnerf.config import check_fields, param
+from mitsnerf.fields.grid import extinction
 from mitsnerf.fields.sh import MAX_DEGREE, num_coefficients, sh_basis
 from mitsnerf.math.activations import sigmoid, softplus
 from mitsnerf.math.box import Box
@@ -70,8 +71,8 @@ def _texture(Texture3f, tensor):
 class VoxelField:
     """The field callable ``(x, d) -> (rgb, sigma)`` over two grid tensors; also ``density(x)``.
 
-    ``sigma_raw`` (R, R, R, 1) and ``sh`` (R, R, R, 3 K) are Dr.Jit tensors (their AD graph
-    is kept: gradients of a render reach them). Channel ``3 k + c`` of ``sh`` is the
+    ``sigma_raw`` (R, R, R, 1) (3 channels with ``density_channels = 3``) and ``sh`` (R, R, R, 3 K) are Dr.Jit
+    tensors (their AD graph is kept: gradients of a render reach them). Channel ``3 k + c`` of ``sh`` is the
     coefficient of ``Y_k`` for colour channel ``c``.
 
     >>> import mitsuba as mi
@@ -125,8 +126,7 @@ class VoxelField:
         return self.config.density_channels
 
     def _sigma(self, raw, Array3f):
-        s = [self.config.sigma_scale * softplus(v) for v in raw]
-        return s[0] if len(s) == 1 else Array3f(*s)
+        return extinction([self.config.sigma_scale * softplus(v) for v in raw], Array3f)
 
     def density(self, x):
         """``sigma(x)``, Float (M,) (an Array3f with ``density_channels = 3``)."""

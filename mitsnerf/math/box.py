@@ -194,7 +194,8 @@ UNIT_BOX = Box()
 def optical_depth(density: Callable[[Any], Any], o, d, box: Box, n: int):
     """``tau = int_{t_n}^{t_f} sigma(o + t d) dt`` along rays by the midpoint rule, ``n`` samples each.
 
-    ``density``: Array3f (M,) -> Float (M,); ``o``, ``d``: Array3f (R,) -> Float (R,).
+    ``density``: Array3f (M,) -> Float (M,); ``o``, ``d``: Array3f (R,) -> Float (R,) (a chromatic density,
+    Array3f -> Array3f, gives one ``tau`` per colour channel).
     ``tau = h sum_k sigma(o + (t_n + (k + 1/2) h) d)``, ``h = (t_f - t_n) / n`` (rays that miss: 0).
 
     >>> from drjit.llvm import Array3f, Float
@@ -221,7 +222,7 @@ def march_transmittance(density: Callable[[Any], Any], x, w, m: int, box: Box, s
     e.g. the distance to a point light inside the box). Midpoint rule with ``m`` equal intervals
     (second order, unlike the render quadrature's last half interval): ``s_k = (k + 1/2) s_f / m``,
     ``T = exp(-(s_f / m) sum_k sigma(x + s_k w))``. ``x`` Array3f (M,), ``w`` Array3f (M,) or (1,)
-    unit; ``density`` maps Array3f -> Float. Returns Float (M,).
+    unit; ``density`` maps Array3f -> Float (or Array3f per colour: ``T`` per channel). Returns Float (M,).
 
     >>> import mitsuba as mi
     >>> from mitsnerf.env import set_variant; _ = set_variant("llvm_ad_rgb")

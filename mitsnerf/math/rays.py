@@ -72,8 +72,8 @@ def host(v) -> np.ndarray:
     >>> host(Float(1, 2)).shape, host(Array3f(Float(1, 2), 0, 0)).shape   # a constant channel is broadcast
     ((2,), (2, 3))
     """
+    v = v + dr.zeros(type(v), dr.width(v))  # a constant (width 1) part is broadcast to the width
     if dr.depth_v(v) > 1:
-        v = v + dr.zeros(type(v), dr.width(v))
         return np.stack([np.asarray(v[k], np.float64) for k in range(3)], axis=-1)
     return np.asarray(v, np.float64)
 

@@ -66,7 +66,7 @@ class PointSource:
     _last: dict = field(default_factory=dict, compare=False, repr=False)
 
     def estimate(self, x, d=None) -> tuple[Any, np.ndarray, Any]:
-        """``(J Array3f (M,), se of J float64 (M, 3), sigma_t Float (M,))`` at points ``x`` (Array3f (M,)) seen
+        """``(J Array3f (M,), se of J float64 (M, 3), sigma_t Float (M,) (Array3f: chromatic))`` at points ``x`` seen
         along ``d`` (Array3f (M,); needed when ``g != 0``)."""
         import mitsuba as mi
 

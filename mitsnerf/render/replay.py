@@ -427,6 +427,9 @@ def render_rays_replay(
         raise ValueError(f"render_rays_replay: adjoint must be one of {', '.join(ADJOINTS)}, got {adjoint!r}")
     if u is not None and dr.width(u) != dr.width(o) * n_samples:
         raise ValueError(f"render_rays_replay: u has {dr.width(u)} entries, expected R*N = {dr.width(o) * n_samples}")
+    if getattr(field, "sigma_channels", 1) != 1:
+        raise ValueError("render_rays_replay: the replayed march carries one extinction per ray; a field with one "
+                         "per colour channel renders through render_rays")
     textured = adjoint == "texture" or (adjoint == "auto" and isinstance(field, TextureField))
     with dr.suspend_grad():
         rays = _Rays(dr.detach(o), dr.detach(d), n_samples, box, None if u is None else dr.detach(u), grid, quadrature)

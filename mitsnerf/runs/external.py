@@ -32,8 +32,9 @@ Anything else is refused: two files with one stem (``r_000.png`` and ``r_000.exr
 without a number or two with the same number.
 
 **Density** (:func:`read_density`): ``sigma_t`` on a grid over the dataset's box, indexed
-``[z, y, x]``, as ``.npy`` (``(R, R, R)``) or Mitsuba ``.vol`` (one channel; its bounding box must
-be the dataset's), looked up trilinearly as Mitsuba's ``gridvolume``.
+``[z, y, x]``, as ``.npy`` (``(R, R, R)``, or ``(R, R, R, 3)`` for one density per colour channel) or
+Mitsuba ``.vol`` (one channel or three; its bounding box must be the dataset's), looked up trilinearly as
+Mitsuba's ``gridvolume``.
 
 **Oracle** (:func:`read_oracle`): the dataset's cached emission-absorption oracle
 (``DATASET/oracle/<key>/``, :mod:`mitsnerf.oracle.cache`, computed by ``mitsnerf bench``), its
@@ -213,7 +214,8 @@ def read_renders(dataset: Dataset, folder: Path, fmt: str | None = None, split: 
 
 
 def read_density(path: Path, box: Box) -> np.ndarray:
-    """A density grid ``(Z, Y, X)`` float32 over ``box`` from ``.npy`` or ``.vol`` (module docstring)."""
+    """A density grid ``(Z, Y, X)`` (or ``(Z, Y, X, 3)``, per colour) float32 over ``box`` from ``.npy`` or ``.vol``
+    (module docstring)."""
     from mitsnerf.data.arrays import read_npy
     from mitsnerf.data.vol import read_vol
 
@@ -221,18 +223,18 @@ def read_density(path: Path, box: Box) -> np.ndarray:
     suffix = path.suffix.lower()
     if suffix == ".vol":
         data, lo, hi = read_vol(path)
-        if data.shape[3] != 1:
-            raise DatasetError(path, "channels", f"a density has 1 channel, got {data.shape[3]}")
+        if data.shape[3] not in (1, 3):
+            raise DatasetError(path, "channels", f"a density has 1 channel (3: one per colour), got {data.shape[3]}")
         if not np.allclose([lo, hi], box.to_list(), rtol=1e-5, atol=1e-5):
             raise DatasetError(path, "bbox", f"{[list(lo), list(hi)]} is not the dataset's box {box.to_list()}")
-        grid = data[..., 0]
+        grid = data[..., 0] if data.shape[3] == 1 else data
     elif suffix == ".npy":
         grid = read_npy(path, "density grid")
         grid = grid[..., 0] if grid.ndim == 4 and grid.shape[3] == 1 else grid
     else:
         raise DatasetError(path, None, f"unsupported density format {suffix or '(no suffix)'!r}: .npy or .vol")
-    if grid.ndim != 3 or min(grid.shape) < 1:
-        raise DatasetError(path, None, f"a density grid is (Z, Y, X), got shape {grid.shape}")
+    if not (grid.ndim == 3 or (grid.ndim == 4 and grid.shape[3] == 3)) or min(grid.shape) < 1:
+        raise DatasetError(path, None, f"a density grid is (Z, Y, X) or (Z, Y, X, 3), got shape {grid.shape}")
     if not np.all(np.isfinite(grid)) or grid.min() < 0:
         raise DatasetError(path, None, "density values must be finite and >= 0")
     return np.ascontiguousarray(grid, dtype=np.float32)

@@ -89,7 +89,7 @@ class PixelTransmittance:
 
     t: np.ndarray
     """``(V, H, W)`` float64: the mean transmittance ``mean T`` (a chromatic medium: also the mean over the
-    three channels, what ``medium/``'s alpha estimates: volpath follows one channel per path, drawn uniformly)."""
+    three channels, which ``medium/``'s alpha does not estimate there: :mod:`mitsnerf.scene.render`)."""
     through: np.ndarray | None
     """``(V, H, W, 3)``: the mean of ``T(d) L(d)``, the environment seen through the medium (None: no background)."""
     env: np.ndarray | None

@@ -91,7 +91,7 @@ def single_scatter_source(scenario, sigma_t, albedo, scene, quality):
     from mitsnerf.fields.grid import GridField
     from mitsnerf.verify.cases import isotropic_phase
 
-    albedo_grid = albedo if np.ndim(albedo) else np.full(sigma_t.shape + (3,), float(albedo), np.float32)
+    albedo_grid = albedo if np.ndim(albedo) else np.full(sigma_t.shape[:3] + (3,), float(albedo), np.float32)
     return SingleScatterSource(GridField.from_arrays(sigma_t, UNIT_BOX),
                                GridField.from_arrays(sigma_t, UNIT_BOX, color=albedo_grid),
                                scenario.sun_direction, scenario.sun_irradiance, isotropic_phase())
@@ -120,7 +120,7 @@ def in_scattered_source(scenario, sigma_t, albedo, scene, quality):
             else mi.load_dict(M.scene_dict(sigma_t, albedo, M.emitters_of(scenario), depth, scenario.phase()))
         )
     )
-    albedo_grid = albedo if np.ndim(albedo) else np.full(sigma_t.shape + (3,), float(albedo), np.float32)
+    albedo_grid = albedo if np.ndim(albedo) else np.full(sigma_t.shape[:3] + (3,), float(albedo), np.float32)
     lights = [DirectionalLight(direction=scenario.sun_direction, irradiance=scenario.sun_irradiance)]
     return PointSource(inner, GridField.from_arrays(sigma_t, UNIT_BOX, color=albedo_grid), lights, UNIT_BOX,
                        spp=quality.j_spp, m_light=64, seed=quality.seed + 17, g=scenario.phase_g)

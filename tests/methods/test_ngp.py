@@ -78,6 +78,7 @@ def test_one_density_per_colour_on_both_network_paths():
 
     from mitsnerf.fields.ngp import NGPConfig, NGPField
     from mitsnerf.math.box import UNIT_BOX
+    from mitsnerf.math.rays import host
     from mitsnerf.methods.ngp import NGPMethodConfig
 
     with pytest.raises(ValueError, match="replay: .* set replay = false"):
@@ -85,11 +86,20 @@ def test_one_density_per_colour_on_both_network_paths():
     small = dict(n_levels=2, max_resolution=16, hidden=8, color_hidden=8, density_channels=3)
     f = NGPField(NGPConfig(**small), mi.TensorXf, UNIT_BOX, seed=3)
     assert f.sigma_channels == 3 and f.params["density.1.bias"].shape[-1] == 3 + f.config.geo_features
+    # away from the near-zero start, so that a permuted channel or a wrong feature offset would show
+    rng = np.random.default_rng(0)
+    bias = f.params["density.1.bias"]
+    shifts = np.zeros(bias.shape[-1], np.float32)
+    shifts[:3] = (-4.0, 0.0, 4.0)  # red, green, blue extinctions e^4 apart
+    f.set_parameters({"encoding.data": mi.Float(rng.uniform(-1, 1, dr.width(f.params["encoding.data"]))),
+                      "density.1.bias": type(bias)(shifts.reshape(bias.shape))})
     x, d = mi.Array3f([0.1, -0.2, 0.3], [0.0, 0.2, -0.1], 0.05), mi.Array3f(0, 0, 1)
     rgb, sigma = f(x, d)
-    assert dr.depth_v(sigma) == 2 and np.allclose(np.asarray(f.density(x)), np.asarray(sigma))
+    s = host(sigma)
+    assert s.shape == (3, 3) and np.allclose(host(f.density(x)), s)
+    assert np.all(s[:, 0] < s[:, 1]) and np.all(s[:, 1] < s[:, 2])  # the extinctions are the first three outputs
     coop = NGPField(NGPConfig(**small, network_path="coopvec-fp32"), mi.TensorXf, UNIT_BOX, seed=3)
     coop.set_parameters(f.params)
     rgb_c, sigma_c = coop(x, d)
-    np.testing.assert_allclose(np.asarray(sigma_c), np.asarray(sigma), rtol=1e-4)
-    np.testing.assert_allclose(np.asarray(rgb_c), np.asarray(rgb), rtol=1e-4)
+    np.testing.assert_allclose(host(sigma_c), s, rtol=1e-4)
+    np.testing.assert_allclose(host(rgb_c), host(rgb), rtol=1e-4)

@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import mitsuba as mi
 import numpy as np
+import pytest
 
 from mitsnerf import scoring
 from mitsnerf.fields.grid import GridField
@@ -63,7 +64,8 @@ def test_the_exact_transmittance_is_per_channel_and_t_is_their_mean(blob_grid):
 
 def test_a_grey_density_is_scored_against_every_channel(blob_grid):
     sigma, _, cams, _ = _setup(blob_grid)
-    exact = scoring.density_scores(scoring.true_density(sigma, UNIT_BOX), sigma, UNIT_BOX)[0]
+    exact, slices = scoring.density_scores(scoring.true_density(sigma, UNIT_BOX), sigma, UNIT_BOX)
+    assert slices["true_z"].ndim == 2 and slices["learned_z"].ndim == 2  # one image per slice: the channels' mean
     assert exact["density_rel_l1"] < 1e-7 and abs(exact["density_rel_mass"]) < 1e-7  # float32 lookups
     green = np.ascontiguousarray(sigma[..., 1])
     grey = scoring.density_scores(scoring.true_density(green, UNIT_BOX), sigma, UNIT_BOX)[0]
@@ -74,3 +76,18 @@ def test_a_grey_density_is_scored_against_every_channel(blob_grid):
     assert abs(tau["tau_rel_l1"] - 2.5 / 4.5) < 1e-5
     masks = scoring.medium_masks(sigma, UNIT_BOX, cams)
     assert masks.shape == (2, 8, 10) and masks.any()
+
+
+def test_a_per_colour_density_file_is_read_for_scoring(blob_grid, tmp_path):
+    from mitsnerf.data.vol import write_vol
+    from mitsnerf.errors import DatasetError
+    from mitsnerf.runs.external import read_density
+
+    sigma, _, _, _ = _setup(blob_grid)
+    np.save(tmp_path / "s.npy", sigma)
+    write_vol(tmp_path / "s.vol", sigma, UNIT_BOX.lo, UNIT_BOX.hi)
+    for name in ("s.npy", "s.vol"):
+        np.testing.assert_array_equal(read_density(tmp_path / name, UNIT_BOX), sigma)
+    np.save(tmp_path / "two.npy", sigma[..., :2])
+    with pytest.raises(DatasetError, match=r"\(Z, Y, X\) or \(Z, Y, X, 3\)"):
+        read_density(tmp_path / "two.npy", UNIT_BOX)

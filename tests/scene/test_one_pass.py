@@ -264,6 +264,7 @@ def test_a_chromatic_medium_is_composed_per_channel_and_agrees_with_direct_rende
     m = _manifest(path)
     assert m["volume"]["chromatic"] and np.load(path / "volume" / "sigma_t.npy").shape == (16, 16, 16, 3)
     assert m["render"]["passes"] == 1 and m["medium"]["transmittance_check"]["passed"] is None
+    assert m["render"]["composition"] == gen.COMPOSITION_CHROMATIC and "alpha term" in m["render"]["composition"]
     scene = mi.load_dict(scene_dict(spec, *volume_grids(spec)))
     cams = camera_rig(spec.cameras, "test")
     direct_renders = [np.stack(render_split(scene, spec, "test", cams, False, seed_split=s)[0])
