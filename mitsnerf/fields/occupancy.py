@@ -56,6 +56,7 @@ import numpy as np
 
 from mitsnerf.config import check_fields, param
 from mitsnerf.math.box import Box
+from mitsnerf.math.composite import is_chromatic
 
 _STREAM = 0x9E3779B97F4A7C15
 
@@ -190,7 +191,7 @@ class OccupancyGrid:
             for start in range(0, n, chunk):
                 idx = dr.arange(self.UInt32, start, min(n, start + chunk))
                 s = density(dr.gather(self.Array3f, points, idx))
-                if dr.depth_v(s) > 1:  # one density per colour: a cell is empty only if every channel is
+                if is_chromatic(s):  # one density per colour: a cell is empty only if every channel is
                     s = dr.maximum(dr.maximum(s[0], s[1]), s[2])
                 dr.scatter(sigma, dr.detach(s), idx)
                 dr.eval(sigma)

@@ -26,6 +26,7 @@ import drjit as dr
 import numpy as np
 
 from mitsnerf.math.camera import Camera
+from mitsnerf.math.composite import is_chromatic
 
 
 def footprint_offsets(k: int) -> np.ndarray:
@@ -73,7 +74,7 @@ def host(v) -> np.ndarray:
     ((2,), (2, 3))
     """
     v = v + dr.zeros(type(v), dr.width(v))  # a constant (width 1) part is broadcast to the width
-    if dr.depth_v(v) > 1:
+    if is_chromatic(v):
         return np.stack([np.asarray(v[k], np.float64) for k in range(3)], axis=-1)
     return np.asarray(v, np.float64)
 

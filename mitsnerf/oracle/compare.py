@@ -25,7 +25,7 @@ import drjit as dr
 import numpy as np
 
 from mitsnerf.math.box import Box
-from mitsnerf.math.composite import weights
+from mitsnerf.math.composite import is_chromatic, weights
 from mitsnerf.math.rays import host
 from mitsnerf.oracle.source import (
     delta_irradiance,
@@ -118,7 +118,7 @@ def render_with_variance(source: PointSource, o, d, n_samples: int, box: Box,
         s, _ = sample_rays(o, d, n_samples, box)
         _, se, sigma = source.estimate(s.x, s.d)
         w, _ = weights(sigma, s.delta, n_samples)
-        w_k = [w[k] for k in range(3)] if dr.depth_v(w) > 1 else [w] * 3  # chromatic: each channel's weights
+        w_k = [w[k] for k in range(3)] if is_chromatic(w) else [w] * 3  # chromatic: each channel's weights
         var = [np.asarray(dr.block_sum(w_k[k] * w_k[k] * type(w_k[k])(se[:, k] ** 2), n_samples), dtype=np.float64)
                for k in range(3)]
     mean = np.stack([np.asarray(c, dtype=np.float64) for c in comp.rgb], axis=-1)

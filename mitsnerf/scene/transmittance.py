@@ -34,6 +34,7 @@ import numpy as np
 
 from mitsnerf.math.box import Box
 from mitsnerf.math.camera import Camera
+from mitsnerf.math.composite import is_chromatic
 
 #: Optical depth past which a ray is not followed further (T < 1e-13: below float32 resolution of 1).
 TAU_STOP = 30.0
@@ -80,7 +81,7 @@ def optical_depths(density: Callable[[Any], Any], resolution: int, box: Box, o, 
 
 def _least(tau):
     """The smallest channel of a chromatic ``tau`` (Array3f), or ``tau`` itself (Float)."""
-    return dr.minimum(dr.minimum(tau[0], tau[1]), tau[2]) if dr.depth_v(tau) > 1 else tau
+    return dr.minimum(dr.minimum(tau[0], tau[1]), tau[2]) if is_chromatic(tau) else tau
 
 
 @dataclass(frozen=True)
