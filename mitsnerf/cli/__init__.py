@@ -105,7 +105,9 @@ def main(argv: list[str] | None = None) -> int:
         from mitsnerf.train.checkpointing import stop_signals
 
         with stop_signals():  # SIGTERM and SIGHUP stop a command as Ctrl-C does
-            return int(args.func(args) or 0)
+            status = int(args.func(args) or 0)
+        sys.stdout.flush()  # a pipe closed before the output was flushed shows here, not at the interpreter's exit
+        return status
     except KeyboardInterrupt as exc:
         return _interrupted(exc)
     except BrokenPipeError:  # the reader went away (`mitsnerf methods | head`): stop quietly, as Unix tools do
