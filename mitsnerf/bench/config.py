@@ -22,6 +22,8 @@ quick = { config = { n_samples = 32 } }   # this method's part of the --quick pr
 name = "nerfacto"                # the row reads "nerfacto (external)"
 renders = { cloud = "renders/nerfacto/cloud" }    # per scene name: a folder of its test views' renders
 density = { cloud = "renders/nerfacto/cloud.npy" }  # optional, per scene: sigma_t (.npy or .vol) in its box
+timings = { cloud = "runs/nerfacto/timings.json" }  # optional, per scene: {"steps": 800, "rays_per_step": 1024,
+                                 #   "train_wall_s": 412.0, "matched": "steps"} -> budget, train s, rays/s
 quick = { renders = { cloud = "..." } }          # renders of the --quick datasets (else not in --quick)
 [quick]                          # the --quick profile: tiny scenes, few steps
 scene = { "cameras.width" = 16 } # SceneSpec.with_overrides keys
@@ -111,6 +113,10 @@ class ExternalFiles:
 
     renders: Mapping[str, str] = param(default_factory=dict, doc="scene name -> folder of renders of its test views")
     density: Mapping[str, str] = param(default_factory=dict, doc="scene name -> sigma_t grid (.npy or .vol) in its box")
+    timings: Mapping[str, str] = param(
+        default_factory=dict,
+        doc="scene name -> JSON of the tool's training run: steps, rays_per_step, train_wall_s and optionally "
+            'matched ("steps" or "seconds": what the budget was set to equal); fills the budget and cost columns')
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -139,7 +145,7 @@ class ExternalRun(ExternalFiles):
 
     def files(self, quick: bool) -> ExternalFiles:
         """The renders and densities of the profile (``quick``) being run."""
-        return self.quick if quick else ExternalFiles(renders=self.renders, density=self.density)
+        return self.quick if quick else ExternalFiles(renders=self.renders, density=self.density, timings=self.timings)
 
 
 @dataclass(frozen=True)

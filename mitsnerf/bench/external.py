@@ -29,6 +29,7 @@ class ExternalEntry:
     dataset_dir: Path
     renders: Path
     density: Path | None
+    timings: dict[str, Any] | None = None
 
     @property
     def key(self) -> str:
@@ -39,8 +40,9 @@ def plan_externals(config: BenchConfig, quick: bool, cells: Sequence) -> list[Ex
     """Every (external, scene) of the profile being run; paths relative to the config file's folder.
 
     A scene name that is not one of the benchmark's, a renders folder or density file that does not
-    exist, is a SpecError at ``external.I.renders.NAME`` (``density.NAME``); a folder lacking a test
-    frame's render is a DatasetError naming it. All before any dataset is generated.
+    exist, is a SpecError at ``external.I.renders.NAME`` (``density.NAME``, ``timings.NAME``; a malformed
+    timings file: :func:`read_timings`); a folder lacking a test frame's render is a DatasetError naming it.
+    All before any dataset is generated.
     """
     datasets = {c.scene: Path(c.dataset_dir) for c in cells}
     n_test = {c.scene: int(c.spec["cameras"]["n_test"]) for c in cells}
@@ -48,7 +50,7 @@ def plan_externals(config: BenchConfig, quick: bool, cells: Sequence) -> list[Ex
     entries = []
     for i, run in enumerate(config.external):
         files, where = run.files(quick), f"external.{i}" + (".quick" if quick else "")
-        for part, table in (("renders", files.renders), ("density", files.density)):
+        for part, table in (("renders", files.renders), ("density", files.density), ("timings", files.timings)):
             for scene in table:
                 if scene not in datasets:
                     raise SpecError(config.source, f"{where}.{part}.{scene}",
@@ -59,10 +61,62 @@ def plan_externals(config: BenchConfig, quick: bool, cells: Sequence) -> list[Ex
             density = files.density.get(scene)
             if density is not None and not (base / density).is_file():
                 raise SpecError(config.source, f"{where}.density.{scene}", f"{base / density}: density file not found")
+            timings = files.timings.get(scene)
+            cost = None if timings is None else read_timings(base / timings, config.source, f"{where}.timings.{scene}")
             match_renders(base / folder, [f"r_{k:03d}" for k in range(n_test[scene])], run.format or None)
             entries.append(ExternalEntry(run, scene, datasets[scene], base / folder,
-                                         None if density is None else base / density))
+                                         None if density is None else base / density, cost))
     return entries
+
+
+def read_timings(path: Path, source: str | None = None, where: str = "timings") -> dict[str, Any]:
+    """The cost columns of an external row from the JSON its launcher wrote: ``steps`` (int >= 0),
+    ``rays_per_step`` (int >= 1), ``train_wall_s`` (seconds > 0) and optionally ``matched``, what the
+    budget was set to equal across the table's rows (``"steps"``, the default, or ``"seconds"``).
+
+    A missing file is a SpecError at ``where`` in the config ``source``; a malformed one names the file
+    and the field.
+
+    >>> import json, tempfile
+    >>> f = Path(tempfile.mkdtemp()) / "timings.json"
+    >>> _ = f.write_text(json.dumps({"steps": 800, "rays_per_step": 1024, "train_wall_s": 409.6}))
+    >>> read_timings(f)
+    {'steps': 800, 'budget': 'steps x 1024 rays', 'train_seconds': 409.6, 'rays_per_s': 2000.0}
+    >>> _ = f.write_text(json.dumps({"steps": 800, "rays_per_step": 0, "train_wall_s": 409.6}))
+    >>> read_timings(f)  # doctest: +ELLIPSIS
+    Traceback (most recent call last):
+    mitsnerf.errors.SpecError: ...timings.json: rays_per_step: must be an integer >= 1, got 0
+    """
+    import json
+    import math
+
+    if not path.is_file():
+        raise SpecError(source, where, f"{path}: timings file not found")
+    try:
+        data = json.loads(path.read_text())
+    except (OSError, UnicodeDecodeError, ValueError) as exc:
+        raise SpecError(str(path), None, f"not a JSON file ({exc})") from None
+    if not isinstance(data, dict):
+        raise SpecError(str(path), None, "must be a JSON object")
+
+    def number(key: str, lo: float, integer: bool) -> Any:
+        v = data.get(key)
+        if integer:
+            ok, kind = isinstance(v, int) and not isinstance(v, bool) and v >= lo, f"an integer >= {lo:g}"
+        else:
+            ok = isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v) and v > lo
+            kind = f"a number > {lo:g}"
+        if not ok:
+            raise SpecError(str(path), key, f"must be {kind}, got {v!r}" if key in data else "missing")
+        return v
+
+    steps, rays, seconds = number("steps", 0, True), number("rays_per_step", 1, True), number("train_wall_s", 0, False)
+    matched = data.get("matched", "steps")
+    if matched not in ("steps", "seconds"):
+        raise SpecError(str(path), "matched", f'must be "steps" or "seconds", got {matched!r}')
+    budget = f"steps x {rays} rays" + (" (seconds matched)" if matched == "seconds" else "")
+    return {"steps": steps, "budget": budget, "train_seconds": float(seconds),
+            "rays_per_s": round(steps * rays / seconds, 1)}
 
 
 def score_external(
@@ -82,7 +136,8 @@ def score_external(
     record = {"key": entry.key, "scene": entry.scene, "method": entry.run.label, "method_name": "external",
               "seed": 0, "external": True, "renders": str(entry.renders), "matched_by": s.matched_by,
               "density": s.density, "oracle_source": s.oracle, "oracle": oracle_summary(s.oracle_used, k),
-              "dataset": str(dataset.root), "metrics": {**s.metrics, "footprint": k}, "provenance": env.provenance()}
+              "dataset": str(dataset.root), "metrics": {**s.metrics, **(entry.timings or {}), "footprint": k},
+              "provenance": env.provenance()}
     ref = s.reference
     v = min(report_view, len(ref.cameras) - 1)
     artefacts = {"ref": np.asarray(ref.images[v], np.float32), "render": s.renders[v], "view": np.int32(v), **s.slices}

@@ -131,3 +131,25 @@ def test_a_missing_density_file_or_render_stops_before_any_dataset_is_made(tiny_
     ext = _with_external(config, [{"name": "ref", "renders": {"tcloud": "ref"}}], tmp_path)
     with pytest.raises(DatasetError, match="no render for test frame r_001"):
         run_benchmark(ext, options("fresh"))
+
+
+def test_a_timings_file_fills_the_budget_and_cost_columns(tiny_bench, tmp_path):
+    """The launcher's timings.json gives the external row its budget, train seconds and rays/s; a malformed
+    one stops the run before anything is made, naming the file and the field."""
+    config, options = tiny_bench
+    folder, _ = _renders(runner.plan_scenes(config, options("ext-cost")), "tcloud", tmp_path)
+    timings = tmp_path / "timings.json"
+    timings.write_text(json.dumps({"steps": 300, "rays_per_step": 512, "train_wall_s": 12.5, "matched": "seconds"}))
+    raw = {**{k: v for k, v in to_dict(config).items() if k != "methods"}, "scenes": list(config.scenes[:1]),
+           "external": [{"name": "ref", "renders": {"tcloud": "ref"}, "timings": {"tcloud": "timings.json"}}]}
+    result = run_benchmark(parse_bench_config(raw, tmp_path / "ext.toml"),
+                           dataclasses.replace(options("ext-cost"), report=False))
+    row = next(r for r in result.per_scene if r["method"] == "ref (external)")
+    assert (row["steps"], row["train_seconds"], row["rays_per_s"]) == (300, 12.5, 300 * 512 / 12.5)
+    assert "| 300 steps x 512 rays (seconds matched) |" in (result.out_root / "table.md").read_text()
+    timings.write_text(json.dumps({"steps": 300, "rays_per_step": 512}))
+    with pytest.raises(SpecError, match=r"timings.json: train_wall_s: missing"):
+        run_benchmark(parse_bench_config(raw, tmp_path / "ext.toml"), options("ext-cost"))
+    timings.unlink()
+    with pytest.raises(SpecError, match=r"ext.toml: external.0.timings.tcloud: .*timings.json: timings file not found"):
+        run_benchmark(parse_bench_config(raw, tmp_path / "ext.toml"), options("ext-cost"))
