@@ -5,6 +5,7 @@ VM density against numpy, and its tiny configuration learning."""
 from __future__ import annotations
 
 import doctest
+import json
 import importlib
 import math
 import os
@@ -294,3 +295,21 @@ def test_the_plugins_doctests_pass(tensorf):
     for module in (field, model):
         result = doctest.testmod(module, optionflags=doctest.ELLIPSIS)
         assert result.failed == 0 and result.attempted > 0, module.__name__
+
+
+def test_the_leaderboard_config_names_the_plugin_and_the_external_rows(site, tmp_path):
+    """benchmarks/external/leaderboard.toml loads where the plugin is installed (its tensorf row needs it), and
+    its [[external]] entries read the renders and timings run_nerfstudio.sh writes."""
+    config = Path(__file__).resolve().parents[1] / "benchmarks" / "external" / "leaderboard.toml"
+    code = ("import json, sys; from mitsnerf.bench.config import load_bench_config as load; c = load(sys.argv[1]); "
+            "print(json.dumps([[m.name for m in c.methods], [(e.name, e.format, dict(e.renders), dict(e.timings)) "
+            "for e in c.external]]))")
+    done = subprocess.run([sys.executable, "-c", code, str(config)], cwd=tmp_path, env=_env(site),
+                          capture_output=True, text=True, timeout=120)
+    assert done.returncode == 0, done.stderr
+    methods, external = json.loads(done.stdout)
+    assert methods == ["voxel", "ngp", "nerf", "tensorf", "mitsuba-inverse"]
+    assert [e[0] for e in external] == ["nerfacto", "tensorf", "vanilla-nerf", "mipnerf"]
+    for name, fmt, renders, timings in external:
+        run = f"../../runs/external/leaderboard/{name}"
+        assert (fmt, renders, timings) == ("exr", {"cloud": f"{run}/renders/rgba"}, {"cloud": f"{run}/timings.json"})

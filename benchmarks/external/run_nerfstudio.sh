@@ -1,77 +1,100 @@
 #!/usr/bin/env bash
-# nerfstudio's nerfacto trained on a mitsnerf dataset's medium/ view (its NeRF-synthetic folder, read
-# unchanged by nerfstudio's blender dataparser) on the CPU, its test views rendered by ns-render and
-# scored by `mitsnerf score` as a benchmark cell (benchmarks/README.md, "External tools").
+# One of nerfstudio's methods trained on a mitsnerf dataset's medium/ view (its NeRF-synthetic folder, read
+# unchanged by nerfstudio's blender dataparser) on the CPU, its test views rendered by ns-render into RGBA EXRs
+# for `mitsnerf score` or a bench config's [[external]] entry (benchmarks/README.md, "The leaderboard").
 #
-#   benchmarks/external/run_nerfacto.sh DATASET OUT [STEPS] [RAYS]
+#   benchmarks/external/run_nerfstudio.sh METHOD DATASET OUT [STEPS] [RAYS]
 #
-# DATASET: a `mitsnerf generate ... --nerf-synthetic` dataset. OUT: a new folder for the run.
-# STEPS (default 1000) of RAYS rays each (default 4096, nerfacto's own batch).
-# Environment: NERFSTUDIO_VENV (setup_nerfstudio.sh's venv; default ~/.cache/mitsnerf/nerfstudio),
-# MITSNERF (the command that runs mitsnerf; default .venv/bin/mitsnerf, else mitsnerf on PATH).
+# METHOD: nerfacto, tensorf, vanilla-nerf or mipnerf (nerfstudio's names). DATASET: a `mitsnerf generate
+# ... --nerf-synthetic` dataset (its medium/ is trained on), or a NeRF-synthetic folder of RGBA PNGs
+# (transforms_{train,val,test}.json). OUT: a new folder for the run. STEPS (default 800) of RAYS rays each
+# (default 1024). Environment: NERFSTUDIO_VENV (setup_nerfstudio.sh's venv; default
+# ~/.cache/mitsnerf/nerfstudio), MITSNERF_PYTHON (the interpreter with mitsnerf; default .venv/bin/python),
+# MATCHED ("steps", the default, or "seconds": what STEPS was chosen to equal across the table's rows;
+# written to timings.json for the table's budget column).
 #
-# What is changed from nerfacto's defaults, and why:
+# What is changed from the methods' defaults, and why (the same for every method where it applies):
 # - `blender-data --alpha-color None` and `--pipeline.model.background-color random`: nerfstudio keeps
 #   the RGBA images and composites both the image and its render over a random colour each step, so
 #   the model learns the medium alone with its opacity (the parser's default composites on white, and
-#   nerfacto's default background, last_sample, would learn that white as part of the scene). Only
-#   with a random background does `ns-render --rendered-output-names rgba` write the opacity
-#   (accumulation) as alpha; otherwise alpha is 1 everywhere.
-# - `--pipeline.model.camera-optimizer.mode off`: the poses are exact (mitsnerf renders them); pose
-#   refinement (nerfacto's SO3xR3 default) could only move the training cameras away from the test ones.
+#   a white or last-sample background would be learnt as part of the scene).
+# - `--pipeline.model.camera-optimizer.mode off` (nerfacto, tensorf): the poses are exact (mitsnerf renders
+#   them); pose refinement could only move the training cameras away from the test ones.
+# - nerfacto: 8 hash levels to resolution 256 (the data's 64^3 grid at 64x64 pixels), proposal samples 64/32
+#   and 32 NeRF samples. Without tiny-cuda-nn (CUDA only) nerfstudio's hash encoding is its PyTorch one.
 # - `--machine.device-type cpu` (mixed precision is then off by nerfstudio's own rule), `--vis tensorboard`
-#   (no viewer server), and the step budget.
+#   (no viewer server), the step budget and the rays per step. Everything else is the method's default
+#   (vanilla-nerf and mipnerf: near 2, far 6, NeRF-synthetic's; tensorf: the blender scene box).
 #
-# The renders: test/rgba/r_NNN.png, straight colour (rgb / accumulation) and alpha = accumulation, 8-bit
-# sRGB as the training PNGs; `mitsnerf score` composites them over the dataset's background (its sky),
-# matched to the test frames by file name.
+# The renders: ns-render's unquantised float outputs (raw-rgb and raw-accumulation; raw-rgb_fine and
+# raw-accumulation_fine for vanilla-nerf and mipnerf, which have no rgba output), turned by ns_rgba.py into
+# renders/rgba/r_NNN.exr: straight linear colour and alpha = accumulation, which `mitsnerf score` composites
+# over the dataset's background. timings.json: steps, rays_per_step, train_wall_s (ns-train's wall time,
+# start-up included), render_wall_s, matched.
 set -euo pipefail
 
-if [ $# -lt 2 ]; then
-    sed -n '2,12p' "$0" >&2
+if [ $# -lt 3 ]; then
+    sed -n '2,14p' "$0" >&2
     exit 2
 fi
-dataset=$(cd "$1" && pwd)
-out=$2
-steps=${3:-1000}
-rays=${4:-4096}
-save_every=${SAVE_EVERY:-$steps}
+method=$1
+dataset=$(cd "$2" && pwd)
+out=$3
+steps=${4:-800}
+rays=${5:-1024}
+matched=${MATCHED:-steps}
+here=$(cd "$(dirname "$0")" && pwd)
 venv=${NERFSTUDIO_VENV:-$HOME/.cache/mitsnerf/nerfstudio}
-if [ -n "${MITSNERF:-}" ]; then
-    read -r -a mitsnerf <<< "$MITSNERF"
-elif [ -x .venv/bin/mitsnerf ]; then
-    mitsnerf=(.venv/bin/mitsnerf)
+python=${MITSNERF_PYTHON:-.venv/bin/python}
+case "$method" in
+    nerfacto)
+        extra=(--pipeline.model.camera-optimizer.mode off
+               --pipeline.model.num-levels 8 --pipeline.model.max-res 256
+               --pipeline.model.num-proposal-samples-per-ray 64 32 --pipeline.model.num-nerf-samples-per-ray 32)
+        outputs=(rgb accumulation) ;;
+    tensorf)
+        extra=(--pipeline.model.camera-optimizer.mode off)
+        outputs=(rgb accumulation) ;;
+    vanilla-nerf|mipnerf)
+        extra=()
+        outputs=(rgb_fine accumulation_fine) ;;
+    *) echo "run_nerfstudio.sh: $method: not one of nerfacto, tensorf, vanilla-nerf, mipnerf" >&2; exit 2 ;;
+esac
+case "$matched" in steps|seconds) ;; *) echo "run_nerfstudio.sh: MATCHED=$matched: not steps or seconds" >&2; exit 2 ;; esac
+if [ -d "$dataset/medium" ]; then
+    data=$dataset/medium
+elif [ -f "$dataset/transforms_train.json" ]; then
+    data=$dataset
 else
-    mitsnerf=(mitsnerf)
+    echo "run_nerfstudio.sh: $dataset: neither a mitsnerf dataset (medium/) nor NeRF-synthetic (transforms_train.json)" >&2
+    exit 2
 fi
-[ -d "$dataset/medium" ] || { echo "run_nerfacto.sh: $dataset/medium: not found (a mitsnerf dataset?)" >&2; exit 2; }
-[ -x "$venv/bin/ns-train" ] || { echo "run_nerfacto.sh: $venv/bin/ns-train: not found (run setup_nerfstudio.sh)" >&2; exit 2; }
-[ ! -e "$out" ] || { echo "run_nerfacto.sh: $out: exists already" >&2; exit 2; }
+[ -x "$venv/bin/ns-train" ] || { echo "run_nerfstudio.sh: $venv/bin/ns-train: not found (run setup_nerfstudio.sh)" >&2; exit 2; }
+[ -x "$python" ] || { echo "run_nerfstudio.sh: $python: not found (set MITSNERF_PYTHON)" >&2; exit 2; }
+[ ! -e "$out" ] || { echo "run_nerfstudio.sh: $out: exists already" >&2; exit 2; }
 mkdir -p "$out"
 now() { date +%s.%N; }
-
-launch=("$venv/bin/python" "$(dirname "$0")/ns_launch.py")
+launch=("$venv/bin/python" "$here/ns_launch.py")
 
 t0=$(now)
-"${launch[@]}" train nerfacto \
+"${launch[@]}" train "$method" \
     --machine.device-type cpu --vis tensorboard \
-    --max-num-iterations "$steps" --steps-per-save "$save_every" --save-only-latest-checkpoint False \
+    --max-num-iterations "$steps" --steps-per-save "$steps" --save-only-latest-checkpoint False \
     --pipeline.datamanager.train-num-rays-per-batch "$rays" \
-    --pipeline.model.background-color random \
-    --pipeline.model.camera-optimizer.mode off \
-    --pipeline.model.num-levels 8 --pipeline.model.max-res 256 \
-    --pipeline.model.num-proposal-samples-per-ray 64 32 --pipeline.model.num-nerf-samples-per-ray 32 \
-    --output-dir "$out/ns" --experiment-name nerfacto --timestamp run \
-    blender-data --data "$dataset/medium" --alpha-color None 2>&1 | tee "$out/train.log"
+    --pipeline.model.background-color random "${extra[@]}" \
+    --output-dir "$out/ns" --experiment-name "$method" --timestamp run \
+    blender-data --data "$data" --alpha-color None 2>&1 | tee "$out/train.log"
 t1=$(now)
-"${launch[@]}" render dataset --load-config "$out/ns/nerfacto/nerfacto/run/config.yml" \
-    --split test --rendered-output-names rgba --image-format png --output-path "$out/renders" 2>&1 | tee "$out/render.log"
+"${launch[@]}" render dataset --load-config "$out/ns/$method/$method/run/config.yml" \
+    --split test --rendered-output-names "raw-${outputs[0]}" "raw-${outputs[1]}" --output-path "$out/raw" 2>&1 \
+    | tee "$out/render.log"
 t2=$(now)
-"${mitsnerf[@]}" score "$dataset" "$out/renders/test/rgba" --name nerfacto --out "$out/scores.json"
-"$venv/bin/python" - "$out" "$steps" "$rays" "$t0" "$t1" "$t2" <<'PY'
+"$python" "$here/ns_rgba.py" "$out/raw/test" "$out/renders/rgba" --rgb "${outputs[0]}" --acc "${outputs[1]}"
+"$python" - "$out" "$method" "$steps" "$rays" "$matched" "$dataset" "$t0" "$t1" "$t2" <<'PY'
 import json, sys
-out, steps, rays, t0, t1, t2 = sys.argv[1], int(sys.argv[2]), int(sys.argv[3]), *map(float, sys.argv[4:])
-info = {"steps": steps, "rays_per_step": rays, "train_wall_s": round(t1 - t0, 1), "render_wall_s": round(t2 - t1, 1)}
+out, method, steps, rays, matched, dataset, t0, t1, t2 = sys.argv[1:]
+info = {"method": method, "dataset": dataset, "steps": int(steps), "rays_per_step": int(rays), "matched": matched,
+        "train_wall_s": round(float(t1) - float(t0), 1), "render_wall_s": round(float(t2) - float(t1), 1)}
 json.dump(info, open(f"{out}/timings.json", "w"), indent=1)
 print(json.dumps(info))
 PY
