@@ -27,7 +27,7 @@ here=$(cd "$(dirname "$0")" && pwd)
 cd "$here/../.."
 rays=1024
 declare -A steps=([nerfacto]=${STEPS_NERFACTO:-800} [tensorf]=${STEPS_TENSORF:-800}
-                  [vanilla-nerf]=${STEPS_VANILLA_NERF:-120} [mipnerf]=${STEPS_MIPNERF:-90})
+                  [vanilla-nerf]=${STEPS_VANILLA_NERF:-24} [mipnerf]=${STEPS_MIPNERF:-24})
 declare -A matched=([nerfacto]=steps [tensorf]=steps [vanilla-nerf]=seconds [mipnerf]=seconds)
 python=$([ -x .venv/bin/python ] && echo .venv/bin/python || echo python3)
 mitsnerf=("$python" -m mitsnerf)

@@ -5,13 +5,14 @@
 #
 #   benchmarks/external/run_nerfstudio.sh METHOD DATASET OUT [STEPS] [RAYS]
 #
-# METHOD: nerfacto, tensorf, vanilla-nerf or mipnerf (nerfstudio's names). DATASET: a `mitsnerf generate
+# METHOD: nerfacto, tensorf, vanilla-nerf, mipnerf, or on a GPU instant-ngp, splatfacto (nerfstudio's names). DATASET: a `mitsnerf generate
 # ... --nerf-synthetic` dataset (its medium/ is trained on), or a NeRF-synthetic folder of RGBA PNGs
 # (transforms_{train,val,test}.json). OUT: a new folder for the run. STEPS (default 800) of RAYS rays each
 # (default 1024). Environment: NERFSTUDIO_VENV (setup_nerfstudio.sh's venv; default
 # ~/.cache/mitsnerf/nerfstudio), MITSNERF_PYTHON (the interpreter with mitsnerf; default .venv/bin/python),
 # MATCHED ("steps", the default, or "seconds": what STEPS was chosen to equal across the table's rows;
-# written to timings.json for the table's budget column).
+# written to timings.json for the table's budget column), NS_DEVICE (default cpu; cuda for instant-ngp and
+# splatfacto, which have no CPU path, on a GPU machine with nerfstudio's CUDA extensions installed).
 #
 # What is changed from the methods' defaults, and why (the same for every method where it applies):
 # - `blender-data --alpha-color None` and `--pipeline.model.background-color random`: nerfstudio keeps
@@ -34,7 +35,7 @@
 set -euo pipefail
 
 if [ $# -lt 3 ]; then
-    sed -n '2,14p' "$0" >&2
+    sed -n '2,16p' "$0" >&2
     exit 2
 fi
 method=$1
@@ -58,7 +59,11 @@ case "$method" in
     vanilla-nerf|mipnerf)
         extra=()
         outputs=(rgb_fine accumulation_fine) ;;
-    *) echo "run_nerfstudio.sh: $method: not one of nerfacto, tensorf, vanilla-nerf, mipnerf" >&2; exit 2 ;;
+    instant-ngp|splatfacto)  # CUDA only (nerfacc's occupancy grid, gsplat's rasteriser): NS_DEVICE=cuda
+        extra=()
+        outputs=(rgb accumulation) ;;
+    *) echo "run_nerfstudio.sh: $method: not one of nerfacto, tensorf, vanilla-nerf, mipnerf, instant-ngp, splatfacto" >&2
+       exit 2 ;;
 esac
 case "$matched" in steps|seconds) ;; *) echo "run_nerfstudio.sh: MATCHED=$matched: not steps or seconds" >&2; exit 2 ;; esac
 if [ -d "$dataset/medium" ]; then
@@ -78,7 +83,7 @@ launch=("$venv/bin/python" "$here/ns_launch.py")
 
 t0=$(now)
 "${launch[@]}" train "$method" \
-    --machine.device-type cpu --vis tensorboard \
+    --machine.device-type "${NS_DEVICE:-cpu}" --vis tensorboard \
     --max-num-iterations "$steps" --steps-per-save "$steps" --save-only-latest-checkpoint False \
     --pipeline.datamanager.train-num-rays-per-batch "$rays" \
     --pipeline.model.background-color random "${extra[@]}" \
