@@ -345,6 +345,4 @@ def load_dataset(
     if not isinstance(top, dict):
         raise DatasetError(tpath, None, f"must hold a JSON object, got {type(top).__name__}")
     resolved = resolve_box(box, top, tpath, manifest, manifest_path)
-    if pixel_center is None and tpath.name == SINGLE_FILE and "pixel_center" not in top:
-        pixel_center = 0.5  # instant-ngp casts rays through pixel centres
     return Dataset(root, manifest, bg_desc, resolved.box, resolved.source, pixel_center, space, png_bg)

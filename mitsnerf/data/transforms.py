@@ -195,7 +195,7 @@ def _pixel_center(path: Path, top: Mapping[str, Any], pixel_center: float | None
         if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
             raise DatasetError(path, "pixel_center", f"must be a finite number, got {value!r}")
         return float(value)
-    return 0.5 if top.get("camera_convention") == "mitsnerf" else 0.0
+    return 0.5
 
 
 def read_transforms(
@@ -212,8 +212,10 @@ def read_transforms(
 
     1. the ``pixel_center`` argument, if given;
     2. else the file's ``pixel_center`` entry (every file mitsnerf writes has ``0.5``);
-    3. else ``0.5`` if the file says ``"camera_convention": "mitsnerf"``;
-    4. else ``0.0``: the original NeRF loader's rays through integer pixel corners.
+    3. else ``0.5``: rays through pixel centres, where Blender (which rendered NeRF-synthetic), Mitsuba
+       and every other renderer put a pixel's sample, and where nerfstudio and instant-ngp cast their
+       rays. The original NeRF loader cast them through integer pixel corners, half a pixel off its own
+       data; pass ``0.0`` to reproduce it.
 
     ``image_size_of(file_path) -> (width, height)`` is called for frames whose
     ``w``/``h`` appear neither in the frame nor at the top level (original

@@ -119,7 +119,7 @@ def test_foreign_nerf_synthetic(tmp_path):
     assert ds.manifest == {}
     assert ds.background == {"type": "constant", "radiance": [1.0, 1.0, 1.0]}
     v = ds.views("train")
-    assert v.names == ("r_0", "r_1") and v.pixel_center == 0.0  # original NeRF: integer pixel corners
+    assert v.names == ("r_0", "r_1") and v.pixel_center == 0.5  # pixel centres, as Blender renders them
     img = v.images[0]
     srgb = rgba[0, ..., :3] / 255.0
     assert np.allclose(img[0], 1.0)                                 # transparent: white background

@@ -90,12 +90,13 @@ def _white_psnr(root):
 
 
 @pytest.mark.parametrize("layout, source, extra", [
-    (nerf_synthetic_layout, "default for NeRF-synthetic data", ["--pixel-center", "0.5"]),
+    (nerf_synthetic_layout, "default for NeRF-synthetic data", []),  # pixel centres by default, as rendered
     (ngp_layout, "transforms.json: instant-ngp aabb_scale/scale/offset", []),
 ])
 def test_train_on_foreign_layout(medium_view, tmp_path, capsys, layout, source, extra):
     root = layout(medium_view, tmp_path / "data")
-    ds = load_dataset(root, pixel_center=0.5)
+    ds = load_dataset(root)
+    assert ds.views("train").pixel_center == 0.5
     assert ds.box_source.startswith(source)
     assert np.allclose(ds.box.to_list(), Box.cube(1.5).to_list(), atol=1e-6)
     assert len(ds.views("test")) == 2 and len(ds.views("train")) == 14

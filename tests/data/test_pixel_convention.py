@@ -4,9 +4,10 @@ you use and test both against a rendered reference").
 - mitsnerf datasets (and Mitsuba) put pixel centres at +0.5: a Mitsuba ``volpath`` render of an
   absorbing medium is matched by our integrator on the dataset's cameras with ``pixel_center = 0.5``,
   and clearly worse with the original NeRF loader's 0.
-- Foreign NeRF-synthetic data (PNG RGBA, only ``camera_angle_x``) is read with the original
-  loader's convention, rays through integer pixel corners: images rendered that way are
-  reproduced from the loaded cameras, and not with +0.5.
+- Foreign NeRF-synthetic data (PNG RGBA, only ``camera_angle_x``) is read with rays through pixel
+  centres too, where Blender renders its pixels: images rendered that way are reproduced from the
+  loaded cameras, and not with the original NeRF loader's integer corners; ``pixel_center=0``
+  reproduces data rendered through the corners.
 """
 
 from __future__ import annotations
@@ -16,6 +17,7 @@ import json
 import drjit as dr
 import mitsuba as mi
 import numpy as np
+import pytest
 
 from mitsnerf.data.dataset import load_dataset
 from mitsnerf.data.images import write_png
@@ -67,15 +69,19 @@ def test_mitsuba_datasets_use_pixel_centres(tmp_path):
     assert err[0.5] < 0.25 * err[0.0], err  # measured: 1.1e-4 vs 1.3e-2
 
 
-def test_foreign_nerf_synthetic_data_uses_pixel_corners(tmp_path, blob_grid):
+@pytest.mark.parametrize("rendered, read_with", [(0.5, None), (0.0, 0.0)])
+def test_foreign_nerf_synthetic_data_is_read_with_the_convention_it_was_rendered_in(tmp_path, blob_grid, rendered,
+                                                                                    read_with):
+    """Rendered through pixel centres (Blender's), it is read so by default; through the corners, with
+    ``pixel_center=0``."""
     field = GridField.from_arrays(blob_grid, UNIT_BOX, color=(1.0, 0.6, 0.2))
     cams = [Camera.from_fov(look_at(p), 20, 20, 35.0) for p in ((0.3, -2.0, 0.4), (-1.8, 0.6, -0.5))]
     root = tmp_path / "lego"
     (root / "train").mkdir(parents=True)
     frames = []
     for i, cam in enumerate(cams):
-        rgb = _render(field, cam, pixel_center=0.0)  # how the original Blender loader casts rays
-        o, d = camera_rays_numpy([cam], 0.0)
+        rgb = _render(field, cam, pixel_center=rendered)
+        o, d = camera_rays_numpy([cam], rendered)
         with dr.suspend_grad():
             opacity = np.asarray(render_rays(field, to_array3f(mi.Array3f, o), to_array3f(mi.Array3f, d), 96, box=UNIT_BOX).opacity)
         alpha = opacity.reshape(20, 20, 1)
@@ -86,9 +92,9 @@ def test_foreign_nerf_synthetic_data_uses_pixel_corners(tmp_path, blob_grid):
     (root / "transforms_train.json").write_text(json.dumps({"camera_angle_x": cams[0].camera_angle_x, "frames": frames}))
     (root / "transforms_test.json").write_text(json.dumps({"camera_angle_x": cams[0].camera_angle_x, "frames": frames[:1]}))
 
-    views = load_dataset(root, background=0.0).views("train")
-    assert views.pixel_center == 0.0
+    views = load_dataset(root, background=0.0, pixel_center=read_with).views("train")
+    assert views.pixel_center == rendered
     err = {pc: np.mean([mse(linear_to_srgb(np.clip(_render(field, cam, pc), 0, 1)), linear_to_srgb(np.clip(img, 0, 1)))
                         for cam, img in zip(views.cameras, views.images)]) for pc in (0.0, 0.5)}
-    assert err[0.0] < 1e-4  # PNG quantisation only
-    assert err[0.5] > 10 * err[0.0], err
+    assert err[rendered] < 1e-4  # PNG quantisation only
+    assert err[0.5 - rendered] > 10 * err[rendered], err

@@ -72,7 +72,7 @@ def test_original_nerf_synthetic_uses_image_size_and_no_pixel_offset(tmp_path):
 
     paths, cams, meta = read_transforms(path, image_size_of=size_of)
     assert asked == paths == ["./train/r_000", "./train/r_001"]
-    assert meta["pixel_center"] == 0.0
+    assert meta["pixel_center"] == 0.5  # pixel centres, where Blender sampled them
     fl = 0.5 * 800 / math.tan(0.5 * 0.6911112070083618)
     for cam in cams:
         assert (cam.width, cam.height) == (800, 600)
@@ -102,9 +102,8 @@ def test_missing_image_from_the_size_resolver_names_file_path(tmp_path):
 def test_pixel_center_rules(tmp_path):
     doc = _foreign_doc()
     doc.update(w=4, h=4)
-    assert read_transforms(_write_raw(tmp_path / "a.json", doc))[2]["pixel_center"] == 0.0
-    doc["camera_convention"] = "mitsnerf"
-    assert read_transforms(_write_raw(tmp_path / "b.json", doc))[2]["pixel_center"] == 0.5
+    assert read_transforms(_write_raw(tmp_path / "a.json", doc))[2]["pixel_center"] == 0.5
+    assert read_transforms(tmp_path / "a.json", pixel_center=0.0)[2]["pixel_center"] == 0.0  # the original loader
     doc["pixel_center"] = 0.25
     assert read_transforms(_write_raw(tmp_path / "c.json", doc))[2]["pixel_center"] == 0.25
     assert read_transforms(tmp_path / "c.json", pixel_center=0.0)[2]["pixel_center"] == 0.0
