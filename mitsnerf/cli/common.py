@@ -189,9 +189,9 @@ def add_dataset_options(parser) -> None:
                         help="the scene box (default: from the data: an aabb key, mitsnerf's manifest, instant-ngp's "
                              "aabb_scale, else [-1.5, 1.5]^3)")
     parser.add_argument("--pixel-center", type=float,
-                        help="where a pixel's ray crosses it, in [0, 1): 0.5, its centre (the default unless the data's "
-                             "transforms say pixel_center: Blender, Mitsuba, nerfstudio, instant-ngp), or 0, its "
-                             "corner (the original NeRF loader)")
+                        help="where a pixel's ray crosses it, in [0, 1): 0.5, its centre (the default unless the "
+                             "data's transforms say pixel_center: Blender, Mitsuba, nerfstudio, instant-ngp), or 0, "
+                             "its corner (the original NeRF loader)")
     parser.add_argument("--background", type=float, nargs=3, metavar=("R", "G", "B"),
                         help="background for foreign PNG data (default white)")
     parser.add_argument("--no-verify", action="store_true",
