@@ -11,6 +11,12 @@
 #   integrator  the integrator's samples/s forward and backward (256x256 views, N = 64, 128, 256)
 #   mlp         the NeRF MLP: tensor mode, cooperative vectors fp32/fp16, JAX and PyTorch (this Python)
 #   paper       mitsnerf bench paper (ground truth cached in ./data between calls on a warm machine)
+#   paper-cloud the cloud row of paper alone (benchmarks/paper_cloud.toml), ngp first, for a short lease
+#
+# A bench step's results (its tables, cells and plots, no EXR) are packed into OUTDIR/STEP-results.tgz.
+# Environment: LIMIT_<STEP> (LIMIT_tests=150, LIMIT_paper_cloud=300) stops a step after that many seconds
+# (exit 124), so that one slow step leaves the later ones their time; TEST_WORKERS=N runs the suite in N
+# processes (pytest-xdist).
 #
 # install must have run on this machine first (it is idempotent). Nothing here reaches a network.
 set -uo pipefail
@@ -22,10 +28,10 @@ PYTHON=${PYTHON:-python3}
 mkdir -p "$OUT"
 export PYTHONPATH="$PWD:$SITE" PYTHONUNBUFFERED=1 MITSNERF_VARIANT=${MITSNERF_VARIANT:-cuda_ad_rgb}
 
-run() {  # run STEP COMMAND...: log to OUT/STEP.log, say how it ended and how long it took
+run() {  # run STEP COMMAND...: log to OUT/STEP.log (within LIMIT_STEP s), say how it ended and how long it took
     local step=$1; shift
-    local t0=$SECONDS
-    "$@" > "$OUT/$step.log" 2>&1
+    local t0=$SECONDS limit_var="LIMIT_${step//-/_}"
+    timeout "${!limit_var:-0}" "$@" > "$OUT/$step.log" 2>&1
     local rc=$?
     echo "$step: exit $rc, $((SECONDS - t0)) s" | tee -a "$OUT/summary.txt"
     tail -n 5 "$OUT/$step.log"
@@ -38,18 +44,22 @@ for step in "$@"; do
         install)
             run install bash -c 'nvidia-smi; PYTHON="$1" bash scripts/offline_install.sh "$2" "$3"' _ "$PYTHON" "$WHEELS" "$SITE" ;;
         tests)
-            run tests "$PYTHON" -m pytest -q -m "not slow" -p no:cacheprovider ;;
+            run tests "$PYTHON" -m pytest -q -m "not slow" -p no:cacheprovider ${TEST_WORKERS:+-n "$TEST_WORKERS"} ;;
         groundtruth)
-            run groundtruth "$PYTHON" benchmarks/throughput_groundtruth.py --scene cloud --views 4 --size 256 --spp 256 ;;
+            run groundtruth "$PYTHON" benchmarks/throughput_groundtruth.py --scene cloud --train-views 8 --test-views 2 --size 256 ;;
         integrator)
             run integrator "$PYTHON" benchmarks/throughput_integrator.py --scene cloud --size 256 --views 8 --samples 64 128 256 ;;
         mlp)
             run mlp "$PYTHON" benchmarks/throughput_mlp.py --batch-log2 14 16 18 20 --no-peak \
                 --jax-python "$(command -v "$PYTHON")" --torch-python "$(command -v "$PYTHON")" ;;
-        paper)
-            run paper "$PYTHON" -m mitsnerf bench paper --no-progress --data data --results "$OUT/results" ;;
+        paper|paper-cloud)
+            config=paper; [ "$step" = paper-cloud ] && config=benchmarks/paper_cloud.toml
+            run "$step" "$PYTHON" -m mitsnerf bench "$config" --no-progress --data data --results "runs/gpu/$step"
+            rc=$?
+            tar -czf "$OUT/$step-results.tgz" --exclude='*.exr' -C runs/gpu "$step" 2>/dev/null
+            [ $rc -eq 0 ] ;;
         *)
-            echo "gpu_check: unknown step '$step' (install, tests, groundtruth, integrator, mlp, paper)" >&2
+            echo "gpu_check: unknown step '$step' (install, tests, groundtruth, integrator, mlp, paper, paper-cloud)" >&2
             exit 2 ;;
     esac || status=1
 done
