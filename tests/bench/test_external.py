@@ -24,9 +24,12 @@ def _with_external(config, external, tmp_path):
     return parse_bench_config(raw, tmp_path / "ext.toml")
 
 
-def _renders(cells, scene, tmp_path, name="ref"):
-    """The scene's test_ref EXRs as a renders folder (they score exactly the noise floor)."""
-    dataset = next(c.dataset_dir for c in cells if c.scene == scene)
+def _renders(cells, scene, tmp_path, opts, name="ref"):
+    """The scene's test_ref EXRs as a renders folder (they score exactly the noise floor); the dataset is
+    generated here if no earlier test made it (each test stands alone, in any order or process)."""
+    first = next(c for c in cells if c.scene == scene)
+    runner._generate([first], opts, lambda line: None)
+    dataset = first.dataset_dir
     folder = tmp_path / name
     folder.mkdir()
     for f in sorted((Path(dataset) / "test_ref").glob("r_*.exr")):
@@ -40,7 +43,7 @@ def test_external_rows_in_tables_plots_and_report(tiny_bench, tmp_path):
     plain = _with_external(config, [], tmp_path)
     cells = plan_cells(plain, opts)
     run_benchmark(plain, dataclasses.replace(opts, report=False))  # the cell first
-    folder, dataset = _renders(cells, "tcloud", tmp_path)
+    folder, dataset = _renders(cells, "tcloud", tmp_path, opts)
     ext = _with_external(config, [{"name": "ref", "renders": {"tcloud": "ref"},
                                    "density": {"tcloud": str(dataset / "volume" / "sigma_t.npy")}}], tmp_path)
     result = run_benchmark(ext, opts)
@@ -70,7 +73,7 @@ def test_external_rows_in_tables_plots_and_report(tiny_bench, tmp_path):
 def test_bad_external_stops_before_training(tiny_bench, tmp_path, monkeypatch):
     config, options = tiny_bench
     cells = plan_cells(config, options("fresh"))
-    folder, _ = _renders(cells, "tcloud", tmp_path)
+    folder, _ = _renders(cells, "tcloud", tmp_path, options("fresh"))
     (folder / "r_001.exr").unlink()
     monkeypatch.setattr(worker, "run_cell", lambda *a, **k: pytest.fail("a cell ran"))
     ext = _with_external(config, [{"name": "ref", "renders": {"tcloud": "ref"}}], tmp_path)
@@ -107,7 +110,7 @@ def test_a_config_of_external_entries_only_is_scored(tiny_bench, tmp_path):
     """No [[methods]] at all: it used to be refused twice (methods: missing field, then at least one method)."""
     config, options = tiny_bench
     scenes = runner.plan_scenes(config, options("ext-only"))
-    folder, dataset = _renders(scenes, "tcloud", tmp_path)
+    folder, dataset = _renders(scenes, "tcloud", tmp_path, options("ext-only"))
     raw = {**{k: v for k, v in to_dict(config).items() if k != "methods"}, "scenes": list(config.scenes[:1]),
            "external": [{"name": "ref", "renders": {"tcloud": "ref"}}]}
     ext = parse_bench_config(raw, tmp_path / "ext.toml")
@@ -121,7 +124,7 @@ def test_a_config_of_external_entries_only_is_scored(tiny_bench, tmp_path):
 
 def test_a_missing_density_file_or_render_stops_before_any_dataset_is_made(tiny_bench, tmp_path, monkeypatch):
     config, options = tiny_bench
-    folder, _ = _renders(runner.plan_scenes(config, options("fresh")), "tcloud", tmp_path)
+    folder, _ = _renders(runner.plan_scenes(config, options("fresh")), "tcloud", tmp_path, options("fresh"))
     monkeypatch.setattr(runner, "_generate", lambda *a, **k: pytest.fail("a dataset was generated"))
     ext = _with_external(config, [{"name": "ref", "renders": {"tcloud": "ref"}, "density": {"tcloud": "no.npy"}}],
                          tmp_path)
@@ -137,7 +140,7 @@ def test_a_timings_file_fills_the_budget_and_cost_columns(tiny_bench, tmp_path):
     """The launcher's timings.json gives the external row its budget, train seconds and rays/s; a malformed
     one stops the run before anything is made, naming the file and the field."""
     config, options = tiny_bench
-    folder, _ = _renders(runner.plan_scenes(config, options("ext-cost")), "tcloud", tmp_path)
+    folder, _ = _renders(runner.plan_scenes(config, options("ext-cost")), "tcloud", tmp_path, options("ext-cost"))
     timings = tmp_path / "timings.json"
     timings.write_text(json.dumps({"steps": 300, "rays_per_step": 512, "train_wall_s": 12.5, "matched": "seconds"}))
     raw = {**{k: v for k, v in to_dict(config).items() if k != "methods"}, "scenes": list(config.scenes[:1]),
