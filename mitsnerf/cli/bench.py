@@ -14,7 +14,10 @@ def run(args) -> int:
     from mitsnerf.bench.runner import BenchOptions, default_data_root, run_benchmark
     from mitsnerf.errors import UsageError
     from mitsnerf.outputs import check_output_dir
+    from mitsnerf.train.threads import nondeterminism
 
+    if args.deterministic and (why := nondeterminism()) is not None:
+        raise UsageError("--deterministic", why)
     if args.deterministic and args.cpus_per_cell not in (0, 1):
         raise UsageError(
             "--deterministic", f"runs each cell on one thread; --cpus-per-cell {args.cpus_per_cell} contradicts it"

@@ -85,6 +85,14 @@ def _check_outside_dataset(out: Path, dataset: Path) -> None:
                                   "files; put the run outside it, e.g. --out runs/NAME")
 
 
+def _check_deterministic(deterministic: bool) -> None:
+    from mitsnerf.errors import UsageError
+    from mitsnerf.train.threads import nondeterminism
+
+    if deterministic and (why := nondeterminism()) is not None:
+        raise UsageError("--deterministic", why)
+
+
 def run(args) -> int:
     from mitsnerf.runs.directory import claim_run_dir
     from mitsnerf.runs.fit import fit, resume_run
@@ -92,6 +100,7 @@ def run(args) -> int:
 
     train_values = given(args, TRAIN_OPTIONS)
     train_config = options_config(TrainConfig, train_values)  # every setting checked before anything runs
+    _check_deterministic(args.deterministic)
     if args.resume:
         _check_resume_flags(args)
     else:

@@ -2,7 +2,8 @@
 
 ``mitsnerf methods --check NAME`` runs it on one registered method (a plugin author's first test);
 ``tests/methods/test_conformance.py`` runs it on every registered method. On a tiny generated dataset
-(:data:`TINY_SCENE`), with the method's ``tiny`` settings, one thread (``--deterministic``):
+(:data:`TINY_SCENE`), with the method's ``tiny`` settings, one thread (``--deterministic``; on CUDA, whose
+float atomics no thread count orders, as it comes: :func:`mitsnerf.train.threads.nondeterminism`):
 
 ========================  ==================================================================================
 promise                   checked
@@ -10,7 +11,8 @@ promise                   checked
 trains and evaluates      a few steps train with a finite loss; every test view renders finite, of the view's
                           shape; the scores are finite; the run directory holds its files
 SIGTERM checkpoints       a real SIGTERM at a logged step stops training with the checkpoint of that step
-resume is bit-identical   the stopped run, resumed, ends with the same parameters as the run never stopped
+resume equals the run     the stopped run, resumed, ends with the same parameters as the run never stopped:
+never stopped             bit for bit on LLVM; on CUDA to :data:`RESUME_ATOL`
 renders a saved run       the run read back from its directory renders a test view as the run did
 exports its density       (a queryable density only) ``export`` writes sigma_t, and the run has density scores
 other settings refused    resuming with another ``lr`` is refused, naming ``method_config`` and ``lr``
@@ -34,6 +36,7 @@ from typing import Any
 import numpy as np
 
 from mitsnerf.config import apply_overrides
+from mitsnerf.train.threads import nondeterminism
 
 #: The tiny scene the suite trains on (spec data): a 16^3 cloud seen by 3 + 2 cameras of 8 x 8 pixels, a few spp.
 TINY_SCENE: Mapping[str, Any] = {
@@ -107,7 +110,7 @@ class _Context:
         return fit(self.dataset, self.method, dict(overrides or self.config),
                    TrainConfig(steps=STEPS, batch_rays=64, log_every=1, seed=0),
                    None if out is None else self.work / out, progress=self.progress, resume=resume,
-                   on_log=on_log, deterministic=True)
+                   on_log=on_log, deterministic=nondeterminism() is None)
 
 
 def check_method(name: str, *, overrides: Mapping[str, Any] | None = None, work: Path | None = None,
@@ -219,19 +222,32 @@ def sigterm_checkpoints(ctx: _Context) -> str:
     return f"checkpoint of step {STOP_AT}"
 
 
-def resume_is_bit_identical(ctx: _Context) -> str:
+#: How far a resumed run's parameters may lie from the run never stopped where the backend's float atomics
+#: sum gradients in no fixed order (CUDA): measured 1.5e-8 to 1.2e-7 on an H200 (ngp, voxel, tensorf,
+#: mitsuba-inverse); a resume that loses the optimiser's moments, the batch generator or the schedule moves
+#: a parameter by about a learning rate (1e-3 to 1e-1) a step.
+RESUME_ATOL = 1e-5
+
+
+def resume_equals_the_run_never_stopped(ctx: _Context) -> str:
     from mitsnerf.runs.fit import resume_run
 
     resumed = resume_run(ctx.work / "stopped", progress=ctx.progress, dataset=ctx.dataset)
     a, b = _arrays(ctx.runs["run"].model.parameters()), _arrays(resumed.model.parameters())
     if a.keys() != b.keys():
         raise Broken(f"the resumed run has parameters {sorted(b)}, the run never stopped {sorted(a)}")
-    differ = [k for k in a if a[k].shape != b[k].shape or not np.array_equal(a[k], b[k])]
+    why = nondeterminism()
+    atol = 0.0 if why is None else RESUME_ATOL
+    gap = {k: float(np.max(np.abs(a[k] - b[k]), initial=0.0)) if a[k].shape == b[k].shape else np.inf for k in a}
+    differ = [k for k in a if gap[k] > atol]
     if differ:
-        worst = max(float(np.max(np.abs(a[k] - b[k]))) if a[k].shape == b[k].shape else np.inf for k in differ)
         raise Broken(f"parameters {', '.join(differ)} differ from the run never stopped "
-                     f"(largest difference {worst:.3g})")
-    return f"{len(a)} parameter arrays equal after stopping at step {STOP_AT} of {STEPS}"
+                     f"(largest difference {max(gap[k] for k in differ):.3g}"
+                     + (")" if why is None else f", more than {atol:g})"))
+    if why is None:
+        return f"{len(a)} parameter arrays bit-identical after stopping at step {STOP_AT} of {STEPS}"
+    return (f"{len(a)} parameter arrays within {atol:g} (largest difference {max(gap.values()):.2g}) after stopping "
+            f"at step {STOP_AT} of {STEPS}: not bit for bit, {why.split(',')[0]}")
 
 
 def renders_a_saved_run(ctx: _Context) -> str:
@@ -291,7 +307,7 @@ def _arrays(params: Mapping[str, Any]) -> dict[str, np.ndarray]:
 PROMISES: tuple[tuple[str, Callable[[_Context], str], tuple[str, ...]], ...] = (
     ("trains and evaluates", trains_and_evaluates, ()),
     ("SIGTERM checkpoints the last completed step", sigterm_checkpoints, ()),
-    ("resume is bit-identical", resume_is_bit_identical,
+    ("resume equals the run never stopped", resume_equals_the_run_never_stopped,
      ("trains and evaluates", "SIGTERM checkpoints the last completed step")),
     ("renders a saved run", renders_a_saved_run, ("trains and evaluates",)),
     ("exports its density, which is scored", exports_its_density, ("trains and evaluates",)),

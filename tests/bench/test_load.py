@@ -3,7 +3,9 @@ without a CPU-burning process beside the sweep.
 
 Bit-for-bit: ``nerf`` with any thread count (its gradients are summed in a fixed order); the grid
 methods (``voxel``, ``ngp``) single-threaded (``--cpus-per-cell 1``), since multi-threaded
-scatter-adds round in the order the threads run.
+scatter-adds round in the order the threads run. On CUDA the grid methods' scatter-adds are float atomics
+that no thread count orders: there their columns agree to a relative 1e-6 (measured on an H200: 3e-12), far
+below what a budget that followed the load would change.
 """
 
 from __future__ import annotations
@@ -16,6 +18,7 @@ import pytest
 
 from mitsnerf.bench.config import parse_bench_config
 from mitsnerf.bench.runner import BenchOptions, run_benchmark
+from mitsnerf.train.threads import nondeterminism
 
 from .conftest import CODE_VERSION, write_scene
 
@@ -38,6 +41,17 @@ def _quality(result) -> list:
         m = record["metrics"]
         out.append([m.get(k) for k in QUALITY_KEYS] + [(p["step"], p["psnr"]) for p in record["curve"]["points"]])
     return out
+
+
+def _flat(rows: list) -> list:
+    return [x for row in rows for v in row for x in (v if isinstance(v, tuple) else (v,))]
+
+
+def _far_apart(a: list, b: list, rel: float) -> list:
+    """The pairs of ``a`` and ``b`` (None only with None) further apart than ``rel`` of the larger."""
+    assert len(a) == len(b)
+    return [(x, y) for x, y in zip(a, b)
+            if (x is None) != (y is None) or (x is not None and abs(x - y) > rel * max(abs(x), abs(y)))]
 
 
 @pytest.fixture
@@ -70,5 +84,9 @@ def test_the_same_config_gives_the_same_table_under_load(tmp_path, method, threa
     for p in burners:
         p.send_signal(signal.SIGCONT)
     loaded = run("loaded")
-    assert quiet.records and _quality(quiet) == _quality(loaded)
+    assert quiet.records
+    if threads == 1 and nondeterminism() is not None:
+        assert _far_apart(_flat(_quality(quiet)), _flat(_quality(loaded)), rel=1e-6) == []
+    else:
+        assert _quality(quiet) == _quality(loaded)
     assert quiet.records[0]["metrics"]["budget"] == "steps"

@@ -1,29 +1,64 @@
-"""``--deterministic``: one Dr.Jit thread while training makes every method bit-identical run to run."""
+"""``--deterministic``: one Dr.Jit thread while training makes every method bit-identical run to run on LLVM;
+on CUDA, whose float atomics no thread count orders, it is refused rather than promised."""
 
 from __future__ import annotations
 
 import numpy as np
 import pytest
 
+import mitsnerf.train.threads
+from mitsnerf.cli import main
+from mitsnerf.errors import UsageError
 from mitsnerf.methods import methods
+from mitsnerf.train.threads import nondeterminism
+
+
+def _fit_twice(method, dataset, threads):
+    from mitsnerf.runs.fit import fit
+    from mitsnerf.train import TrainConfig
+
+    runs = []
+    for _ in range(2):
+        run = fit(dataset, method, methods()[method].tiny, TrainConfig(steps=6, batch_rays=128, log_every=2), None,
+                  progress=False, deterministic=True, on_log=lambda entry, model: threads.append(_thread_count()))
+        runs.append({k: np.array(v.numpy() if hasattr(v, "numpy") else v) for k, v in run.model.parameters().items()})
+    return runs
+
+
+def _thread_count() -> int:
+    import drjit as dr
+
+    return dr.thread_count()
 
 
 @pytest.mark.parametrize("method", sorted(methods()))
 def test_deterministic_training_is_bit_identical_and_runs_on_one_thread(method, world):
-    import drjit as dr
-
     from mitsnerf.data.dataset import load_dataset
-    from mitsnerf.runs.fit import fit
-    from mitsnerf.train import TrainConfig
 
     dataset = load_dataset(world.dataset)
-    threads_before = dr.thread_count()
-    runs, threads = [], []
-    for _ in range(2):
-        run = fit(dataset, method, methods()[method].tiny, TrainConfig(steps=6, batch_rays=128, log_every=2), None,
-                  progress=False, deterministic=True, on_log=lambda entry, model: threads.append(dr.thread_count()))
-        runs.append({k: np.array(v.numpy() if hasattr(v, "numpy") else v) for k, v in run.model.parameters().items()})
-    assert set(threads) == {1} and dr.thread_count() == threads_before
+    if nondeterminism() is not None:  # CUDA: refused, whatever the method
+        with pytest.raises(UsageError, match="deterministic: .* float atomics"):
+            _fit_twice(method, dataset, [])
+        return
+    threads_before, threads = _thread_count(), []
+    runs = _fit_twice(method, dataset, threads)
+    assert set(threads) == {1} and _thread_count() == threads_before
     assert runs[0].keys() == runs[1].keys()
     for key in runs[0]:
         np.testing.assert_array_equal(runs[0][key], runs[1][key], err_msg=f"{method}: {key}")
+
+
+def test_deterministic_is_refused_in_one_line_where_the_backend_cannot_keep_it(world, tmp_path, monkeypatch, capsys):
+    """Where :func:`nondeterminism` gives a reason (CUDA), train and bench refuse --deterministic before
+    anything is made, and the library refuses ``deterministic=True``."""
+    reason = "cuda_ad_rgb adds gradients with float atomics in an order the GPU decides"
+    monkeypatch.setattr(mitsnerf.train.threads, "nondeterminism", lambda variant=None: reason)
+    run = tmp_path / "run"
+    assert main(["train", str(world.dataset), "--out", str(run), "--steps", "2", "--deterministic", *world.nerf]) == 2
+    assert main(["bench", "--quick", "--deterministic", "--results", str(tmp_path / "results")]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert err == [f"mitsnerf: error: --deterministic: {reason}"] * 2
+    assert not run.exists() and not (tmp_path / "results").exists()
+    with pytest.raises(UsageError, match=f"^deterministic: {reason}$"):
+        with mitsnerf.train.threads.one_thread():
+            pass

@@ -4,12 +4,13 @@ code, or a plugin's own model)."""
 
 from __future__ import annotations
 
+import re
 from pathlib import Path
 
 import pytest
 
 from mitsnerf.methods import methods
-from mitsnerf.runs.conformance import PROMISES, check_method
+from mitsnerf.runs.conformance import PROMISES, RESUME_ATOL, check_method
 
 PLUGIN = Path(__file__).resolve().parents[1] / "plugins" / "tiny_plugin.py"
 
@@ -52,7 +53,8 @@ def test_an_interrupt_that_saves_nothing_breaks_the_sigterm_promise(monkeypatch)
     assert _broken(report) == ["SIGTERM checkpoints the last completed step"], report.summary()
 
 
-def test_a_resume_without_the_optimiser_moments_is_not_bit_identical(monkeypatch):
+def test_a_resume_without_the_optimiser_moments_does_not_equal_the_run(monkeypatch):
+    """Broken on either backend: the parameters move far more than CUDA's tolerance (RESUME_ATOL)."""
     import mitsnerf.runs.fit
 
     restore = mitsnerf.runs.fit.restore_optimizer
@@ -64,8 +66,10 @@ def test_a_resume_without_the_optimiser_moments_is_not_bit_identical(monkeypatch
 
     monkeypatch.setattr(mitsnerf.runs.fit, "restore_optimizer", forget_moments)
     report = check_method("nerf")
-    assert _broken(report) == ["resume is bit-identical"], report.summary()
-    assert "differ from the run never stopped" in report.failures()[0].detail
+    assert _broken(report) == ["resume equals the run never stopped"], report.summary()
+    detail = report.failures()[0].detail
+    assert "differ from the run never stopped" in detail
+    assert float(re.search(r"largest difference ([-+.e0-9]+)", detail).group(1)) > 100 * RESUME_ATOL, detail
 
 
 def test_a_run_read_back_without_its_parameters_renders_differently(monkeypatch):
