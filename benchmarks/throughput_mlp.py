@@ -305,11 +305,18 @@ def peers(args) -> dict[str, dict[int, float]]:
 def ours(args, variant: str, fpp: int) -> dict[tuple[str, int], float]:
     """mitsnerf's points/s per (path, batch), each line printed."""
     import drjit as dr
+    import mitsuba as mi
 
+    from mitsnerf.fields.mlp import usable_network_paths
+
+    missing = [name for name in args.paths
+               if name.startswith("coopvec") and name.replace(" ", "-") not in usable_network_paths(mi.TensorXf)]
+    for name in missing:  # CUDA: no fp32 cooperative vectors in drjit 1.5
+        print(json.dumps({"impl": f"mitsnerf {name}", "skipped": f"not available on {variant}"}), flush=True)
     measured: dict[tuple[str, int], float] = {}
     for logn in args.batch_log2:
         n = 2**logn
-        for name in args.paths:
+        for name in (p for p in args.paths if p not in missing):
             profile: dict = {}
             med = PATHS[name](n, args.steps, profile if args.profile else None)
             measured[(name, n)] = n / med
@@ -339,7 +346,7 @@ def main() -> int:
     best = peers(args)
     roof = None if args.no_peak else sgemm_flops()
     layer_roof = {} if args.no_peak else {n: layer_gemm_flops(n) for n in {2**k for k in args.batch_log2}}
-    nominal, how = nominal_flops()
+    nominal, how = nominal_flops() if not variant.startswith("cuda") else (None, "not on a GPU (a CPU's rule)")
     for (name, n), pts in measured.items():
         ratios = {f"ratio_to_{peer}": pts / by_batch[n] if n in by_batch else None for peer, by_batch in best.items()}
         print(json.dumps({"summary": f"mitsnerf {name}", "batch": n, "pts_per_s": pts, **ratios,

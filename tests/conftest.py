@@ -34,6 +34,21 @@ def each_variant(request, variant) -> str:
         env.set_variant(variant)
 
 
+@pytest.fixture
+def require_network_path(variant):
+    """``require_network_path(PATH)`` skips the test where the session's backend lacks network path PATH
+    (:func:`mitsnerf.fields.mlp.usable_network_paths`: CUDA has no ``coopvec-fp32``)."""
+    def require(path: str) -> None:
+        import mitsuba as mi
+
+        from mitsnerf.fields.mlp import usable_network_paths
+
+        if path not in usable_network_paths(mi.TensorXf):
+            pytest.skip(f"{path} does not run on {variant}")
+
+    return require
+
+
 TINY_SCENE = {
     "name": "tiny",
     "description": "a 16^3 cloud, 8x8 views",

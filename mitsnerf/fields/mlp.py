@@ -27,9 +27,13 @@ def network_path(requested: str, TensorXf) -> str:
     ``auto`` is ``tensor`` on every backend for now. On the LLVM backend tensors measured 4-5x faster
     than cooperative vectors in fp32 on the 2-core CPU, and fp16 slower again (benchmarks/README.md,
     "Cooperative vectors and a PyTorch peer"). On CUDA, Dr.Jit runs fp16 cooperative vectors on the
-    tensor cores, but that has not been measured here, and fp16 gives up tensor mode's bit-for-bit
-    reproducible training: ``auto`` moves to a cooperative-vector path on CUDA only once a GPU run has
-    measured it faster at the same quality. Name a path to use one.
+    tensor cores: an H200 ran the MLP's training step 64x faster on them than on tensors at 2^20 points
+    (benchmarks/README.md, "On a GPU"), but no method's quality trained in fp16 has been measured, and
+    ``auto`` moves to a path only once a GPU run has measured it faster at the same quality. Name a path
+    to use one.
+
+    A path the backend lacks (:func:`usable_network_paths`) is a :class:`mitsnerf.errors.SpecError` naming
+    ``network_path`` and the paths it has.
 
     >>> import mitsuba as mi
     >>> from mitsnerf.env import set_variant; _ = set_variant("llvm_ad_rgb")
@@ -38,7 +42,30 @@ def network_path(requested: str, TensorXf) -> str:
     """
     if requested not in NETWORK_PATHS:
         raise ValueError(f"network_path: must be one of {', '.join(NETWORK_PATHS)}, got {requested!r}")
+    usable = usable_network_paths(TensorXf)
+    if requested not in usable:
+        from mitsnerf.errors import SpecError
+
+        raise SpecError(None, "network_path", f"{requested} is not available on {dr.backend_v(TensorXf).name}: "
+                        f"{_MISSING[requested]}; use one of {', '.join(usable)}")
     return "tensor" if requested == "auto" else requested
+
+
+#: Why a path is missing on CUDA (drjit 1.5, seen on an H200: ``jit_coop_vec_compute_layout(): CUDA/OptiX
+#: conversion to optimal layout is currently limited to half precision data`` when a run renders its views).
+_MISSING = {"coopvec-fp32": "Dr.Jit packs matrices into the layouts cooperative vectors need there in fp16 only"}
+
+
+def usable_network_paths(TensorXf) -> tuple[str, ...]:
+    """The :data:`NETWORK_PATHS` that ``TensorXf``'s backend runs (on CUDA, no ``coopvec-fp32``).
+
+    >>> import drjit as dr
+    >>> usable_network_paths(dr.llvm.ad.TensorXf), usable_network_paths(dr.cuda.ad.TensorXf)
+    (('auto', 'tensor', 'coopvec-fp32', 'coopvec-fp16'), ('auto', 'tensor', 'coopvec-fp16'))
+    """
+    if dr.backend_v(TensorXf) == dr.JitBackend.CUDA:
+        return tuple(p for p in NETWORK_PATHS if p not in _MISSING)
+    return NETWORK_PATHS
 
 
 def pack_layers(tensors, half: bool) -> list:
@@ -125,10 +152,37 @@ def dense_apply(params, prefix: str, n_layers: int, x, activation=None):
     act = activation or (lambda h: dr.maximum(h, 0.0))
     for i in range(n_layers):
         w, b = params[f"{prefix}{i}.weights"], params[f"{prefix}{i}.bias"]
-        x = x @ w + dr.reshape(type(b), b, (1, b.shape[0]))
+        x = matmul_rows(x, w) + dr.reshape(type(b), b, (1, b.shape[0]))
         if i + 1 < n_layers:
             x = act(x)
     return x
+
+
+#: The most rows of ``X`` one CUDA tensor product ``X W`` takes: Dr.Jit 1.5 (drjit-core's batched_gemm) lays
+#: a tile of 8 to 64 rows on each step of the launch grid's y axis, at most 65535 of them, and a layer of odd
+#: width (3 colours, 31 inputs) rules out all but 8-row tiles. Past it the product raises, which ``@`` turns
+#: into "unsupported operand type(s)": ngp's 8192-ray batches (over 2^19 samples) failed so on an H200.
+CUDA_GEMM_ROWS = 65535 * 8
+
+
+def matmul_rows(x, w, max_rows: int | None = None):
+    """``X W`` for a point-major (M, C_in) tensor ``x`` and (C_in, C_out) ``w``, as ``dr.matmul`` in slices of at
+    most ``max_rows`` rows (default: :data:`CUDA_GEMM_ROWS` on CUDA, one product on LLVM); each row's dot
+    products are the same in a slice as in the whole, so the result is too.
+
+    >>> import mitsuba as mi
+    >>> from mitsnerf.env import set_variant; _ = set_variant("llvm_ad_rgb")
+    >>> x, w = mi.TensorXf(list(range(10)), shape=(5, 2)), mi.TensorXf([1.0, 0, 0, 1], shape=(2, 2))
+    >>> y = matmul_rows(x, w, max_rows=2)  # three slices: rows 0-1, 2-3, 4
+    >>> y.shape, bool(dr.all(y.array == x.array))
+    ((5, 2), True)
+    """
+    if max_rows is None:
+        max_rows = CUDA_GEMM_ROWS if dr.backend_v(x) == dr.JitBackend.CUDA else 0
+    m = x.shape[0]
+    if not max_rows or m <= max_rows:
+        return dr.matmul(x, w)
+    return dr.concat([dr.matmul(x[a:min(a + max_rows, m)], w) for a in range(0, m, max_rows)], axis=0)
 
 
 def rows_tensor(TensorXf, rows, width: int):

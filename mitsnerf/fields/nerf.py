@@ -130,7 +130,7 @@ def linear(layer, x):
     >>> bool(dr.all(linear(layer, x) == layer(x), axis=None))
     True
     """
-    y = layer.weights @ x
+    y = dr.matmul(layer.weights, x)  # not ``@``, which turns any failure of the product into a TypeError
     if layer.bias is None:
         return y
     return y + dr.custom(_BroadcastColumns, layer.bias, x.shape[1])
@@ -213,6 +213,9 @@ class NeRFField:
     config: NeRFConfig
     net: NeRFNetwork
     box: Box
+
+    def __post_init__(self) -> None:
+        network_path(self.config.network_path, type(self.net.out.weights))  # refused here if the backend lacks it
 
     @classmethod
     def create(cls, config: NeRFConfig, TensorXf, box: Box, seed: int = 0, head: bool = True) -> NeRFField:

@@ -56,6 +56,7 @@ from mitsnerf.fields.mlp import (
     network_path,
     pack_layers,
     rows_tensor,
+    usable_network_paths,
 )
 from mitsnerf.fields.sh import MAX_DEGREE, num_coefficients, sh_basis
 from mitsnerf.math.activations import sigmoid
@@ -135,6 +136,7 @@ class NGPField:
     """
 
     def __init__(self, config: NGPConfig, TensorXf, box: Box, seed: int = 0) -> None:
+        network_path(config.network_path, TensorXf)  # a path this backend lacks: refused here, not mid-run
         self.config = config
         self.TensorXf = TensorXf
         self.box = box
@@ -213,8 +215,21 @@ class NGPField:
     def loop_field(self) -> PackedNGP:
         """This field for a symbolic loop (:mod:`mitsnerf.render.replay`): the MLPs on cooperative vectors, their
         weights packed once, here (fp16 on ``coopvec-fp16``, fp32 otherwise: the tensor path's batch-wide
-        tensors cannot live in a loop)."""
+        tensors cannot live in a loop). fp32 needs a backend with ``coopvec-fp32`` (not CUDA):
+        :meth:`loop_refusal` says why not."""
+        why = self.loop_refusal()
+        if why is not None:
+            from mitsnerf.errors import SpecError
+
+            raise SpecError(None, "replay", why)
         return PackedNGP(self, half=self._coop_half() is True)
+
+    def loop_refusal(self) -> str | None:
+        """Why :meth:`loop_field` cannot run on this backend with this ``network_path``, or None."""
+        if self._coop_half() is True or "coopvec-fp32" in usable_network_paths(self.TensorXf):
+            return None
+        return ("the replayed march runs the MLPs on fp32 cooperative vectors, which this backend lacks "
+                f"({self.config.network_path}); set network.network_path = coopvec-fp16, or replay = false")
 
     def __call__(self, x, d):
         width = dr.width(x)

@@ -19,6 +19,7 @@ from typing import Any
 import mitsuba as mi
 
 from mitsnerf.config import check_fields, param
+from mitsnerf.errors import SpecError
 from mitsnerf.fields.ngp import NGPConfig, NGPField
 from mitsnerf.fields.occupancy import OccupancyConfig
 from mitsnerf.methods.base import MethodConfig, RenderOutput, SceneInfo, check_shapes, cover_radiance
@@ -64,6 +65,8 @@ class NGPModel(OccupancyModel):
     def __init__(self, config: NGPMethodConfig, scene: SceneInfo, seed: int = 0) -> None:
         self.config = config
         ngp = NGPField(cover_radiance(config.network, scene), mi.TensorXf, scene.box, seed)
+        if config.replay and (why := ngp.loop_refusal()) is not None:
+            raise SpecError(None, "replay", why)
         super().__init__(ngp, config.occupancy if config.use_occupancy else None, scene, seed, config.n_samples,
                          replay=config.replay)
 

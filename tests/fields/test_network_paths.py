@@ -16,7 +16,8 @@ import mitsuba as mi
 import numpy as np
 import pytest
 
-from mitsnerf.fields.mlp import network_path
+from mitsnerf.errors import SpecError
+from mitsnerf.fields.mlp import network_path, usable_network_paths
 from mitsnerf.fields.nerf import NeRFConfig, NeRFField, _CoopOps
 from mitsnerf.fields.ngp import NGPConfig, NGPField
 from mitsnerf.math.box import UNIT_BOX
@@ -78,16 +79,18 @@ TOLERANCES = {"coopvec-fp32": (1e-5, 1e-6, 1e-5), "coopvec-fp16": (2e-2, 5e-3, 0
 
 @pytest.mark.parametrize("kind", ["nerf", "ngp"])
 @pytest.mark.parametrize("path", list(TOLERANCES))
-def test_cooperative_vectors_compute_what_tensor_mode_computes(path, kind):
+def test_cooperative_vectors_compute_what_tensor_mode_computes(path, kind, require_network_path):
+    require_network_path(path)
     _compare(path, *TOLERANCES[path], kind=kind)
 
 
-def test_the_comparison_fails_when_the_cooperative_encoding_is_out_of_order(monkeypatch):
+def test_the_comparison_fails_when_the_cooperative_encoding_is_out_of_order(monkeypatch, require_network_path):
     # A plausible bug in the shared encoding: the sines before the identity. Same sizes, other values.
     def encode(self, v, octaves):
         cv = nn.CoopVec(v.x, v.y, v.z)
         return nn.CoopVec(*nn.SinEncode(octaves)(cv), *cv)
 
+    require_network_path("coopvec-fp32")  # fp16's tolerances are too wide to see this bug
     monkeypatch.setattr(_CoopOps, "encode", encode)
     with pytest.raises(AssertionError):
         _compare("coopvec-fp32", *TOLERANCES["coopvec-fp32"])
@@ -95,10 +98,19 @@ def test_the_comparison_fails_when_the_cooperative_encoding_is_out_of_order(monk
 
 def test_auto_is_tensor_mode_until_a_gpu_has_measured_otherwise_and_a_path_named_is_kept():
     assert network_path("auto", mi.TensorXf) == "tensor"
-    for path in ("tensor", "coopvec-fp32", "coopvec-fp16"):
+    for path in usable_network_paths(mi.TensorXf)[1:]:
         assert network_path(path, mi.TensorXf) == path
     with pytest.raises(ValueError, match="network_path"):
         network_path("cuda", mi.TensorXf)
+
+
+def test_a_path_the_backend_lacks_is_refused_by_name_before_a_field_is_made():
+    """CUDA has no fp32 cooperative vectors (drjit 1.5 packs fp16 only there; seen on an H200 when a run
+    rendered its views): the field refuses the path when it is built, naming network_path and the others."""
+    assert usable_network_paths(dr.cuda.ad.TensorXf) == ("auto", "tensor", "coopvec-fp16")
+    with pytest.raises(SpecError, match=r"^network_path: coopvec-fp32 is not available on CUDA: .* fp16 only; "
+                                        r"use one of auto, tensor, coopvec-fp16$"):
+        network_path("coopvec-fp32", dr.cuda.ad.TensorXf)
 
 
 def test_an_unknown_path_is_refused_by_name():
@@ -108,9 +120,10 @@ def test_an_unknown_path_is_refused_by_name():
 
 @pytest.mark.parametrize("kind", ["nerf", "ngp"])
 @pytest.mark.parametrize("path", list(TOLERANCES))
-def test_cooperative_vectors_evaluate_under_suspended_gradients(path, kind):
+def test_cooperative_vectors_evaluate_under_suspended_gradients(path, kind, require_network_path):
     # The occupancy grid evaluates the density of a network in training inside dr.suspend_grad(),
     # where drjit 1.5 aborts the process if nn.pack meets tensors whose gradients are enabled.
+    require_network_path(path)
     field, params = _field(path, kind)
     dr.enable_grad(*params.values())
     x, _ = _points(9)

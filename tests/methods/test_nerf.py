@@ -65,11 +65,13 @@ def test_single_pass_training_lowers_the_loss(tiny_views):
     assert result.samples_per_s == pytest.approx(result.rays_per_s * 24)
 
 
-def test_training_on_cooperative_vectors_follows_tensor_mode_and_its_weights_render_on_either(tiny_views):
+def test_training_on_cooperative_vectors_follows_tensor_mode_and_its_weights_render_on_either(tiny_views,
+                                                                                            require_network_path):
     """The same seed and batches on both paths: the fp32 losses agree to round-off growing over the steps,
     and the trained parameters, shared by the paths, render the same image on each."""
     import dataclasses
 
+    require_network_path("coopvec-fp32")
     data, info = tiny_views()
     losses, models = {}, {}
     for path in ("tensor", "coopvec-fp32"):

@@ -25,8 +25,9 @@ def test_training_lowers_the_loss_and_the_occupancy_grid_skips_empty_space(tiny_
     assert state["occupancy.rho"].shape == (16**3,)
 
 
-def test_training_on_cooperative_vectors_follows_the_tensor_path(tiny_views):
+def test_training_on_cooperative_vectors_follows_the_tensor_path(tiny_views, require_network_path):
     """The same seed and batches through the occupancy grid's updates: fp32 losses agree to round-off."""
+    require_network_path("coopvec-fp32")
     import dataclasses
 
     data, info = tiny_views()
@@ -70,7 +71,7 @@ def test_parameters_of_another_shape_are_refused_by_name(tiny_views):
     assert e.value.key == key
 
 
-def test_one_density_per_colour_on_both_network_paths():
+def test_one_density_per_colour_on_both_network_paths(require_network_path):
     """``network.density_channels = 3`` (chromatic media): the density MLP's first three outputs are the three
     extinctions (an Array3f sigma), the colour MLP takes the features after them; both paths agree."""
     import drjit as dr
@@ -98,8 +99,29 @@ def test_one_density_per_colour_on_both_network_paths():
     s = host(sigma)
     assert s.shape == (3, 3) and np.allclose(host(f.density(x)), s)
     assert np.all(s[:, 0] < s[:, 1]) and np.all(s[:, 1] < s[:, 2])  # the extinctions are the first three outputs
+    require_network_path("coopvec-fp32")
     coop = NGPField(NGPConfig(**small, network_path="coopvec-fp32"), mi.TensorXf, UNIT_BOX, seed=3)
     coop.set_parameters(f.params)
     rgb_c, sigma_c = coop(x, d)
     np.testing.assert_allclose(host(sigma_c), s, rtol=1e-4)
     np.testing.assert_allclose(host(rgb_c), host(rgb), rtol=1e-4)
+
+
+def test_the_replayed_march_is_refused_where_fp32_cooperative_vectors_are_missing(tiny_views, monkeypatch):
+    """On CUDA (no coopvec-fp32) the replayed march needs the fp16 path: any other network_path with replay = true
+    is refused when the model is built, naming replay and both ways out; fp16 is built."""
+    import dataclasses
+
+    import mitsnerf.fields.ngp as ngp_field
+    from mitsnerf.errors import SpecError
+
+    _, info = tiny_views(n_views=2, size=6)
+    monkeypatch.setattr(ngp_field, "usable_network_paths", lambda TensorXf: ("auto", "tensor", "coopvec-fp16"))
+    for path in ("auto", "tensor"):
+        config = NGPMethodConfig(network=dataclasses.replace(TINY, network_path=path), replay=True)
+        with pytest.raises(SpecError, match=r"^replay: .* fp32 cooperative vectors, which this backend lacks .*"
+                                            r"set network.network_path = coopvec-fp16, or replay = false$"):
+            NGPModel(config, info)
+    NGPModel(NGPMethodConfig(network=dataclasses.replace(TINY, network_path="auto")), info)  # no replay: fine
+    model = NGPModel(NGPMethodConfig(network=dataclasses.replace(TINY, network_path="coopvec-fp16"), replay=True), info)
+    assert model.loop_field().half

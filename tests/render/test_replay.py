@@ -224,11 +224,12 @@ def test_the_gradient_is_as_close_to_float64_finite_differences_as_render_rays()
     assert errors["replay"] < 2e-6
 
 
-def test_the_hash_grid_field_replays_through_its_own_derivative():
+def test_the_hash_grid_field_replays_through_its_own_derivative(require_network_path):
     """The ngp field in the loop: hash tables and MLP weights (packed once, outside the loop) get render_rays'
     gradients (the reference evaluates the MLPs on cooperative vectors too: the same arithmetic)."""
     config = NGPConfig(n_levels=3, log2_hashmap_size=10, base_resolution=4, max_resolution=12, hidden=16,
                        geo_features=7, color_hidden=16, sh_degree=1, init_scale=0.5, network_path="coopvec-fp32")
+    require_network_path("coopvec-fp32")
     field = NGPField(config, mi.TensorXf, BOX, seed=1)
     params = list(field.params.values())
     dr.enable_grad(params)
@@ -336,11 +337,14 @@ def _blob_views(blob_grid, n_views: int = 4, size: int = 10):
 
 
 @pytest.mark.parametrize("method", ["voxel", "ngp"])
-def test_training_with_the_replay_follows_the_shared_renderer(blob_grid, method):
+def test_training_with_the_replay_follows_the_shared_renderer(blob_grid, method, require_network_path):
     """The same seed and batches, through occupancy updates and (voxel) an upsampling: the losses agree to
     float round-off, and the grid lets the same share of samples through."""
     from mitsnerf.methods import get_method
     from mitsnerf.train import TrainConfig, train
+
+    if method == "ngp":
+        require_network_path("coopvec-fp32")  # ngp's replayed march runs its MLPs on fp32 cooperative vectors
 
     data, info = _blob_views(blob_grid)
     entry = get_method(method)
