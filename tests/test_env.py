@@ -52,7 +52,8 @@ def test_cli_with_old_llvm_prints_one_line_instead_of_aborting(tmp_path):
     if not exe.exists():
         pytest.skip("console script not installed")
     proc = subprocess.run([str(exe), "env"], capture_output=True, text=True,
-                          env={**os.environ, "DRJIT_LIBLLVM_PATH": str(fake)}, timeout=120)
+                          env={**os.environ, "DRJIT_LIBLLVM_PATH": str(fake), env.VARIANT_ENV: "llvm_ad_rgb"},
+                          timeout=120)  # asking for LLVM: on a GPU machine an old LLVM alone leaves CUDA (prepare)
     assert proc.returncode == 2
     lines = proc.stderr.strip().splitlines()
     assert len(lines) == 1 and "LLVM 15 is too old" in lines[0]
@@ -63,7 +64,8 @@ def test_python_m_mitsnerf_with_old_llvm_prints_one_line_too(tmp_path):
     fake.write_bytes(b"")
     pythonpath = child_pythonpath(Path(env.__file__).resolve().parents[1])
     proc = subprocess.run([sys.executable, "-m", "mitsnerf", "env"], capture_output=True, text=True, cwd=tmp_path,
-                          env={**os.environ, "DRJIT_LIBLLVM_PATH": str(fake), "PYTHONPATH": pythonpath}, timeout=120)
+                          env={**os.environ, "DRJIT_LIBLLVM_PATH": str(fake), "PYTHONPATH": pythonpath,
+                               env.VARIANT_ENV: "llvm_ad_rgb"}, timeout=120)  # else a GPU machine goes CUDA-only
     assert proc.returncode == 2
     lines = proc.stderr.strip().splitlines()
     assert len(lines) == 1 and lines[0].startswith("mitsnerf: error: ") and "LLVM 15 is too old" in lines[0]
@@ -73,9 +75,29 @@ def test_import_with_old_llvm_raises_a_clear_error_not_an_abort(tmp_path):
     fake = tmp_path / "libLLVM-15.so.1"
     fake.write_bytes(b"")
     proc = subprocess.run([sys.executable, "-c", "import mitsnerf"], capture_output=True, text=True,
-                          env={**os.environ, "DRJIT_LIBLLVM_PATH": str(fake)}, timeout=120)
+                          env={**os.environ, "DRJIT_LIBLLVM_PATH": str(fake), env.VARIANT_ENV: "llvm_ad_rgb"},
+                          timeout=120)  # asking for LLVM: on a GPU machine an old LLVM alone leaves CUDA (prepare)
     assert proc.returncode == 1  # a Python exception, not SIGABRT (-6)
     assert "LLVMError" in proc.stderr and "libllvm19" in proc.stderr
+
+
+def test_an_old_llvm_on_a_gpu_machine_leaves_cuda_unless_llvm_is_asked_for(monkeypatch):
+    """What the GPU machine showed: with a CUDA device, no usable libLLVM disables the LLVM backend with a
+    warning naming the fix (drjit kept from loading the old library); asking for LLVM still fails."""
+    def no_llvm(environ=None):
+        raise _llvm.LLVMError("LLVM 15 is too old")
+
+    monkeypatch.setattr(_llvm, "configure", no_llvm)
+    monkeypatch.setattr(env, "cuda_device_count", lambda: 1)
+    environ: dict[str, str] = {}
+    with pytest.warns(UserWarning, match=r"LLVM backend is disabled, CUDA only \(.*libllvm19"):
+        assert env.prepare(environ) is None
+    assert environ["DRJIT_LIBLLVM_PATH"] == "/nonexistent/libLLVM-disabled.so"
+    with pytest.raises(_llvm.LLVMError, match="too old"):
+        env.prepare({env.VARIANT_ENV: "llvm_ad_rgb"})
+    monkeypatch.setattr(env, "cuda_device_count", lambda: 0)
+    with pytest.raises(_llvm.LLVMError, match="too old"):
+        env.prepare({})
 
 
 def test_variant_override_and_validation(monkeypatch):

@@ -101,7 +101,10 @@ def test_the_medium_alone_is_the_full_render_less_the_environment_seen_through_i
         full = np.array(mi.render(scene, sensor=sensor, spp=64, seed=3))
         med = np.array(mi.render(scene, sensor=sensor, integrator=medium_alone_integrator(spec), spp=64, seed=3))
         if kind == "none":
-            assert np.array_equal(full, med)
+            if mi.variant().startswith("cuda"):  # the film adds a pixel's samples by float atomics, in no fixed
+                np.testing.assert_allclose(full, med, rtol=1e-5, atol=1e-6)  # order: 64 of them, ~4e-6 relative
+            else:
+                assert np.array_equal(full, med)
             continue
         background = np.asarray(LIGHTS["constant"][0]["radiance"])
         assert np.abs(full[..., :3] - (med[..., :3] + (1 - med[..., 3:]) * background)).max() < 1e-5
