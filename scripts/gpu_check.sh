@@ -13,7 +13,8 @@
 #   paper       mitsnerf bench paper (ground truth cached in ./data between calls on a warm machine)
 #   paper-cloud the cloud row of paper alone (benchmarks/paper_cloud.toml), ngp first, for a short lease
 #
-# A bench step's results (its tables, cells and plots, no EXR) are packed into OUTDIR/STEP-results.tgz.
+# A bench step's results (its tables, records and plots; no EXR or arrays: the archive must stay under the
+# 16 MiB a device call returns per file, which paper-cloud's passed) are packed into OUTDIR/STEP-results.tgz.
 # Environment: LIMIT_<STEP> (LIMIT_tests=150, LIMIT_paper_cloud=300) stops a step after that many seconds
 # (exit 124), so that one slow step leaves the later ones their time; TEST_WORKERS=N runs the suite in N
 # processes (pytest-xdist).
@@ -56,7 +57,8 @@ for step in "$@"; do
             config=paper; [ "$step" = paper-cloud ] && config=benchmarks/paper_cloud.toml
             run "$step" "$PYTHON" -m mitsnerf bench "$config" --no-progress --data data --results "runs/gpu/$step"
             rc=$?
-            tar -czf "$OUT/$step-results.tgz" --exclude='*.exr' -C runs/gpu "$step" 2>/dev/null
+            tar -czf "$OUT/$step-results.tgz" --exclude='*.exr' --exclude='*.npz' --exclude='*.npy' \
+                -C runs/gpu "$step" 2>/dev/null
             [ $rc -eq 0 ] ;;
         *)
             echo "gpu_check: unknown step '$step' (install, tests, groundtruth, integrator, mlp, paper, paper-cloud)" >&2
