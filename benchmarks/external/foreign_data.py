@@ -106,10 +106,11 @@ def mitsnerf_row(scene: str, folder: Path, label: str, extra: list[str], seconds
              "--no-progress", *extra], log=args.out / scene / f"{name}.log")
         (where / "wall.json").write_text(json.dumps({"wall_s": round(time.perf_counter() - t0, 1)}))
     summary = json.loads((where / "metrics.json").read_text())
-    rays = json.loads((where / "config.json").read_text())["train"]["batch_rays"]
+    train = json.loads((where / "config.json").read_text())["train"]  # the cap it ran under (EXTRA may set it)
     m = score(py, folder, where, args.out / scene / f"{name}-scores.json")
     return {"scene": scene, "method": f"mitsnerf {summary['method']} ({label})",
-            "budget": f"{summary['steps']} x {rays} (stopped by {summary['stopped_by']}, cap {seconds:.0f} s)",
+            "budget": f"{summary['steps']} x {train['batch_rays']} (stopped by {summary['stopped_by']}, "
+                      f"cap {train['seconds']:.0f} s)",
             "wall_s": json.loads((where / "wall.json").read_text())["wall_s"], **_metrics(m)}
 
 
@@ -126,7 +127,8 @@ def main() -> None:
     ap.add_argument("--out", type=Path, default=ROOT / "runs" / "external" / "foreign", help="runs and results")
     ap.add_argument("--python", default=str(ROOT / ".venv" / "bin" / "python"), help="the interpreter with mitsnerf")
     ap.add_argument("--extra", nargs=2, action="append", default=[], metavar=("LABEL", "ARGS"),
-                    help="one more mitsnerf row: LABEL, and arguments added to its train command (repeatable)")
+                    help="one more mitsnerf row: LABEL, and arguments added to its train command (repeatable; a "
+                         "--seconds there replaces the shorter tool's time)")
     args = ap.parse_args()
     rows = [row for scene in args.scenes for row in scene_rows(scene, args)]
     (args.out / "foreign.json").write_text(json.dumps(rows, indent=1))
