@@ -104,7 +104,8 @@ def fit(dataset: Dataset | PathLike, method: str = "ngp", *, settings: Mapping[s
     ``settings``: the method's config fields, dotted (``{"network.width": 32}``, as ``--set``); ``steps`` /
     ``seconds``: the budget (default: the training config's); ``footprint``: rays per pixel side when
     scoring; ``out``: write the run there (checkpoints, ``metrics.json``, test renders), refused if it
-    holds another run unless ``force``; ``deterministic``: one thread, bit-identical on a rerun.
+    holds another run unless ``force``; ``deterministic``: one thread, bit-identical on a rerun (LLVM; refused
+    on CUDA, whose float atomics no thread count orders).
     """
     from mitsnerf.config import from_dict
     from mitsnerf.methods import methods
@@ -112,7 +113,9 @@ def fit(dataset: Dataset | PathLike, method: str = "ngp", *, settings: Mapping[s
     from mitsnerf.runs.fit import fit as fit_run
     from mitsnerf.train import TrainConfig
     from mitsnerf.train.evaluate import EvalConfig
+    from mitsnerf.train.threads import refuse_nondeterministic
 
+    refuse_nondeterministic(deterministic)
     problem = methods().why_not(method)
     if problem:
         raise UsageError("method", problem)

@@ -14,10 +14,9 @@ def run(args) -> int:
     from mitsnerf.bench.runner import BenchOptions, default_data_root, run_benchmark
     from mitsnerf.errors import UsageError
     from mitsnerf.outputs import check_output_dir
-    from mitsnerf.train.threads import nondeterminism
+    from mitsnerf.train.threads import refuse_nondeterministic
 
-    if args.deterministic and (why := nondeterminism()) is not None:
-        raise UsageError("--deterministic", why)
+    refuse_nondeterministic(args.deterministic, "--deterministic")
     if args.deterministic and args.cpus_per_cell not in (0, 1):
         raise UsageError(
             "--deterministic", f"runs each cell on one thread; --cpus-per-cell {args.cpus_per_cell} contradicts it"
@@ -79,5 +78,6 @@ def add_parser(sub) -> None:
     p.add_argument("--no-verify", action="store_true",
                    help="skip checking cached datasets against their manifests' sha256 hashes")
     p.add_argument("--deterministic", action="store_true",
-                   help="one Dr.Jit thread per cell (--cpus-per-cell 1): every method bit-identical run to run")
+                   help="one Dr.Jit thread per cell (--cpus-per-cell 1): every method bit-identical run to run "
+                        "(LLVM only: refused on CUDA, whose float atomics no thread count orders)")
     p.set_defaults(func=run)

@@ -85,22 +85,15 @@ def _check_outside_dataset(out: Path, dataset: Path) -> None:
                                   "files; put the run outside it, e.g. --out runs/NAME")
 
 
-def _check_deterministic(deterministic: bool) -> None:
-    from mitsnerf.errors import UsageError
-    from mitsnerf.train.threads import nondeterminism
-
-    if deterministic and (why := nondeterminism()) is not None:
-        raise UsageError("--deterministic", why)
-
-
 def run(args) -> int:
     from mitsnerf.runs.directory import claim_run_dir
     from mitsnerf.runs.fit import fit, resume_run
     from mitsnerf.train import TrainConfig
+    from mitsnerf.train.threads import refuse_nondeterministic
 
     train_values = given(args, TRAIN_OPTIONS)
     train_config = options_config(TrainConfig, train_values)  # every setting checked before anything runs
-    _check_deterministic(args.deterministic)
+    refuse_nondeterministic(args.deterministic, "--deterministic")
     if args.resume:
         _check_resume_flags(args)
     else:
@@ -147,12 +140,14 @@ def add_parser(sub) -> None:
     p.add_argument("--out", required=True, help="run directory to write (checkpoints go there while training)")
     p.add_argument("--method", metavar="NAME", help=_method_help())
     p.add_argument("--resume", action="store_true",
-                   help="continue the run in --out from its checkpoint.npz, bit-for-bit (settings come from it)")
+                   help="continue the run in --out from its checkpoint.npz, bit-for-bit on LLVM (settings come "
+                        "from it)")
     p.add_argument("--force", action="store_true",
                    help="replace the run already in --out (finished or interrupted); without it such a run is refused")
     p.add_argument("--deterministic", action="store_true",
                    help="train on one thread: every method bit-identical run to run (multi-threaded, the grid "
-                        "methods' scatter-add gradients round in thread order; slower)")
+                        "methods' scatter-add gradients round in thread order; slower). LLVM only: refused "
+                        "on CUDA, whose float atomics no thread count orders")
     training = p.add_argument_group("training (every method; the budget is steps, schedules follow the step)")
     add_config_options(training, TrainConfig, TRAIN_OPTIONS)
     training.add_argument("--lr", type=float, help=_lr_help())

@@ -33,7 +33,7 @@ def network_path(requested: str, TensorXf) -> str:
     to use one.
 
     A path the backend lacks (:func:`usable_network_paths`) is a :class:`mitsnerf.errors.SpecError` naming
-    ``network_path`` and the paths it has.
+    ``network.network_path`` (the key in the methods' configs) and the paths it has.
 
     >>> import mitsuba as mi
     >>> from mitsnerf.env import set_variant; _ = set_variant("llvm_ad_rgb")
@@ -46,7 +46,7 @@ def network_path(requested: str, TensorXf) -> str:
     if requested not in usable:
         from mitsnerf.errors import SpecError
 
-        raise SpecError(None, "network_path", f"{requested} is not available on {dr.backend_v(TensorXf).name}: "
+        raise SpecError(None, "network.network_path", f"{requested} is not available on {dr.backend_v(TensorXf).name}: "
                         f"{_MISSING[requested]}; use one of {', '.join(usable)}")
     return "tensor" if requested == "auto" else requested
 
@@ -165,10 +165,20 @@ def dense_apply(params, prefix: str, n_layers: int, x, activation=None):
 CUDA_GEMM_ROWS = 65535 * 8
 
 
+def gemm_row_cap(x) -> int:
+    """The most rows one tensor product on ``x``'s backend takes: :data:`CUDA_GEMM_ROWS` on CUDA, 0 (no cap) on LLVM.
+
+    >>> import drjit as dr
+    >>> gemm_row_cap(dr.zeros(dr.llvm.ad.TensorXf, (2, 2)))
+    0
+    """
+    return CUDA_GEMM_ROWS if dr.backend_v(x) == dr.JitBackend.CUDA else 0
+
+
 def matmul_rows(x, w, max_rows: int | None = None):
     """``X W`` for a point-major (M, C_in) tensor ``x`` and (C_in, C_out) ``w``, as ``dr.matmul`` in slices of at
-    most ``max_rows`` rows (default: :data:`CUDA_GEMM_ROWS` on CUDA, one product on LLVM); each row's dot
-    products are the same in a slice as in the whole, so the result is too.
+    most ``max_rows`` rows (default: :func:`gemm_row_cap`; 0: one product); each row's dot products are the
+    same in a slice as in the whole, so the result is too.
 
     >>> import mitsuba as mi
     >>> from mitsnerf.env import set_variant; _ = set_variant("llvm_ad_rgb")
@@ -178,7 +188,7 @@ def matmul_rows(x, w, max_rows: int | None = None):
     ((5, 2), True)
     """
     if max_rows is None:
-        max_rows = CUDA_GEMM_ROWS if dr.backend_v(x) == dr.JitBackend.CUDA else 0
+        max_rows = gemm_row_cap(x)
     m = x.shape[0]
     if not max_rows or m <= max_rows:
         return dr.matmul(x, w)

@@ -219,17 +219,15 @@ class NGPField:
         :meth:`loop_refusal` says why not."""
         why = self.loop_refusal()
         if why is not None:
-            from mitsnerf.errors import SpecError
-
-            raise SpecError(None, "replay", why)
+            raise ValueError(f"loop_field: {why}")
         return PackedNGP(self, half=self._coop_half() is True)
 
     def loop_refusal(self) -> str | None:
         """Why :meth:`loop_field` cannot run on this backend with this ``network_path``, or None."""
         if self._coop_half() is True or "coopvec-fp32" in usable_network_paths(self.TensorXf):
             return None
-        return ("the replayed march runs the MLPs on fp32 cooperative vectors, which this backend lacks "
-                f"({self.config.network_path}); set network.network_path = coopvec-fp16, or replay = false")
+        return ("a loop evaluates the MLPs on fp32 cooperative vectors unless network_path = coopvec-fp16 "
+                f"(it is {self.config.network_path}), and this backend has none")
 
     def __call__(self, x, d):
         width = dr.width(x)

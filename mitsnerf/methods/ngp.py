@@ -66,7 +66,8 @@ class NGPModel(OccupancyModel):
         self.config = config
         ngp = NGPField(cover_radiance(config.network, scene), mi.TensorXf, scene.box, seed)
         if config.replay and (why := ngp.loop_refusal()) is not None:
-            raise SpecError(None, "replay", why)
+            raise SpecError(None, "replay", f"the replayed march cannot run here: {why}; set "
+                                            "network.network_path = coopvec-fp16, or replay = false")
         super().__init__(ngp, config.occupancy if config.use_occupancy else None, scene, seed, config.n_samples,
                          replay=config.replay)
 

@@ -229,6 +229,15 @@ def sigterm_checkpoints(ctx: _Context) -> str:
 RESUME_ATOL = 1e-5
 
 
+def parameter_gaps(a: Mapping[str, np.ndarray], b: Mapping[str, np.ndarray]) -> dict[str, float]:
+    """Per key of ``a``, the largest ``|a - b|`` (``inf`` for another shape, NaN where either holds a NaN).
+
+    >>> parameter_gaps({"w": np.array([1.0, 2.0])}, {"w": np.array([1.0, 2.5])})
+    {'w': 0.5}
+    """
+    return {k: float(np.max(np.abs(a[k] - b[k]), initial=0.0)) if a[k].shape == b[k].shape else np.inf for k in a}
+
+
 def resume_equals_the_run_never_stopped(ctx: _Context) -> str:
     from mitsnerf.runs.fit import resume_run
 
@@ -238,8 +247,8 @@ def resume_equals_the_run_never_stopped(ctx: _Context) -> str:
         raise Broken(f"the resumed run has parameters {sorted(b)}, the run never stopped {sorted(a)}")
     why = nondeterminism()
     atol = 0.0 if why is None else RESUME_ATOL
-    gap = {k: float(np.max(np.abs(a[k] - b[k]), initial=0.0)) if a[k].shape == b[k].shape else np.inf for k in a}
-    differ = [k for k in a if gap[k] > atol]
+    gap = parameter_gaps(a, b)
+    differ = [k for k in a if not gap[k] <= atol]  # a NaN on either side is a difference
     if differ:
         raise Broken(f"parameters {', '.join(differ)} differ from the run never stopped "
                      f"(largest difference {max(gap[k] for k in differ):.3g}"

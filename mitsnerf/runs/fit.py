@@ -41,7 +41,7 @@ from mitsnerf.train import PixelData, TrainConfig, TrainResult, TrainState, make
 from mitsnerf.train.checkpoint import CHECKPOINT_FILE, Checkpointer, load_checkpoint, restore_optimizer
 from mitsnerf.train.checkpointing import interrupted_message
 from mitsnerf.train.evaluate import EvalConfig, render_views, stack_rgb
-from mitsnerf.train.threads import one_thread
+from mitsnerf.train.threads import one_thread, refuse_nondeterministic
 
 
 @dataclass
@@ -248,6 +248,7 @@ def fit(
     thread (:mod:`mitsnerf.train.threads`), recorded in the run config so a resume does too.
     The caller holds the run directory (:func:`mitsnerf.runs.directory.claim_run_dir`).
     """
+    refuse_nondeterministic(deterministic)  # before _start empties or reads the run directory
     train_views = dataset.views("train")
     ref = reference or scoring.reference(dataset, "test")
     model, config = build_model(method, method_overrides, scene_info(dataset, train_views.images), train_config.seed)
@@ -386,6 +387,9 @@ def resume_run(run_dir: Path, train_overrides: Mapping[str, Any] | None = None, 
     run_dir = Path(run_dir)
     path = run_dir / CHECKPOINT_FILE
     ckpt = load_checkpoint(path)
+    refuse_nondeterministic(bool(ckpt.config.get("deterministic")), str(path),
+                            "the run was trained with --deterministic, which this backend cannot continue "
+                            "(resume it with MITSNERF_VARIANT=llvm_ad_rgb): ")
     train_config = from_dict(TrainConfig, {**(ckpt.config.get("train") or {}), **dict(train_overrides or {})})
     if ckpt.step >= train_config.steps and (run_dir / "metrics.json").is_file():
         raise OutputError(run_dir, None, f"the run finished at step {ckpt.step} (metrics.json); nothing to resume: "

@@ -8,7 +8,7 @@
 - :mod:`.clock`: training seconds, evaluation excluded;
 - :mod:`.checkpointing`: when checkpoints are written, and stopping on SIGINT/SIGTERM/SIGHUP;
 - :mod:`.progress`: the progress bar;
-- :mod:`.threads`: one thread for bit-identical runs (`--deterministic`).
+- :mod:`.threads`: one thread for bit-identical runs (`--deterministic`; LLVM only, refused on CUDA).
 """
 
 from mitsnerf.train.config import TrainConfig

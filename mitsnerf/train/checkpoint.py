@@ -32,7 +32,9 @@ differ from the straight one by 1 ulp in about one run of three. The grid method
 ``ngp``, ``mitsuba-inverse``) still accumulate their grid gradients by multi-threaded scatter-adds
 (the adjoint of their interpolated grid lookups): they resume bit-for-bit single-threaded
 (``drjit.set_thread_count(1)``); multi-threaded, any two runs of them, resumed or not, differ
-in the last bits after a step and drift apart slowly from there (~1e-6 after 20 steps).
+in the last bits after a step and drift apart slowly from there (~1e-6 after 20 steps). All of this is
+the LLVM backend's: on CUDA the scatter-adds are float atomics that no thread count orders, so a resume
+there continues the run to round-off, not bit for bit (:mod:`mitsnerf.train.threads`).
 
 >>> import tempfile, mitsuba as mi, drjit as dr, drjit.opt
 >>> from mitsnerf.env import set_variant; _ = set_variant("llvm_ad_rgb")

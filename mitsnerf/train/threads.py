@@ -40,6 +40,17 @@ def nondeterminism(variant: str | None = None) -> str | None:
     return None
 
 
+def refuse_nondeterministic(deterministic: bool, option: str = "deterministic", why_asked: str = "") -> None:
+    """Raise :class:`mitsnerf.errors.UsageError` naming ``option`` if ``deterministic`` is asked for on a backend
+    that cannot keep it (:func:`nondeterminism`); ``why_asked`` tells a user who did not ask (a resumed run).
+    Called before anything is written, so that a refused run leaves nothing behind."""
+    why = nondeterminism() if deterministic else None
+    if why is not None:
+        from mitsnerf.errors import UsageError
+
+        raise UsageError(option, why_asked + why)
+
+
 @contextmanager
 def one_thread(enabled: bool = True) -> Iterator[None]:
     """Inside the block Dr.Jit runs on one thread (``enabled``); the thread count is restored after.
@@ -50,11 +61,7 @@ def one_thread(enabled: bool = True) -> Iterator[None]:
     if not enabled:
         yield
         return
-    why = nondeterminism()
-    if why is not None:
-        from mitsnerf.errors import UsageError
-
-        raise UsageError("deterministic", why)
+    refuse_nondeterministic(True)
     import drjit as dr
 
     before = dr.thread_count()

@@ -62,3 +62,22 @@ def test_deterministic_is_refused_in_one_line_where_the_backend_cannot_keep_it(w
     with pytest.raises(UsageError, match=f"^deterministic: {reason}$"):
         with mitsnerf.train.threads.one_thread():
             pass
+
+
+def test_a_refused_deterministic_run_leaves_the_run_directory_as_it_was(world, tmp_path, monkeypatch):
+    """The refusal comes before anything is written: ``api.fit(out=RUN, force=True, deterministic=True)`` on
+    such a backend keeps the run in RUN, and resuming a run trained with --deterministic names its checkpoint."""
+    from mitsnerf import api
+    from mitsnerf.runs.fit import resume_run
+
+    run = tmp_path / "run"
+    assert main(["train", str(world.dataset), "--out", str(run), "--steps", "2", "--deterministic", *world.nerf]) == 0
+    before = sorted(p.name for p in run.iterdir())
+    monkeypatch.setattr(mitsnerf.train.threads, "nondeterminism", lambda variant=None: "no fixed order here")
+    with pytest.raises(UsageError, match="^deterministic: no fixed order here$"):
+        api.fit(world.dataset, "nerf", steps=2, out=run, force=True, deterministic=True)
+    assert sorted(p.name for p in run.iterdir()) == before
+    with pytest.raises(UsageError, match=r"checkpoint.npz: the run was trained with --deterministic, .* "
+                                         r"MITSNERF_VARIANT=llvm_ad_rgb\): no fixed order here$"):
+        resume_run(run, {"steps": 4}, progress=False)
+    assert sorted(p.name for p in run.iterdir()) == before

@@ -7,7 +7,8 @@ import mitsuba as mi
 import numpy as np
 import pytest
 
-from mitsnerf.fields.mlp import CUDA_GEMM_ROWS, matmul_rows
+import mitsnerf.fields.mlp as mlp
+from mitsnerf.fields.mlp import dense_apply, dense_init, matmul_rows
 
 
 @pytest.mark.parametrize("max_rows", [1, 3, 7, 11, None])
@@ -24,5 +25,20 @@ def test_a_product_in_row_slices_is_the_whole_product_and_so_are_its_gradients(m
     np.testing.assert_allclose(np.asarray(dr.grad(x)), (2 * X @ W) @ W.T, rtol=1e-4, atol=1e-5)
 
 
-def test_the_cap_is_cudas_for_8_row_tiles():
-    assert CUDA_GEMM_ROWS == 65535 * 8 < 8192 * 64  # an 8192-ray batch at 64 samples passes it
+def test_the_fields_networks_multiply_within_the_backends_row_cap(monkeypatch):
+    """dense_apply (ngp's MLPs) goes through matmul_rows: under a cap of 3 rows no product sees more, and the
+    output is the uncapped one (CUDA's cap is 65535 x 8 rows; past it ngp's batches failed on an H200)."""
+    params = dense_init([4, 8, 3], mi.TensorXf, dr.rng(seed=0))
+    x = mi.TensorXf(np.random.default_rng(1).normal(size=(10, 4)).astype(np.float32))
+    whole = np.asarray(dense_apply(params, "", 2, x))
+    rows, matmul = [], dr.matmul
+
+    def spy(a, b, *args, **kwargs):
+        rows.append(a.shape[0])
+        return matmul(a, b, *args, **kwargs)
+
+    monkeypatch.setattr(mlp, "gemm_row_cap", lambda x: 3)
+    monkeypatch.setattr(dr, "matmul", spy)
+    capped = np.asarray(dense_apply(params, "", 2, x))
+    assert rows and max(rows) == 3 and sum(rows) == 2 * 10  # two layers, 10 rows each, in slices of 3
+    np.testing.assert_allclose(capped, whole, rtol=1e-6, atol=1e-7)

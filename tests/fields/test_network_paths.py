@@ -104,13 +104,22 @@ def test_auto_is_tensor_mode_until_a_gpu_has_measured_otherwise_and_a_path_named
         network_path("cuda", mi.TensorXf)
 
 
-def test_a_path_the_backend_lacks_is_refused_by_name_before_a_field_is_made():
+def test_a_path_the_backend_lacks_is_refused_by_name_before_a_field_is_made(monkeypatch):
     """CUDA has no fp32 cooperative vectors (drjit 1.5 packs fp16 only there; seen on an H200 when a run
-    rendered its views): the field refuses the path when it is built, naming network_path and the others."""
-    assert usable_network_paths(dr.cuda.ad.TensorXf) == ("auto", "tensor", "coopvec-fp16")
-    with pytest.raises(SpecError, match=r"^network_path: coopvec-fp32 is not available on CUDA: .* fp16 only; "
-                                        r"use one of auto, tensor, coopvec-fp16$"):
+    rendered its views): the path is refused, naming network.network_path and the others, when a field is
+    built (here with the CUDA list of paths on this backend), not when it first renders."""
+    import mitsnerf.fields.mlp
+
+    cuda_paths = usable_network_paths(dr.cuda.ad.TensorXf)
+    assert cuda_paths == ("auto", "tensor", "coopvec-fp16")
+    message = (r"^network.network_path: coopvec-fp32 is not available on \w+: .* fp16 only; "
+               r"use one of auto, tensor, coopvec-fp16$")
+    with pytest.raises(SpecError, match=message.replace(r"\w+", "CUDA")):
         network_path("coopvec-fp32", dr.cuda.ad.TensorXf)
+    monkeypatch.setattr(mitsnerf.fields.mlp, "usable_network_paths", lambda TensorXf: cuda_paths)
+    for kind in ("nerf", "ngp"):
+        with pytest.raises(SpecError, match=message):
+            _field("coopvec-fp32", kind)
 
 
 def test_an_unknown_path_is_refused_by_name():

@@ -7,6 +7,7 @@ from __future__ import annotations
 import re
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 from mitsnerf.methods import methods
@@ -86,3 +87,13 @@ def test_a_resume_that_ignores_the_settings_breaks_the_refusal_promise(monkeypat
     monkeypatch.setattr(mitsnerf.runs.fit, "_check_resumable", lambda saved, current, where: None)
     report = check_method("ngp")
     assert _broken(report) == ["a run of other settings is refused on resume"], report.summary()
+
+
+def test_a_nan_parameter_differs_from_any_value_even_another_nan():
+    from mitsnerf.runs.conformance import parameter_gaps
+
+    nan = np.array([np.nan, 1.0])
+    gaps = parameter_gaps({"w": nan, "b": np.zeros(2), "s": np.zeros(3)},
+                          {"w": nan, "b": np.zeros(2), "s": np.zeros(2)})
+    assert np.isnan(gaps["w"]) and not gaps["w"] <= RESUME_ATOL
+    assert gaps["b"] == 0.0 and gaps["s"] == np.inf

@@ -119,8 +119,8 @@ def test_the_replayed_march_is_refused_where_fp32_cooperative_vectors_are_missin
     monkeypatch.setattr(ngp_field, "usable_network_paths", lambda TensorXf: ("auto", "tensor", "coopvec-fp16"))
     for path in ("auto", "tensor"):
         config = NGPMethodConfig(network=dataclasses.replace(TINY, network_path=path), replay=True)
-        with pytest.raises(SpecError, match=r"^replay: .* fp32 cooperative vectors, which this backend lacks .*"
-                                            r"set network.network_path = coopvec-fp16, or replay = false$"):
+        with pytest.raises(SpecError, match=r"^replay: the replayed march cannot run here: .* fp32 cooperative "
+                                            r"vectors .*set network.network_path = coopvec-fp16, or replay = false$"):
             NGPModel(config, info)
     NGPModel(NGPMethodConfig(network=dataclasses.replace(TINY, network_path="auto")), info)  # no replay: fine
     model = NGPModel(NGPMethodConfig(network=dataclasses.replace(TINY, network_path="coopvec-fp16"), replay=True), info)

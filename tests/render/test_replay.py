@@ -336,15 +336,19 @@ def _blob_views(blob_grid, n_views: int = 4, size: int = 10):
     return PixelData.from_views(images, cams), SceneInfo(UNIT_BOX, bg, float(images.max()))
 
 
-@pytest.mark.parametrize("method", ["voxel", "ngp"])
-def test_training_with_the_replay_follows_the_shared_renderer(blob_grid, method, require_network_path):
+# measured on LLVM: voxel 2.5e-7, ngp 6e-8, ngp fp16 2.2e-5 (fp16 products on CUDA's tensor cores not yet measured)
+@pytest.mark.parametrize("method, rtol", [("voxel", 1e-4), ("ngp", 1e-4), ("ngp fp16", 1e-3)])
+def test_training_with_the_replay_follows_the_shared_renderer(blob_grid, method, rtol, require_network_path):
     """The same seed and batches, through occupancy updates and (voxel) an upsampling: the losses agree to
-    float round-off, and the grid lets the same share of samples through."""
+    float round-off, and the grid lets the same share of samples through. ngp's replayed march runs its MLPs
+    on fp32 cooperative vectors (not on CUDA) unless the network is on fp16 ones: ``ngp fp16`` is the replay
+    that CUDA runs."""
     from mitsnerf.methods import get_method
     from mitsnerf.train import TrainConfig, train
 
     if method == "ngp":
-        require_network_path("coopvec-fp32")  # ngp's replayed march runs its MLPs on fp32 cooperative vectors
+        require_network_path("coopvec-fp32")
+    method, fp16 = method.split()[0], method.endswith("fp16")
 
     data, info = _blob_views(blob_grid)
     entry = get_method(method)
@@ -353,7 +357,7 @@ def test_training_with_the_replay_follows_the_shared_renderer(blob_grid, method,
         settings.update({"resolution": 8, "initial_resolution": 4, "upsample_steps": [9]})
     else:
         settings["network"] = {"n_levels": 2, "log2_hashmap_size": 10, "base_resolution": 8, "max_resolution": 16,
-                               "hidden": 8, "color_hidden": 8}
+                               "hidden": 8, "color_hidden": 8, **({"network_path": "coopvec-fp16"} if fp16 else {})}
     losses, active = {}, {}
     for flag in (False, True):
         from mitsnerf.config import from_dict
@@ -363,6 +367,6 @@ def test_training_with_the_replay_follows_the_shared_renderer(blob_grid, method,
                           progress=False)
         losses[flag] = [h["loss"] for h in result.history]
         active[flag] = model.active_fraction
-    np.testing.assert_allclose(losses[True], losses[False], rtol=1e-4)
+    np.testing.assert_allclose(losses[True], losses[False], rtol=rtol)
     assert active[True] == active[False] < 1.0
     assert losses[True][-1] < losses[True][0]
