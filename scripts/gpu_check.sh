@@ -11,7 +11,8 @@
 #   integrator  the integrator's samples/s forward and backward (256x256 views, N = 64, 128, 256)
 #   mlp         the NeRF MLP: tensor mode, cooperative vectors fp32/fp16, JAX and PyTorch (this Python)
 #   paper       mitsnerf bench paper (ground truth cached in ./data between calls on a warm machine)
-#   paper-cloud the cloud row of paper alone (benchmarks/paper_cloud.toml), ngp first, for a short lease
+#   paper-cloud the cloud row of paper alone (benchmarks/paper_cloud.toml), ngp first, ngp and nerf also on
+#               fp16 cooperative vectors (what decides network_path = auto on CUDA), for a short lease
 #
 # A bench step's results (its tables, records and plots; no EXR or arrays: the archive must stay under the
 # 16 MiB a device call returns per file, which paper-cloud's passed) are packed into OUTDIR/STEP-results.tgz.
