@@ -374,7 +374,8 @@ def main() -> int:
     best = peers(args)
     roof = None if args.no_peak else sgemm_flops()
     layer_roof = {} if args.no_peak else {n: layer_gemm_flops(n) for n in {2**k for k in args.batch_log2}}
-    nominal, how = nominal_flops() if not variant.startswith("cuda") else (None, "a CPU's formula: not computed on CUDA")
+    cuda = variant.startswith("cuda")
+    nominal, how = (None, "a CPU's formula: not computed on CUDA") if cuda else nominal_flops()
     for (name, n), pts in measured.items():
         ratios = {f"ratio_to_{peer}": pts / by_batch[n] if n in by_batch else None for peer, by_batch in best.items()}
         print(json.dumps({"summary": f"mitsnerf {name}", "batch": n, "pts_per_s": pts, **ratios,
