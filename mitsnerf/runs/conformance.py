@@ -256,7 +256,7 @@ def resume_equals_the_run_never_stopped(ctx: _Context) -> str:
     if why is None:
         return f"{len(a)} parameter arrays bit-identical after stopping at step {STOP_AT} of {STEPS}"
     return (f"{len(a)} parameter arrays within {atol:g} (largest difference {max(gap.values()):.2g}) after stopping "
-            f"at step {STOP_AT} of {STEPS}: not bit for bit, {why.split(',')[0]}")
+            f"at step {STOP_AT} of {STEPS}, not bit for bit: {why}")
 
 
 def renders_a_saved_run(ctx: _Context) -> str:
