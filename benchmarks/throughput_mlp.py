@@ -12,8 +12,8 @@ MSE against 4 smooth targets, backward and an Adam update (lr 1e-3) on the same 
 - ``channel-major frozen``: the same step recorded by ``dr.freeze`` and replayed;
 - ``point-major``: ``mitsnerf.fields.mlp.dense_apply`` on (N, C) tensors (``X W + b``), as the
   ``ngp`` field does; the encoding from ``dr.sin``/``dr.cos`` on each coordinate;
-- ``point-major split-k``: the same network, each layer's weights gathered into ``--slices`` copies and the
-  points into as many batches, ``(S, N/S, C) x (S, C, D)``, so that the weight gradient is S products over
+- ``point-major split-k``: the same network, each layer's weights gathered into ``SPLIT_K`` (64) copies and
+  the points into as many batches, ``(S, N/S, C) x (S, C, D)``, so that the weight gradient is S products over
   N/S points each in one launch and the copies' gradients meet in the gather's adjoint (a test of why tensor
   mode on CUDA ran at a flat 7.8 M points/s: ``X^T dY`` contracts over every point in a few tiles);
 - ``coopvec fp32`` / ``coopvec fp16``: the same ``Sequential`` on cooperative vectors (``nn.CoopVec``),
