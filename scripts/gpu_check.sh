@@ -6,7 +6,8 @@
 #
 # Steps (each writes OUTDIR/STEP.log, and JSON lines where a benchmark prints them):
 #   install     scripts/offline_install.sh into /tmp/mitsnerf-site, nvidia-smi, the versions
-#   tests       the suite on cuda_ad_rgb (the variant-dependent tests also on llvm_ad_rgb where it runs)
+#   tests       the suite on cuda_ad_rgb (the variant-dependent tests also on llvm_ad_rgb where it runs), every
+#               failure, error and skip listed with its reason
 #   groundtruth volpath samples/s through mitsnerf generate against raw Mitsuba (256x256, 4 views, 256 spp)
 #   integrator  the integrator's samples/s forward and backward (256x256 views, N = 64, 128, 256)
 #   mlp         the NeRF MLP: tensor mode, cooperative vectors fp32/fp16, JAX and PyTorch (this Python)
@@ -48,7 +49,7 @@ for step in "$@"; do
         tests)
             workers=${TEST_WORKERS:-}
             if [ -z "$workers" ] && "$PYTHON" -c "import xdist" 2>/dev/null; then workers=auto; fi
-            run tests "$PYTHON" -m pytest -q -m "not slow" -p no:cacheprovider -rfE ${workers:+-n "$workers"} ;;
+            run tests "$PYTHON" -m pytest -q -m "not slow" -p no:cacheprovider -rfEs ${workers:+-n "$workers"} ;;
         groundtruth)
             run groundtruth "$PYTHON" benchmarks/throughput_groundtruth.py --scene cloud --train-views 8 --test-views 2 --size 256 ;;
         integrator)
