@@ -10,12 +10,12 @@ MSE against 4 smooth targets, backward and an Adam update (lr 1e-3) on the same 
 - ``channel-major``: ``drjit.nn.Sequential`` on (C, N) tensors (``SinEncode`` + ``Linear``), as the
   ``nerf`` field evaluates its network; the encoding's frequencies match the peer's (x / 2 in);
 - ``channel-major frozen``: the same step recorded by ``dr.freeze`` and replayed;
-- ``point-major``: ``mitsnerf.fields.mlp.dense_apply`` on (N, C) tensors (``X W + b``), as the
-  ``ngp`` field does; the encoding from ``dr.sin``/``dr.cos`` on each coordinate;
-- ``point-major split-k``: the same network, each layer's weights gathered into ``SPLIT_K`` (64) copies and
-  the points into as many batches, ``(S, N/S, C) x (S, C, D)``, so that the weight gradient is S products over
-  N/S points each in one launch and the copies' gradients meet in the gather's adjoint (a test of why tensor
-  mode on CUDA ran at a flat 7.8 M points/s: ``X^T dY`` contracts over every point in a few tiles);
+- ``point-major``: ``mitsnerf.fields.mlp.dense_apply`` on (N, C) tensors (``X W + b``), one product per
+  layer (``slices=0``); the encoding from ``dr.sin``/``dr.cos`` on each coordinate;
+- ``point-major split-k``: the same network in ``SPLIT_K`` (64) split-k batches (``dense_apply(...,
+  slices=64)``: each layer's weights gathered into 64 copies, the points into as many batches, ``(S, N/S, C) x
+  (S, C, D)``, so that the weight gradient is S products over N/S points each in one launch), as the ``ngp``
+  field multiplies on CUDA since the second GPU run found it 7.5x faster there than one product;
 - ``coopvec fp32`` / ``coopvec fp16``: the same ``Sequential`` on cooperative vectors (``nn.CoopVec``),
   weights packed by ``nn.pack(layout="training")``; fp16 casts after the encoding. On CUDA these run
   on the tensor cores; on the LLVM backend they are a reference path, 4-5x slower than tensor mode.
@@ -241,24 +241,6 @@ def coopvec(n: int, steps: int, half: bool) -> float:
     return time_steps(step, steps)
 
 
-def split_k_apply(params, prefix: str, n_layers: int, x, slices: int):
-    """``dense_apply`` with the points in ``slices`` batches and each layer's (C, D) weights gathered into as
-    many copies: (S, N/S, C) x (S, C, D) -> (S, N/S, D), ReLU between layers; (N, D) out."""
-    import drjit as dr
-
-    T, (m, c) = type(x), x.shape
-    h = dr.reshape(T, x, (slices, m // slices, c))
-    for i in range(n_layers):
-        w, b = params[f"{prefix}{i}.weights"], params[f"{prefix}{i}.bias"]
-        c_in, c_out = w.shape
-        idx = dr.arange(dr.uint32_array_t(type(w.array)), slices * c_in * c_out) % (c_in * c_out)
-        copies = T(dr.gather(type(w.array), w.array, idx), shape=(slices, c_in, c_out))
-        h = dr.matmul(h, copies) + dr.reshape(T, b, (1, 1, c_out))
-        if i + 1 < n_layers:
-            h = dr.maximum(h, 0.0)
-    return dr.reshape(T, h, (m, h.shape[2]))
-
-
 def point_major(n: int, steps: int, slices: int = 0) -> float:
     import drjit as dr
     import drjit.opt  # noqa: F401
@@ -282,8 +264,7 @@ def point_major(n: int, steps: int, slices: int = 0) -> float:
                 a = xs[c] * (2.0**k * math.pi)
                 rows += [dr.sin(a), dr.cos(a)]
         x = rows_tensor(mi.TensorXf, rows, n)
-        y = split_k_apply(params, "mlp.", len(DIMS) - 1, x, slices) if slices else dense_apply(
-            params, "mlp.", len(DIMS) - 1, x)
+        y = dense_apply(params, "mlp.", len(DIMS) - 1, x, slices=slices)
         loss = dr.mean(dr.square(y - t), axis=None)
         dr.backward(loss)
         opt.step()
@@ -298,7 +279,7 @@ SPLIT_K = 64
 PATHS = {
     "channel-major": lambda n, s, p: channel_major(n, s, profile=p),
     "channel-major frozen": lambda n, s, p: channel_major(n, s, frozen=True, profile=p),
-    "point-major": lambda n, s, p: point_major(n, s),
+    "point-major": lambda n, s, p: point_major(n, s, slices=0),
     "point-major split-k": lambda n, s, p: point_major(n, s, slices=min(SPLIT_K, n)),
     "coopvec fp32": lambda n, s, p: coopvec(n, s, half=False),
     "coopvec fp16": lambda n, s, p: coopvec(n, s, half=True),

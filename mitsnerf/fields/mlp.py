@@ -137,11 +137,11 @@ def dense_init(sizes, TensorXf, rng, prefix: str = "") -> dict:
     return params
 
 
-def dense_apply(params, prefix: str, n_layers: int, x, activation=None):
+def dense_apply(params, prefix: str, n_layers: int, x, activation=None, slices: int | None = None):
     """``h <- act(h W_l + b_l)`` for ``l < n_layers``, the last layer without activation.
 
     ``params``: a mapping as :func:`dense_init` makes; ``x``: (M, C_in) tensor -> (M, C_out);
-    ``activation`` defaults to ReLU.
+    ``activation`` defaults to ReLU; ``slices``: the split-k batches of each product (:func:`matmul_rows`).
 
     >>> import mitsuba as mi
     >>> from mitsnerf.env import set_variant; _ = set_variant("llvm_ad_rgb")
@@ -152,7 +152,7 @@ def dense_apply(params, prefix: str, n_layers: int, x, activation=None):
     act = activation or (lambda h: dr.maximum(h, 0.0))
     for i in range(n_layers):
         w, b = params[f"{prefix}{i}.weights"], params[f"{prefix}{i}.bias"]
-        x = matmul_rows(x, w) + dr.reshape(type(b), b, (1, b.shape[0]))
+        x = matmul_rows(x, w, slices=slices) + dr.reshape(type(b), b, (1, b.shape[0]))
         if i + 1 < n_layers:
             x = act(x)
     return x
@@ -163,6 +163,15 @@ def dense_apply(params, prefix: str, n_layers: int, x, activation=None):
 #: width (3 colours, 31 inputs) rules out all but 8-row tiles. Past it the product raises, which ``@`` turns
 #: into "unsupported operand type(s)": ngp's 8192-ray batches (over 2^19 samples) failed so on an H200.
 CUDA_GEMM_ROWS = 65535 * 8
+
+#: Point batches of a split-k product on CUDA (:func:`matmul_rows`). drjit-core's GEMM launches
+#: ceil(C_in / 8) x ceil(C_out / 8) blocks per product, so the weight gradient ``X^T dY`` of a 64-wide layer
+#: (a (C_in, C_out) output contracted over every point) ran on 64 blocks that each walked all the points: tensor
+#: mode stayed at 7.7 M points/s on an H200 whatever the batch. In 64 batches against 64 gathered copies of
+#: the weights (one batched launch of 64 times the blocks, the copies' gradients summed by the gather's
+#: adjoint) the same network trained at 57.4 M points/s at 2^20 points (benchmarks/throughput_mlp.py, the
+#: second GPU run). On LLVM one product is faster (0.59 against 0.50 M points/s at 2^12 on 2 cores).
+CUDA_SPLIT_K = 64
 
 
 def gemm_row_cap(x) -> int:
@@ -175,10 +184,27 @@ def gemm_row_cap(x) -> int:
     return CUDA_GEMM_ROWS if dr.backend_v(x) == dr.JitBackend.CUDA else 0
 
 
-def matmul_rows(x, w, max_rows: int | None = None):
-    """``X W`` for a point-major (M, C_in) tensor ``x`` and (C_in, C_out) ``w``, as ``dr.matmul`` in slices of at
-    most ``max_rows`` rows (default: :func:`gemm_row_cap`; 0: one product); each row's dot products are the
-    same in a slice as in the whole, so the result is too.
+def gemm_split_k(x) -> int:
+    """The split-k batches :func:`matmul_rows` uses by default on ``x``'s backend: :data:`CUDA_SPLIT_K` on CUDA, 0
+    (one product) on LLVM.
+
+    >>> import drjit as dr
+    >>> gemm_split_k(dr.zeros(dr.llvm.ad.TensorXf, (2, 2)))
+    0
+    """
+    return CUDA_SPLIT_K if dr.backend_v(x) == dr.JitBackend.CUDA else 0
+
+
+def matmul_rows(x, w, max_rows: int | None = None, slices: int | None = None):
+    """``X W`` for a point-major (M, C_in) tensor ``x`` and (C_in, C_out) ``w``.
+
+    Split-k (``slices`` S > 1, default :func:`gemm_split_k`): the first ``K = S floor(M / S)`` rows as S batches of
+    K / S rows against S gathered copies of ``W``, ``(S, K/S, C_in) x (S, C_in, C_out)``, so that the weight
+    gradient is S products over K / S points each in one launch (their sum is the gather's adjoint); the
+    remaining ``M - K`` rows in one product. Each row's dot products are the same as in the whole product, and
+    so are the gradients up to the order of their sums. Otherwise ``dr.matmul`` in slices of at most
+    ``max_rows`` rows (default :func:`gemm_row_cap`; 0: one product). A batch of split-k keeps under the cap
+    too (S grows in multiples of ``slices`` if K / S would pass it).
 
     >>> import mitsuba as mi
     >>> from mitsnerf.env import set_variant; _ = set_variant("llvm_ad_rgb")
@@ -186,13 +212,37 @@ def matmul_rows(x, w, max_rows: int | None = None):
     >>> y = matmul_rows(x, w, max_rows=2)  # three slices: rows 0-1, 2-3, 4
     >>> y.shape, bool(dr.all(y.array == x.array))
     ((5, 2), True)
+    >>> y = matmul_rows(x, w, slices=2)  # rows 0-1 and 2-3 as two batches, row 4 alone
+    >>> y.shape, bool(dr.all(y.array == x.array))
+    ((5, 2), True)
     """
     if max_rows is None:
         max_rows = gemm_row_cap(x)
+    if slices is None:
+        slices = gemm_split_k(x)
     m = x.shape[0]
+    if slices > 1 and m >= slices:
+        if max_rows:
+            slices *= -(-m // (slices * max_rows))  # batches of at most max_rows rows
+        return _matmul_split_k(x, w, slices, max_rows)
     if not max_rows or m <= max_rows:
         return dr.matmul(x, w)
     return dr.concat([dr.matmul(x[a:min(a + max_rows, m)], w) for a in range(0, m, max_rows)], axis=0)
+
+
+def _matmul_split_k(x, w, slices: int, max_rows: int):
+    """:func:`matmul_rows`' split-k product (``M >= slices``)."""
+    T = type(x)
+    (m, c_in), c_out = x.shape, w.shape[1]
+    per = m // slices
+    k = per * slices
+    idx = dr.arange(dr.uint32_array_t(type(w.array)), slices * c_in * c_out) % (c_in * c_out)
+    copies = T(dr.gather(type(w.array), w.array, idx), shape=(slices, c_in, c_out))
+    head = x if k == m else x[:k]
+    y = dr.reshape(T, dr.matmul(dr.reshape(T, head, (slices, per, c_in)), copies), (k, c_out))
+    if k == m:
+        return y
+    return dr.concat([y, matmul_rows(x[k:], w, max_rows=max_rows, slices=0)], axis=0)
 
 
 def rows_tensor(TensorXf, rows, width: int):

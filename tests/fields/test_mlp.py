@@ -1,4 +1,5 @@
-"""The point-major products of :mod:`mitsnerf.fields.mlp` in row slices (CUDA's launch-grid cap)."""
+"""The point-major products of :mod:`mitsnerf.fields.mlp` in row slices (CUDA's launch-grid cap) and in split-k
+batches (CUDA's default: the weight gradient over many blocks)."""
 
 from __future__ import annotations
 
@@ -11,13 +12,16 @@ import mitsnerf.fields.mlp as mlp
 from mitsnerf.fields.mlp import dense_apply, dense_init, matmul_rows
 
 
-@pytest.mark.parametrize("max_rows", [1, 3, 7, 11, None])
-def test_a_product_in_row_slices_is_the_whole_product_and_so_are_its_gradients(max_rows):
+@pytest.mark.parametrize(("max_rows", "slices"), [
+    (1, 0), (3, 0), (7, 0), (11, 0), (None, 0),                  # row slices, one product each
+    (None, 2), (None, 4), (None, 11), (0, 5), (3, 2), (2, 3),    # split-k, with and without a remainder or cap
+])
+def test_a_product_in_row_slices_is_the_whole_product_and_so_are_its_gradients(max_rows, slices):
     rng = np.random.default_rng(0)
     X, W = rng.normal(size=(11, 5)).astype(np.float32), rng.normal(size=(5, 3)).astype(np.float32)
     x, w = mi.TensorXf(X), mi.TensorXf(W)
     dr.enable_grad(x, w)
-    y = matmul_rows(x, w, max_rows=max_rows)
+    y = matmul_rows(x, w, max_rows=max_rows, slices=slices)
     assert y.shape == (11, 3)
     np.testing.assert_allclose(np.asarray(y), X @ W, rtol=1e-5, atol=1e-6)
     dr.backward(dr.sum(y * y, axis=None))
@@ -42,3 +46,22 @@ def test_the_fields_networks_multiply_within_the_backends_row_cap(monkeypatch):
     capped = np.asarray(dense_apply(params, "", 2, x))
     assert rows and max(rows) == 3 and sum(rows) == 2 * 10  # two layers, 10 rows each, in slices of 3
     np.testing.assert_allclose(capped, whole, rtol=1e-6, atol=1e-7)
+
+
+def test_the_fields_networks_use_split_k_where_the_backend_asks_for_it(monkeypatch):
+    """dense_apply (ngp's MLPs) multiplies in split-k batches when :func:`~mitsnerf.fields.mlp.gemm_split_k` says so
+    (CUDA: 64), one batched product per layer plus the remainder's, with the output of one plain product."""
+    params = dense_init([4, 8, 3], mi.TensorXf, dr.rng(seed=0))
+    x = mi.TensorXf(np.random.default_rng(1).normal(size=(10, 4)).astype(np.float32))
+    whole = np.asarray(dense_apply(params, "", 2, x))
+    shapes, matmul = [], dr.matmul
+
+    def spy(a, b, *args, **kwargs):
+        shapes.append(a.shape)
+        return matmul(a, b, *args, **kwargs)
+
+    monkeypatch.setattr(mlp, "gemm_split_k", lambda x: 4)
+    monkeypatch.setattr(dr, "matmul", spy)
+    split = np.asarray(dense_apply(params, "", 2, x))
+    assert shapes == [(4, 2, 4), (2, 4), (4, 2, 8), (2, 8)]  # per layer: 4 batches of 2 rows, then 2 rows
+    np.testing.assert_allclose(split, whole, rtol=1e-6, atol=1e-7)
