@@ -18,7 +18,8 @@ import drjit.nn as nn
 
 NETWORK_PATHS = ("auto", "tensor", "coopvec-fp32", "coopvec-fp16")
 """How a field evaluates its layers: on tensors (its own layout), on ``drjit.nn`` cooperative vectors
-in fp32 or fp16 (on CUDA, the tensor cores), or ``auto`` (:func:`network_path`)."""
+in fp32 or fp16 (on CUDA, the tensor cores; fp16's training gradients are wrong, :func:`network_path`),
+or ``auto`` (:func:`network_path`)."""
 
 
 def network_path(requested: str, TensorXf) -> str:
@@ -28,9 +29,13 @@ def network_path(requested: str, TensorXf) -> str:
     than cooperative vectors in fp32 on the 2-core CPU, and fp16 slower again (benchmarks/README.md,
     "Cooperative vectors and a PyTorch peer"). On CUDA, Dr.Jit runs fp16 cooperative vectors on the
     tensor cores: an H200 ran the MLP's training step 64x faster on them than on tensors at 2^20 points
-    (benchmarks/README.md, "On a GPU"), but no method's quality trained in fp16 has been measured, and
-    ``auto`` moves to a path only once a GPU run has measured it faster at the same quality. Name a path
-    to use one.
+    (benchmarks/README.md, "On a GPU"), but fp16 does not train: Dr.Jit 1.5 sums a layer's weight gradient
+    over the batch in fp16 and rounds each point's gradient to fp16, so at a training batch (2^17 points,
+    each adding ~1e-6) the weight gradients come out 30-75% wrong, signs included, and the hash grid's
+    27% (on LLVM as on CUDA; tests/fields/test_network_paths.py), and nerf on fp16 never left the empty box
+    on an H200 (17.2 dB on medium pixels where tensors reached 43.1). Loss scaling (x4096) with the batch in
+    16 separately packed slices brought them within 1.2% on LLVM, not yet built into the fields. ``auto``
+    moves to a path only once a GPU run has measured it faster at the same quality. Name a path to use one.
 
     A path the backend lacks (:func:`usable_network_paths`) is a :class:`mitsnerf.errors.SpecError` naming
     ``network.network_path`` (the key in the methods' configs) and the paths it has.

@@ -26,7 +26,7 @@ Two ways to evaluate the same parameters (``network_path``): tensor mode, a (C, 
 ``nn.Linear``'s weights and biases, and ``drjit.nn`` cooperative vectors, the weights packed by
 ``nn.pack`` on every pass (fp32, or fp16 copies for the tensor cores). ``auto`` takes tensor mode
 (:func:`mitsnerf.fields.mlp.network_path`: 4-5x faster than cooperative vectors on the CPU; on CUDA
-not yet measured). In tensor mode the
+fp16 is faster per step but its gradients are wrong at training batch sizes). In tensor mode the
 layers are evaluated by :func:`linear`, not ``nn.Linear.__call__``, so that their bias gradients are
 summed in a fixed order (training runs are reproducible bit for bit); cooperative vectors accumulate
 their gradients in their own order.
@@ -77,7 +77,8 @@ class NeRFConfig:
     network_path: str = param("auto", choices=NETWORK_PATHS)
     """How the layers are evaluated: ``tensor`` ((C, M) tensors and matrix products), ``coopvec-fp32`` /
     ``coopvec-fp16`` (``drjit.nn`` cooperative vectors, the weights packed each pass; on CUDA they run
-    on the tensor cores), or ``auto``: :func:`network_path` (tensors, for now). The parameters are the same
+    on the tensor cores; fp16 renders, but its training gradients are wrong at batch sizes, so it does not
+    train: :func:`network_path`), or ``auto``: :func:`network_path` (tensors). The parameters are the same
     fp32 tensors on every path, so a run trained on one renders on another."""
 
     def __post_init__(self) -> None:

@@ -106,7 +106,8 @@ class NGPConfig:
     """Hash-table entries start uniform in ``+-init_scale``."""
     network_path: str = param("auto", choices=NETWORK_PATHS)
     """How the MLPs are evaluated (:func:`mitsnerf.fields.mlp.network_path`): point-major tensors or
-    cooperative vectors (fp32, fp16), on the same parameters; ``auto``: tensors for now."""
+    cooperative vectors (fp32, fp16: its training gradients are wrong at batch sizes), on the same
+    parameters; ``auto``: tensors."""
 
     def __post_init__(self) -> None:
         check_fields(self)

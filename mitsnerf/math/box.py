@@ -7,7 +7,9 @@ every run. The conventions around it live here and nowhere else:
 - world to unit coordinates: ``p = (x - lo) / (hi - lo)``, so the box is ``[0, 1]^3``;
 - the slab test: ``t_n = max_a min(t0_a, t1_a)`` clamped to >= 0, ``t_f = min_a max(t0_a, t1_a)``
   with ``t0_a = (lo_a - o_a) / d_a``, ``t1_a = (hi_a - o_a) / d_a``; a ray misses when
-  ``t_f <= t_n`` and then gets the empty interval ``t_n = t_f``;
+  ``t_f <= t_n`` (or the test is not finite: a ray parallel to a slab it lies outside of gets
+  ``t0_a = t1_a = +inf`` on the low side) and then gets the empty interval ``t_n = t_f = 0``,
+  whose samples are finite points with ``delta = 0``;
 - voxel centres of an ``R^3`` grid over the box: unit coordinate ``(i + 1/2) / R`` along each
   axis, grids indexed ``[z, y, x]`` (x fastest), as Mitsuba's ``gridvolume``;
 - optical depth along rays ``tau = int_{t_n}^{t_f} sigma(o + t d) dt`` by the midpoint rule, and
@@ -139,11 +141,15 @@ class Box:
         """Distances ``(t_n, t_f, hit)`` where rays ``o + t d`` (Dr.Jit Array3f (R,)) enter and leave.
 
         ``t_n`` is clamped to >= 0 (a ray starting inside begins at its origin); rays that
-        miss get ``t_n = t_f``, so every sample on them has ``delta = 0``.
+        miss get ``t_n = t_f = 0``, so every sample on them is a finite point with ``delta = 0``
+        (a ray parallel to a face, outside its slab on the low side, has ``t_n = +inf`` before that:
+        its samples ``t_n + u (t_f - t_n)`` were NaN, and one such ray in a batch made the loss NaN).
 
         >>> from drjit.llvm import Array3f
         >>> Box().intersect(Array3f(0, 0, -2), Array3f(0, 0, 1))
         ([1.5], [2.5], [True])
+        >>> Box().intersect(Array3f(0, 2, -0.6), Array3f(0, -1, 0))  # parallel to z = -0.5, below it
+        ([0], [0], [False])
         """
         Float = type(o.x)
         inv = dr.rcp(d)
@@ -152,6 +158,7 @@ class Box:
         t_n = dr.maximum(dr.max(dr.minimum(t0, t1)), 0.0)
         t_f = dr.min(dr.maximum(t0, t1))
         hit = t_f > t_n
+        t_n = dr.select(hit, t_n, 0.0)
         return Float(t_n), Float(dr.select(hit, t_f, t_n)), hit
 
     def intersect_numpy(self, o: np.ndarray, d: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -163,6 +170,7 @@ class Box:
         t_n = np.nanmax(np.minimum(a, b), axis=-1).clip(min=0.0)
         t_f = np.nanmin(np.maximum(a, b), axis=-1)
         hit = t_f > t_n
+        t_n = np.where(hit, t_n, 0.0)
         return t_n, np.where(hit, t_f, t_n), hit
 
     # -- grids --------------------------------------------------------------------------

@@ -42,6 +42,42 @@ def test_rays_missing_the_box_see_exactly_the_background():
     assert _np(out.opacity)[0] == 0.0
 
 
+def _parallel_misses():
+    """Rays parallel to a face of the unit box, outside its slab: below and above it on each axis (the ray that
+    made ngp's loss NaN at step 96 of paper's cloud, on LLVM and CUDA alike, was the first kind on z)."""
+    o, d = [], []
+    for axis in range(3):
+        for side in (-0.6, 0.6):
+            p, w = [0.0, 0.0, 0.0], [0.0, 0.0, 0.0]
+            p[axis], p[(axis + 1) % 3], w[(axis + 1) % 3] = side, -2.0, 1.0
+            o.append(p)
+            d.append(w)
+    return mi.Array3f(*np.array(o, np.float32).T), mi.Array3f(*np.array(d, np.float32).T)
+
+
+def test_rays_parallel_to_a_face_outside_the_box_miss_with_a_finite_empty_interval():
+    o, d = _parallel_misses()
+    t_n, t_f, hit = UNIT_BOX.intersect(o, d)
+    assert not np.any(np.asarray(hit))
+    assert np.all(_np(t_n) == 0.0) and np.all(_np(t_f) == 0.0)
+    t_n, t_f, hit = UNIT_BOX.intersect_numpy(np.array(o).T, np.array(d).T)
+    assert not hit.any() and np.all(t_n == 0.0) and np.all(t_f == 0.0)
+
+
+def test_rays_parallel_to_a_face_outside_the_box_see_the_background_and_give_finite_gradients():
+    from mitsnerf.fields.ngp import NGPConfig, NGPField
+
+    o, d = _parallel_misses()
+    field = NGPField(NGPConfig(n_levels=2, hidden=8, color_hidden=8), mi.TensorXf, UNIT_BOX)
+    dr.enable_grad(*field.params.values())
+    out = render_rays(field, o, d, 8, u=dr.full(mi.Float, 0.5, 6 * 8), background=0.25, box=UNIT_BOX)
+    np.testing.assert_array_equal(np.array([_np(c) for c in out.rgb]), 0.25)
+    loss = dr.sum(out.rgb.x + out.rgb.y + out.rgb.z)
+    dr.backward(loss)
+    for key, value in field.params.items():
+        assert np.all(np.isfinite(np.asarray(dr.grad(value)))), key
+
+
 def test_midpoint_quadrature_error_is_first_order(blob_grid, each_variant):
     # The stratified quadrature covers [t_0, t_f]; with midpoints its optical-depth error is
     # -(h/2) sigma_t(t_f) (half an interval missing at the exit), so the error of the rendered
