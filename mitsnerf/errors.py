@@ -51,6 +51,16 @@ class TrainingError(MitsnerfError):
     """Training cannot go on (NaN or diverging loss; the last good checkpoint is kept)."""
 
 
+class MethodError(MitsnerfError):
+    """A method's code breaks the contract of :mod:`mitsnerf.methods.base` where only running it shows
+    (its model has no parameters, its loss depends on none of them): names the method and where it
+    came from, the part of the contract, and what was seen. Raised before training changes anything.
+
+    >>> str(MethodError("method 'fog' (MITSNERF_METHODS: fog=./fog.py:Fog)", "parameters()", "is empty"))
+    "method 'fog' (MITSNERF_METHODS: fog=./fog.py:Fog): parameters(): is empty"
+    """
+
+
 class UsageError(MitsnerfError, ValueError):
     """A command-line option or argument is wrong: ``--box: X1 must exceed X0``.
 

@@ -32,7 +32,7 @@ from mitsnerf.data.verify import verify_dataset
 from mitsnerf.errors import DatasetError, DiskFullError, OutputError, UsageError
 from mitsnerf.fields.protocols import DensityField
 from mitsnerf.math.box import Box
-from mitsnerf.methods import get_method, methods
+from mitsnerf.methods import check_model, get_method, methods
 from mitsnerf.methods.base import HasField, Model, ParameterShapeError, SceneInfo, num_parameters
 from mitsnerf.render.background import make_background
 from mitsnerf.render.camera import Rendered
@@ -184,8 +184,12 @@ def method_config(method: str, overrides: Mapping[str, Any] | None, source: Path
 
 def build_model(method: str, overrides: Mapping[str, Any] | None, info: SceneInfo, seed: int,
                 source: Path | None = None) -> tuple[Model, Any]:
+    """``(model, config)`` of ``method`` for the scene; a :class:`~mitsnerf.errors.MethodError` if the model has
+    nothing to train (:func:`mitsnerf.methods.check_model`), before anything is written."""
     config = method_config(method, overrides, source)
-    return get_method(method).model_type(config, info, seed), config
+    model = get_method(method).model_type(config, info, seed)
+    check_model(get_method(method), model)
+    return model, config
 
 
 def set_checked(model: Model, values: Mapping[str, Any], where: Path, method: str, run_dir: Path) -> None:
