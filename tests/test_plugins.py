@@ -14,8 +14,11 @@ from mitsnerf.cli import main
 from mitsnerf.methods import get_method, methods
 from mitsnerf.plugins import parse_variable
 
+from .conftest import tiny_scene
+
 PLUGINS = Path(__file__).resolve().parent / "plugins"
 TINY = f"{PLUGINS / 'tiny_plugin.py'}"
+MLP = f"{Path(__file__).resolve().parents[1] / 'examples' / 'mlp_method.py'}"
 
 
 def test_the_built_ins_register_themselves_in_their_own_modules():
@@ -300,3 +303,22 @@ def test_the_readmes_method_skeleton_conforms(tmp_path, monkeypatch, capsys):
     assert main(["methods", "--check", "fog", "--no-progress"]) == 0
     assert capsys.readouterr().out.strip().splitlines()[-1] == "fog: conforms"
 
+
+def test_the_network_example_conforms_and_trains_to_the_noise_floor(tmp_path, monkeypatch, capsys):
+    """examples/mlp_method.py (README.md, "A network method"), registered as the README says: it passes the
+    conformance suite, and its tiny settings trained 300 steps reach the test views' noise floor (28.9 dB where the
+    floor is 28.2; 24.4 after one step), its medium pixels gaining over 3 dB."""
+    from mitsnerf import api
+    from mitsnerf.generate import generate_dataset
+    from mitsnerf.scene.spec import parse_scene
+
+    monkeypatch.setenv("MITSNERF_METHODS", f"mlp={MLP}:MLPModel")
+    assert main(["methods", "--check", "mlp", "--no-progress"]) == 0
+    assert capsys.readouterr().out.strip().splitlines()[-1] == "mlp: conforms"
+    spec = tiny_scene({"cameras.width": 16, "cameras.height": 16, "cameras.n_train": 8})
+    data = generate_dataset(parse_scene(spec, "tiny"), tmp_path / "data", progress=False)
+    settings = {**get_method("mlp").tiny, "n_samples": 16}
+    start = api.fit(data, "mlp", settings=settings, steps=1, batch_rays=256).metrics
+    end = api.fit(data, "mlp", settings=settings, steps=300, batch_rays=256).metrics
+    assert end["psnr_test"] > end["noise_floor_psnr"] - 1.0, end
+    assert end["psnr_test_medium"] > start["psnr_test_medium"] + 3.0, (start, end)
