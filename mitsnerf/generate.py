@@ -38,6 +38,7 @@ import numpy as np
 
 from mitsnerf.config import to_dict
 from mitsnerf.data.cache import clean_temps, dataset_lock, is_complete, sha256_file
+from mitsnerf.data.verify import without_roundoff
 from mitsnerf.math.box import Box
 from mitsnerf.math.camera import Camera
 from mitsnerf.scene import ground_truth
@@ -320,6 +321,7 @@ def _build(tmp: Path, spec: SceneSpec, splits: tuple[str, ...], digest: str, pro
         images[split], medium[split], transmittance[split] = _render(scene, spec, split, cams[split], truth,
                                                                      fallback is None, timings, progress)
         ground_truth.check_views(spec, split, images[split])
+        images[split] = [without_roundoff(view) for view in images[split]]  # what the check let pass as rounding is 0
         _write_split(tmp, spec, split, images[split], cams[split], box)
         _write_split(tmp / MEDIUM_DIR, spec, split, medium[split], cams[split], box, medium=True,
                      seed_split=split if fallback is None else f"{split}_medium")
