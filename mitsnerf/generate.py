@@ -358,10 +358,13 @@ def generate_dataset(spec: SceneSpec, out_root: str | os.PathLike, *, force: boo
     hashes); one that fails is said so and rendered again.
     ``splits``: a subset of ``("train", "test", "test_ref")`` (default: all, ``test_ref`` only with
     ``render.noise_floor``); the noise floor is measured when both ``test`` and ``test_ref`` are made.
-    Uses the current Mitsuba variant, else :func:`mitsnerf.env.set_variant`'s default.
+    Uses the current Mitsuba variant, else :func:`mitsnerf.env.set_variant`'s default. The volume's input
+    files are checked first (:meth:`~mitsnerf.scene.spec.VolumeSpec.check_inputs`): a bad one is refused
+    before anything is written.
     """
     from mitsnerf.data.atomic import atomic_dir, atomic_write_json
 
+    spec.volume.check_inputs()
     _ensure_variant()
     splits = _resolve_splits(spec, splits)
     digest = spec.content_hash(hash_extra(splits, spec))
