@@ -38,9 +38,10 @@ def run(args) -> int:
 
 def add_parser(sub) -> None:
     p = sub.add_parser("generate", help="render a scene's ground-truth dataset with Mitsuba's volpath")
-    p.add_argument("scene", nargs="?", help="a scene name (mitsnerf scenes lists them), the path of a spec, or a grid "
-                                            "file (.npy/.npz [z, y, x] or Mitsuba .vol): the cloud scene with that "
-                                            "medium, at the grid's resolution (--set volume.sigma_t_scale=..., --set "
+    p.add_argument("scene", nargs="?", help="a scene name (mitsnerf scenes lists them), the path of a spec (which may "
+                                            "start from a scene: extends = \"cloud\"), or a grid file (.npy/.npz "
+                                            "[z, y, x] or Mitsuba .vol): the cloud scene with that medium, at the "
+                                            "grid's resolution (--set volume.sigma_t_scale=..., --set "
                                             "volume.params.array=NAME for an .npz of several arrays)")
     p.add_argument("--scenes", action="append", metavar="DIR", help=SCENES_HELP)
     p.add_argument("--out", default="data", help="dataset root; the dataset goes to OUT/NAME-HASH (default: data)")

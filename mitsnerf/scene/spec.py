@@ -6,10 +6,10 @@ lights, a camera rig and the render settings; see ``docs/conventions.md`` ("Scen
 the file format. Every problem with a spec raises :class:`mitsnerf.errors.SpecError` naming the
 file and the dotted field::
 
-    >>> parse_scene({"name": "x"}, "inline.toml")
+    >>> parse_scene({"name": "x", "volume": {"family": "cloud"}}, "inline.toml")
     Traceback (most recent call last):
     ...
-    mitsnerf.errors.SpecError: inline.toml: volume: missing field (a table)
+    mitsnerf.errors.SpecError: inline.toml: volume.resolution: missing field (an integer in [8, 512])
 
 The world is Z-up (``UP``): the hemisphere rig and the sky use it.
 
@@ -427,8 +427,7 @@ class SceneSpec:
 
     def __post_init__(self) -> None:
         # input files are relative to the spec file's directory (a spec without a file: the working directory)
-        here = Path(self.source).parent if self.source and Path(self.source).is_file() else Path.cwd()
-        object.__setattr__(self, "volume", self.volume.with_files_under(here))
+        object.__setattr__(self, "volume", self.volume.with_files_under(_directory_of(self.source)))
         if not _NAME_RE.match(self.name):
             raise ValueError(
                 f"name: must be letters, digits, '_', '-' or '.', starting with a letter or digit; got {self.name!r}")
@@ -484,9 +483,95 @@ class SceneSpec:
         return hashlib.sha256(text.encode("utf-8")).hexdigest()
 
 
+#: The key of a spec that starts from another: a library scene's name or a spec file's path.
+EXTENDS = "extends"
+#: How a spec that extends another is merged into it (the README and the errors of such a spec say it).
+MERGE_RULE = ("a table merges into the base's key by key, a list or a value replaces the base's whole; a table whose "
+              "type changes (volume.phase) is replaced whole, and so is volume.params when volume.family changes")
+#: The tables every spec needs, which ``extends`` can supply.
+_REQUIRED = ("name", "volume", "lights", "cameras", "render")
+
+
 def parse_scene(data: Mapping[str, Any], source: str | os.PathLike | None = None) -> SceneSpec:
-    """Validate plain data (a parsed TOML document) into a :class:`SceneSpec`."""
-    return from_dict(SceneSpec, data, source=source if source is not None else "<spec>")
+    """Validate plain data (a parsed TOML document) into a :class:`SceneSpec`; with ``extends``, over the spec it
+    names (:func:`merge_specs`; a path relative to ``source``'s directory, else the working directory)."""
+    where = source if source is not None else "<spec>"
+    return _parse(data, where, _chain_start(where))
+
+
+def merge_specs(base: Mapping[str, Any], over: Mapping[str, Any]) -> dict[str, Any]:
+    """``over`` (what a spec says) merged into ``base`` (the spec it extends), as :data:`MERGE_RULE` says.
+
+    >>> merge_specs({"cameras": {"width": 64, "fov": 40}, "lights": [1, 2]}, {"cameras": {"width": 16}, "lights": [3]})
+    {'cameras': {'width': 16, 'fov': 40}, 'lights': [3]}
+    >>> merge_specs({"volume": {"family": "cloud", "resolution": 64, "params": {"octaves": 4}}},
+    ...             {"volume": {"family": "grid", "params": {"path": "g.npy"}}})
+    {'volume': {'family': 'grid', 'resolution': 64, 'params': {'path': 'g.npy'}}}
+    >>> merge_specs({"phase": {"type": "hg", "g": 0.85}}, {"phase": {"type": "isotropic"}})
+    {'phase': {'type': 'isotropic'}}
+    """
+    out = dict(base)
+    for key, value in over.items():
+        old = out.get(key)
+        if (isinstance(value, Mapping) and isinstance(old, Mapping)
+                and value.get("type", old.get("type")) == old.get("type")):
+            if value.get("family", old.get("family")) != old.get("family"):
+                old = {k: v for k, v in old.items() if k != "params"}
+            out[key] = merge_specs(old, value)
+        else:
+            out[key] = value
+    return out
+
+
+def _directory_of(source: Any) -> Path:
+    """Where the paths a spec names are relative to: its file's directory, else (no file) the working directory."""
+    path = Path(os.fspath(source)) if isinstance(source, (str, os.PathLike)) else None
+    return path.parent if path is not None and path.is_file() else Path.cwd()
+
+
+def _chain_start(source: Any) -> tuple[str, ...]:
+    """The specs being read when ``source`` is: itself, if it is a file."""
+    path = Path(os.fspath(source)) if isinstance(source, (str, os.PathLike)) else None
+    return (str(absolute_path(path)),) if path is not None and path.is_file() else ()
+
+
+def _parse(data: Mapping[str, Any], source: Any, chain: tuple[str, ...]) -> SceneSpec:
+    """:func:`parse_scene`, ``chain`` the spec files being read (each extending the next): a cycle is refused."""
+    if EXTENDS not in data:
+        try:
+            return from_dict(SceneSpec, data, source=source)
+        except SpecError as exc:
+            if exc.field in _REQUIRED and exc.message.startswith("missing field"):
+                raise SpecError(exc.where, exc.field, f"{exc.message}; or start from a library scene "
+                                                      f'(extends = "cloud") and give only what differs') from None
+            raise
+    ref = data[EXTENDS]
+    base_path = _base_path(ref, source)
+    key = str(absolute_path(base_path))
+    if key in chain:
+        raise SpecError(source, EXTENDS, f"a cycle: {' -> '.join((*chain, key))}")
+    base = _parse(read_toml(base_path, "a spec file"), base_path, (*chain, key))
+    merged = merge_specs(base.to_dict(), {k: v for k, v in data.items() if k != EXTENDS})
+    try:
+        return from_dict(SceneSpec, merged, source=source)
+    except SpecError as exc:
+        raise SpecError(exc.where, exc.field, f"{exc.message}; this spec extends {ref!r}: {MERGE_RULE}") from None
+
+
+def _base_path(ref: Any, source: Any) -> Path:
+    """The spec file ``extends = ref`` names: a library scene's (or ``--scenes`` DIR's), or a path relative to the
+    extending spec's directory."""
+    if not isinstance(ref, str) or not ref:
+        raise SpecError(source, EXTENDS, f"must be a library scene's name or a spec file's path, got {ref!r}")
+    if is_spec_path(ref):
+        path = Path(ref) if Path(ref).is_absolute() else _directory_of(source) / ref
+        if not path.exists():
+            raise SpecError(source, EXTENDS, f"no such spec file {str(path)!r}")
+        return path
+    found = named_files(scene_dirs())
+    if ref not in found:
+        raise SpecError(source, EXTENDS, f"unknown scene {ref!r} (known: {', '.join(found)})")
+    return found[ref]
 
 
 # --------------------------------------------------------------------------- the library

@@ -182,3 +182,33 @@ def test_a_uniform_cube_of_one_voxel_renders(tmp_path, routes):
     assert np.load(Path(made) / "volume" / "sigma_t.npy").min() == np.float32(30.0)
     assert routes.api(tmp_path / "one.npy", TINY, out="cli") == Path(made)
 
+
+README = Path(__file__).resolve().parents[2] / "README.md"
+
+
+def readme_grid_spec() -> str:
+    """The spec the README shows for a grid of one's own (the toml block of "Your own volume")."""
+    import re
+
+    section = README.read_text().split("**Your own volume.**", 1)[1].split("\n**", 1)[0]
+    blocks = re.findall(r"```toml\n(.*?)```", section, flags=re.S)
+    assert len(blocks) == 1, "README's 'Your own volume' has no toml block, or several"
+    return blocks[0]
+
+
+def test_the_readmes_grid_spec_works_as_written(tmp_path, routes):
+    """The README's block, written beside a grid named as it names it, renders (at a tiny size) that grid."""
+    import tomllib
+
+    text = readme_grid_spec()
+    data = tomllib.loads(text)
+    grid = np.zeros((8, 8, 8), np.float32)
+    grid[2:6, 1:7, 3:5] = 0.75
+    np.save(tmp_path / data["volume"]["params"]["path"], grid)
+    spec = tmp_path / "mine.toml"
+    spec.write_text(text)
+    rc, made, err = routes.cli(spec, {**TINY, "volume.resolution": 8})
+    assert rc == 0, err
+    scale = data["volume"]["sigma_t_scale"]
+    np.testing.assert_array_equal(np.load(Path(made) / "volume" / "sigma_t.npy"), np.float32(scale) * grid)
+    assert Path(made).name.startswith(data["name"] + "-")
