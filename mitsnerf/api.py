@@ -49,20 +49,20 @@ def generate(scene: SceneSpec | PathLike, out: PathLike = "data", *, overrides: 
     or a :class:`~mitsnerf.scene.spec.SceneSpec`) into ``out/NAME-HASH`` and return that directory; a cached
     dataset of the same spec and versions is returned at once (``force``: rendered again).
 
-    ``overrides``: dotted spec fields, as ``--set`` (``{"cameras.width": 32}``); ``nerf_synthetic``: the box at
-    [-1.5, 1.5]^3 and the cameras at radius 4, as ``generate --nerf-synthetic`` (``overrides`` win over it).
+    ``overrides``: dotted spec fields, as ``--set`` (``{"cameras.width": 32}``; for a grid file also the array of an
+    ``.npz``, ``{"volume.params.array": "rho"}``); ``nerf_synthetic``: the box at [-1.5, 1.5]^3 and the cameras at
+    radius 4, as ``generate --nerf-synthetic`` (``overrides`` win over it). A bad spec or grid file raises a
+    :class:`~mitsnerf.errors.SpecError` naming the file before anything is written.
     """
     from mitsnerf.generate import generate_dataset
     from mitsnerf.outputs import check_output_dir
-    from mitsnerf.scene.spec import SceneSpec, grid_scene, is_grid_path, load_scene, nerf_synthetic_overrides
+    from mitsnerf.scene.spec import SceneSpec, nerf_synthetic_overrides, open_scene
 
-    if isinstance(scene, SceneSpec):
-        spec = scene
-    else:
-        spec = grid_scene(scene) if is_grid_path(scene) else load_scene(scene)
     changes = {**(nerf_synthetic_overrides() if nerf_synthetic else {}), **dict(overrides or {})}
-    if changes:
-        spec = spec.with_overrides(changes)
+    if isinstance(scene, SceneSpec):
+        spec = scene.with_overrides(changes) if changes else scene
+    else:
+        spec = open_scene(scene, changes)
     check_output_dir(Path(out), "out")
     return generate_dataset(spec, Path(out), force=force, progress=progress)
 

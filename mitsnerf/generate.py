@@ -38,6 +38,7 @@ import numpy as np
 
 from mitsnerf.config import to_dict
 from mitsnerf.data.cache import clean_temps, dataset_lock, is_complete, sha256_file
+from mitsnerf.data.verify import without_roundoff
 from mitsnerf.math.box import Box
 from mitsnerf.math.camera import Camera
 from mitsnerf.scene import ground_truth
@@ -320,6 +321,7 @@ def _build(tmp: Path, spec: SceneSpec, splits: tuple[str, ...], digest: str, pro
         images[split], medium[split], transmittance[split] = _render(scene, spec, split, cams[split], truth,
                                                                      fallback is None, timings, progress)
         ground_truth.check_views(spec, split, images[split])
+        images[split] = [without_roundoff(view) for view in images[split]]  # what the check let pass as rounding is 0
         _write_split(tmp, spec, split, images[split], cams[split], box)
         _write_split(tmp / MEDIUM_DIR, spec, split, medium[split], cams[split], box, medium=True,
                      seed_split=split if fallback is None else f"{split}_medium")
@@ -356,10 +358,13 @@ def generate_dataset(spec: SceneSpec, out_root: str | os.PathLike, *, force: boo
     hashes); one that fails is said so and rendered again.
     ``splits``: a subset of ``("train", "test", "test_ref")`` (default: all, ``test_ref`` only with
     ``render.noise_floor``); the noise floor is measured when both ``test`` and ``test_ref`` are made.
-    Uses the current Mitsuba variant, else :func:`mitsnerf.env.set_variant`'s default.
+    Uses the current Mitsuba variant, else :func:`mitsnerf.env.set_variant`'s default. The volume's input
+    files are checked first (:meth:`~mitsnerf.scene.spec.VolumeSpec.check_inputs`): a bad one is refused
+    before anything is written.
     """
     from mitsnerf.data.atomic import atomic_dir, atomic_write_json
 
+    spec.volume.check_inputs()
     _ensure_variant()
     splits = _resolve_splits(spec, splits)
     digest = spec.content_hash(hash_extra(splits, spec))

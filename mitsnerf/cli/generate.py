@@ -19,7 +19,7 @@ def run(args) -> int:
     from mitsnerf.errors import UsageError
     from mitsnerf.generate import generate_all, generate_dataset
     from mitsnerf.outputs import check_output_dir
-    from mitsnerf.scene.spec import grid_scene, is_grid_path, load_scene
+    from mitsnerf.scene.spec import open_scene
 
     if not args.all and not args.scene:
         raise UsageError("generate", "name a SCENE or pass --all")
@@ -30,9 +30,7 @@ def run(args) -> int:
                                  verify_hashes=not args.no_verify, progress=not args.no_progress):
             print(path)
         return 0
-    spec = grid_scene(args.scene) if is_grid_path(args.scene) else load_scene(args.scene)
-    if overrides:
-        spec = spec.with_overrides(overrides)
+    spec = open_scene(args.scene, overrides)
     print(generate_dataset(spec, Path(args.out), force=args.force, verify_hashes=not args.no_verify,
                            progress=not args.no_progress))
     return 0
@@ -40,9 +38,11 @@ def run(args) -> int:
 
 def add_parser(sub) -> None:
     p = sub.add_parser("generate", help="render a scene's ground-truth dataset with Mitsuba's volpath")
-    p.add_argument("scene", nargs="?", help="a scene name (mitsnerf scenes lists them), the path of a spec, or a grid "
-                                            "file (.npy/.npz [z, y, x] or Mitsuba .vol): the cloud scene with that "
-                                            "medium, at the grid's resolution (--set volume.sigma_t_scale=...)")
+    p.add_argument("scene", nargs="?", help="a scene name (mitsnerf scenes lists them), the path of a spec (which may "
+                                            "start from a scene: extends = \"cloud\"), or a grid file (.npy/.npz "
+                                            "[z, y, x] or Mitsuba .vol): the cloud scene with that medium, at the "
+                                            "grid's resolution (--set volume.sigma_t_scale=..., --set "
+                                            "volume.params.array=NAME for an .npz of several arrays)")
     p.add_argument("--scenes", action="append", metavar="DIR", help=SCENES_HELP)
     p.add_argument("--out", default="data", help="dataset root; the dataset goes to OUT/NAME-HASH (default: data)")
     p.add_argument("--all", action="store_true", help="render every scene of the library and of --scenes")

@@ -25,6 +25,7 @@ import pytest
 from mitsnerf import generate as gen
 from mitsnerf import scoring
 from mitsnerf.data.images import read_exr
+from mitsnerf.errors import SpecError
 from mitsnerf.scene import render as scene_render
 from mitsnerf.scene import transmittance as tr
 from mitsnerf.scene.render import medium_alone_integrator, render_split
@@ -283,3 +284,26 @@ def test_a_chromatic_medium_is_composed_per_channel_and_agrees_with_direct_rende
                     for k in range(3)], axis=-1)
     grey = [np.concatenate([c[..., :3] + (t_grey[..., None] - t_k) * bg, c[..., 3:]], axis=-1) for c in composed]
     assert not all(c["passed"] for c in _agree_per_channel(*grey, *direct_renders))
+
+
+def test_round_off_below_zero_is_no_negative_radiance_but_a_real_negative_is():
+    """A 1x1x1 grid fills the box: a pixel whose every sample collided (alpha 1, M 0) sees the constant sky of
+    0.6 through T = 3.3e-7, and is 0 exactly; float32 pixel means leave it 8e-15 below. That is float32
+    rounding at the view's scale (its peak 0.6): passed and written as 0. A value below 0 by more stays refused."""
+    from mitsnerf.data import verify
+    from mitsnerf.scene.ground_truth import check_views
+
+    sky = float(np.float32(0.6))
+    medium = [np.array([[[5.7263066e-23] * 3 + [1.0], [0.0, 0.0, 0.0, 0.0]]], np.float32)]
+    seen = tr.PixelTransmittance(np.array([[[3.306799101210345e-07, 1.0]]]),
+                                 np.array([[[[1.984079460726207e-07] * 3, [sky] * 3]]]), np.full((1, 1, 2, 3), sky))
+    image = scene_render.compose(medium, seen, has_environment=True)[0]
+    assert -1e-14 < image[0, 0, :3].min() < 0 and image[0, 1, :3].min() == np.float32(sky)  # the case itself
+    spec = parse_scene(TINY, "t.toml")
+    check_views(spec, "test", [image])
+    assert verify.without_roundoff(image)[0, 0, :3].tolist() == [0.0, 0.0, 0.0]
+    for wrong in (-1e-5, -1e-3):  # a negative medium radiance, not rounding at a peak of 0.6
+        bad = scene_render.compose([np.array([[[wrong, 0, 0, 1.0], [0, 0, 0, 0]]], np.float32)], seen, True)[0]
+        assert verify.without_roundoff(bad)[0, 0, 0] < 0
+        with pytest.raises(SpecError, match="1 negative radiance value"):
+            check_views(spec, "test", [bad])
