@@ -142,16 +142,16 @@ def evaluate(run: PathLike, *, footprint: int | None = None) -> dict[str, Any]:
     and score them: the scores ``metrics.json`` holds, recomputed from the saved parameters."""
     from dataclasses import replace
 
-    from mitsnerf import scoring
     from mitsnerf.config import from_dict
     from mitsnerf.runs.fit import load_run, score_model
+    from mitsnerf.scoring.reference import load_reference
     from mitsnerf.train.evaluate import EvalConfig
 
     model, dataset, config = load_run(Path(run))
     eval_config = from_dict(EvalConfig, dict(config.get("eval") or {}), source=Path(run) / "config.json")
     if footprint is not None:
         eval_config = replace(eval_config, footprint=from_dict(EvalConfig, {"footprint": footprint}).footprint)
-    scores, _, _, _ = score_model(model, scoring.reference(dataset, "test"), eval_config)
+    scores, _, _, _ = score_model(model, load_reference(dataset, "test"), eval_config)
     return scores
 
 

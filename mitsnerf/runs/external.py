@@ -43,7 +43,7 @@ scores at the renders' footprint (1: one ray through each pixel centre, what mos
 default settings is taken. None cached: "no oracle".
 
 **Noise floor** (``noise_floor_*`` of the metrics, ``noise_floor_of`` says which): renders that are
-all PNG are held against the floor of their format, :func:`mitsnerf.scoring.png_noise_floor` (the
+all PNG are held against the floor of their format, :func:`mitsnerf.scoring.images.png_noise_floor` (the
 second ground-truth render quantised to 8-bit sRGB: the dataset's own ``test_ref`` scores exactly
 it as PNG), others against the manifest's.
 """
@@ -58,12 +58,15 @@ from typing import Any
 
 import numpy as np
 
-from mitsnerf import scoring
 from mitsnerf.data.dataset import Dataset
 from mitsnerf.data.images import ALPHA_ATTRIBUTE, over, read_exr_alpha, read_image
 from mitsnerf.errors import DatasetError, UsageError
 from mitsnerf.math.box import Box
 from mitsnerf.math.color import srgb_to_linear
+from mitsnerf.scoring.density import true_density
+from mitsnerf.scoring.images import png_noise_floor
+from mitsnerf.scoring.reference import Reference, load_reference
+from mitsnerf.scoring.views import score_views
 
 FORMATS = ("png", "exr")
 #: How an EXR render's alpha is applied (module docstring).
@@ -260,10 +263,10 @@ EXR_FLOOR = "linear float: test_ref against test (the manifest's)"
 
 
 def _floor_of_format(
-    dataset: Dataset, ref: scoring.Reference, paths: Sequence[Path]
-) -> tuple[scoring.Reference, str | None]:
+    dataset: Dataset, ref: Reference, paths: Sequence[Path]
+) -> tuple[Reference, str | None]:
     """``ref`` with the noise floor of the renders' format, and what that floor is: renders that are all PNG
-    are held against :func:`mitsnerf.scoring.png_noise_floor` (8-bit quantisation costs dB no tool can win
+    are held against :func:`mitsnerf.scoring.images.png_noise_floor` (8-bit quantisation costs dB no tool can win
     back), others against the manifest's floor; ``(ref, None)`` without a floor."""
     import dataclasses
 
@@ -271,7 +274,7 @@ def _floor_of_format(
         return ref, None
     if ref.masks is None or "test_ref" not in dataset.splits or any(p.suffix.lower() != ".png" for p in paths):
         return ref, EXR_FLOOR
-    floor = scoring.png_noise_floor(ref.images, dataset.views("test_ref").images, ref.masks)
+    floor = png_noise_floor(ref.images, dataset.views("test_ref").images, ref.masks)
     return dataclasses.replace(ref, noise_floor=floor), PNG_FLOOR
 
 
@@ -289,7 +292,7 @@ class ExternalScore:
     renders: np.ndarray
     """(V, H, W, 3) linear, as scored."""
     slices: dict
-    reference: scoring.Reference
+    reference: Reference
     """What they were scored against (the test views, their medium masks)."""
     oracle_used: Any = None
     """The :class:`mitsnerf.oracle.cache.Oracle` whose scores are in ``metrics`` (None: no oracle)."""
@@ -307,7 +310,7 @@ def score_renders(dataset: Dataset, folder: Path, *, density: Path | None = None
                   fmt: str | None = None, footprint: int = 1, oracle=None,
                   exr_alpha: str | None = None) -> ExternalScore:
     """Score the renders in ``folder`` against ``dataset``'s test views: the metrics of a benchmark
-    cell (:func:`mitsnerf.scoring.score_views`), with the oracle's at ``footprint`` (``oracle``, else
+    cell (:func:`mitsnerf.scoring.views.score_views`), with the oracle's at ``footprint`` (``oracle``, else
     :func:`read_oracle`'s) where there is one."""
     if fmt is not None and fmt not in FORMATS:
         raise UsageError("--format", f"must be one of {', '.join(FORMATS)}, got {fmt!r}")
@@ -320,9 +323,9 @@ def score_renders(dataset: Dataset, folder: Path, *, density: Path | None = None
         oracle, oracle_source = read_oracle(dataset, footprint)
     else:
         oracle_source = f"oracle {oracle.path} at footprint {footprint}"
-    ref, floor_of = _floor_of_format(dataset, scoring.reference(dataset, "test"), paths)
-    fn = None if grid is None else scoring.true_density(grid, dataset.box)
-    metrics, slices = scoring.score_views(images, ref, fn, oracle=None if oracle is None else oracle.metrics(footprint))
+    ref, floor_of = _floor_of_format(dataset, load_reference(dataset, "test"), paths)
+    fn = None if grid is None else true_density(grid, dataset.box)
+    metrics, slices = score_views(images, ref, fn, oracle=None if oracle is None else oracle.metrics(footprint))
     metrics["noise_floor_of"] = floor_of
     if fn is None and ref.sigma_t is not None:
         metrics["density_note"] = "no density grid given (--density)"
