@@ -156,11 +156,14 @@ def evaluate(run: PathLike, *, footprint: int | None = None) -> dict[str, Any]:
 
 
 def score(dataset: Dataset | PathLike, renders: PathLike, *, density: PathLike | None = None,
-          name: str | None = None, footprint: int = 1, format: str | None = None,  # noqa: A002 (the CLI's word)
+          name: str | None = None, footprint: int | None = None,
+          format: str | None = None,  # noqa: A002 (the CLI's word)
           exr_alpha: str | None = None) -> dict[str, Any]:
     """Score a folder of renders of ``dataset``'s test views (or a run directory's ``test/``), as ``mitsnerf
     score``: the metrics of a bench cell, with the oracle where the dataset has one cached, and with
-    ``density`` (a ``.npy``/``.vol`` grid of sigma_t over the dataset's box) the density errors."""
+    ``density`` (a ``.npy``/``.vol`` grid of sigma_t over the dataset's box) the density errors. A run
+    directory gives the run's own figures (its footprint, its density scores; ``footprint`` and ``density``
+    override them)."""
     from mitsnerf.runs.external import score_renders
 
     result = score_renders(_open(dataset), Path(renders), density=Path(density) if density is not None else None,

@@ -156,3 +156,26 @@ def test_a_timings_file_fills_the_budget_and_cost_columns(tiny_bench, tmp_path):
     timings.unlink()
     with pytest.raises(SpecError, match=r"ext.toml: external.0.timings.tcloud: .*timings.json: timings file not found"):
         run_benchmark(parse_bench_config(raw, tmp_path / "ext.toml"), options("ext-cost"))
+
+
+def test_score_of_a_cells_run_gives_the_cells_own_figures(tiny_bench, tmp_path, capsys):
+    """``mitsnerf score DATASET CELL/run`` prints and writes what the benchmark does for that cell: the same
+    renders held against the same oracle at the run's footprint (3, not the folder default 1), the row named
+    after the run's method, and the density scores of its model (which the renders alone cannot give)."""
+    from mitsnerf.cli import main
+
+    config, options = tiny_bench
+    opts = options("ext")
+    plain = _with_external(config, [], tmp_path)
+    result = run_benchmark(plain, dataclasses.replace(opts, report=False))
+    (cell,) = plan_cells(plain, opts)
+    record = next(r for r in result.records if r["key"] == cell.key)
+    assert main(["score", record["dataset"], str(cell.path / "run"), "--out", str(tmp_path / "s.json")]) == 0
+    out = capsys.readouterr().out
+    scored, bench = json.loads((tmp_path / "s.json").read_text())["metrics"], record["metrics"]
+    assert bench["footprint"] == 3 and bench["density_rel_l1"] is not None and bench["oracle_psnr_test_medium"]
+    for key in ("footprint", "psnr_test", "psnr_test_medium", "oracle_psnr_test_medium", "gap_to_oracle",
+                "noise_floor_psnr_medium", "density_rel_l1", "density_rel_mass", "tau_rel_l1", "transmittance_mae",
+                "psnr_train"):
+        assert scored[key] == bench[key], key
+    assert f"| tcloud | {cell.method} | 1 |" in out and "(external)" not in out
