@@ -163,7 +163,7 @@ def score(dataset: Dataset | PathLike, renders: PathLike, *, density: PathLike |
     score``: the metrics of a bench cell, with the oracle where the dataset has one cached, and with
     ``density`` (a ``.npy``/``.vol`` grid of sigma_t over the dataset's box) the density errors. A run
     directory gives the run's own figures (its footprint, its density scores; ``footprint`` and ``density``
-    override them)."""
+    override them); one trained on another dataset is a :class:`~mitsnerf.errors.UsageError`."""
     from mitsnerf.runs.external import score_renders
 
     result = score_renders(_open(dataset), Path(renders), density=Path(density) if density is not None else None,

@@ -46,7 +46,8 @@ def add_parser(sub) -> None:
                                    "mitsnerf:alpha says (--exr-alpha to say otherwise). A run directory (mitsnerf "
                                    "train --out, a benchmark cell's run) stands for its test/ renders and gives the "
                                    "run's own figures: its footprint, its method's name and the density scores of "
-                                   "its metrics.json (--footprint, --name, --density override them).")
+                                   "its metrics.json (--footprint, --name, --density override them); a run trained "
+                                   "on another dataset is refused.")
     p.add_argument("dataset", help="dataset directory (mitsnerf generate output, NeRF-synthetic or instant-ngp)")
     p.add_argument("renders", help="folder of the renders of the test views, or a run directory (its test/)")
     p.add_argument(

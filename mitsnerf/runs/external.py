@@ -18,8 +18,10 @@ must have the test frame's size and finite values.
 is scored as its own evaluation scored them: at its footprint (``config.json``'s ``eval.footprint``), named
 after its method, with the density figures of its ``metrics.json`` (what its model's density scored, the
 figures the benchmark shows), unless ``footprint``, ``name`` or ``density`` say otherwise; its oracle is the
-cached one whose medium PSNR the run recorded, where there is one. Where one stem has both an ``.exr`` that
-says its alpha (mitsnerf's) and a ``.png`` (its sRGB preview), the EXR is scored.
+cached one whose medium PSNR the run recorded, where there is one. A run trained on another dataset is
+refused (:func:`mitsnerf.runs.fit.check_same_dataset`: the same manifest hash, else the same path), before
+anything is read. Where one stem has both an ``.exr`` that says its alpha (mitsnerf's) and a ``.png`` (its sRGB
+preview), the EXR is scored.
 
 **Matching** (:func:`match_renders`), against the test frames' names (``r_000``, ...):
 
@@ -366,6 +368,10 @@ class ExternalScore:
         return self.name if self.run is not None else f"{self.name} (external)"
 
 
+#: What a run scored against another dataset than it trained on is told to do instead.
+SCORE_ELSEWHERE = "score it against the dataset it trained on"
+
+
 def score_renders(dataset: Dataset, folder: Path, *, density: Path | None = None, name: str | None = None,
                   fmt: str | None = None, footprint: int | None = None, oracle=None, exr_alpha: str | None = None,
                   reference: Reference | None = None) -> ExternalScore:
@@ -379,6 +385,10 @@ def score_renders(dataset: Dataset, folder: Path, *, density: Path | None = None
     if footprint is not None and footprint < 1:
         raise UsageError("--footprint", f"must be >= 1, got {footprint}")
     run = read_run(Path(folder))
+    if run is not None:
+        from mitsnerf.runs.fit import check_same_dataset
+
+        check_same_dataset(run.config, dataset, run.path, "score", SCORE_ELSEWHERE)
     k = footprint if footprint is not None else run.footprint if run is not None else 1
     folder = renders_folder(Path(folder))
     grid = read_density(density, dataset.box) if density is not None else None  # bad input before the work

@@ -148,9 +148,16 @@ def _check_resumable(saved: Mapping[str, Any], current: Mapping[str, Any], where
                                                       f"only {', '.join(RESUMABLE_CHANGES)} may change on resume")
 
 
-def _check_same_dataset(saved: Mapping[str, Any], dataset: Dataset, run_dir: Path) -> None:
-    """Refuse to resume the run in ``run_dir`` (config ``saved``) on another dataset than it trained on:
-    the same manifest ``hash`` where both have one (a moved dataset is the same), else the same path."""
+#: What :func:`check_same_dataset` tells a resume on another dataset to do instead.
+RESUME_ELSEWHERE = "resume it on its own dataset (leave DATASET out), or train a new run elsewhere"
+
+
+def check_same_dataset(saved: Mapping[str, Any], dataset: Dataset, run_dir: Path, option: str = "--resume",
+                       advice: str = RESUME_ELSEWHERE) -> None:
+    """Refuse to use the run in ``run_dir`` (config ``saved``) with another dataset than it trained on (to resume
+    it, to score its renders): the same manifest ``hash`` where both have one (a moved dataset is the same),
+    else the same path. A :class:`~mitsnerf.errors.UsageError` of ``option`` naming the run, both datasets and
+    ``advice``."""
     was, was_hash = saved.get("dataset"), saved.get("dataset_hash")
     now, now_hash = str(Path(dataset.root).resolve()), (dataset.manifest or {}).get("hash")
     same = was_hash == now_hash if (was_hash and now_hash) else was == now
@@ -158,11 +165,8 @@ def _check_same_dataset(saved: Mapping[str, Any], dataset: Dataset, run_dir: Pat
         def tag(h: str | None) -> str:
             return f" (manifest hash {h[:12]})" if h else ""
 
-        raise UsageError(
-            "--resume",
-            f"the run in {run_dir} trained on {was}{tag(was_hash)}, not on {now}{tag(now_hash)}; "
-            "resume it on its own dataset (leave DATASET out), or train a new run elsewhere",
-        )
+        raise UsageError(option, f"the run in {run_dir} trained on {was}{tag(was_hash)}, not on {now}{tag(now_hash)}; "
+                                 f"{advice}")
 
 
 def run_method(config: Mapping[str, Any], where: Path) -> str:
@@ -401,7 +405,7 @@ def resume_run(run_dir: Path, train_overrides: Mapping[str, Any] | None = None, 
     if dataset is None:
         dataset = open_dataset(ckpt.config, path)
         verify_dataset(dataset, hashes=verify_hashes)
-    _check_same_dataset(ckpt.config, dataset, run_dir)
+    check_same_dataset(ckpt.config, dataset, run_dir)
     return fit(dataset, method, ckpt.config.get("method_config"), train_config, run_dir,
                eval_config=eval_config, progress=progress, resume=True,
                deterministic=bool(ckpt.config.get("deterministic")))

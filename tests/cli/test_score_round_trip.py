@@ -5,6 +5,7 @@ composited a second time."""
 from __future__ import annotations
 
 import json
+import shutil
 
 import pytest
 
@@ -80,3 +81,33 @@ def test_a_run_gives_its_own_figures_unless_told_otherwise(world, tmp_path, caps
     assert told["footprint"] == 1 and told["density_rel_l1"] == pytest.approx(0.0, abs=1e-6)
     assert "| tiny | mine | 1 |" in out
 
+
+@pytest.fixture(scope="module")
+def other(world, tmp_path_factory):
+    """Another tiny dataset with the same cameras: the world's spec with another cloud (volume seed 2)."""
+    root = tmp_path_factory.mktemp("other")
+    spec = root / "tiny.toml"
+    spec.write_text(world.spec.read_text().replace("seed = 1", "seed = 2", 1))
+    assert main(["generate", str(spec), "--out", str(root / "data")]) == 0
+    (dataset,) = [p for p in (root / "data").iterdir() if p.name.startswith("tiny-")]
+    return dataset
+
+
+def test_a_run_of_another_dataset_is_refused(world, other, tmp_path, capsys):
+    """Same cameras, another medium: one line naming the run and both datasets, exit 2, nothing written (the
+    API: a UsageError); the run's own dataset moved elsewhere (the same manifest hash) is still its own."""
+    from mitsnerf import api
+    from mitsnerf.errors import UsageError
+
+    capsys.readouterr()
+    for out in ([], ["--out", str(tmp_path / "s.json")]):
+        status = main(["score", str(other), str(world.run), *out])
+        err = capsys.readouterr().err
+        assert status == 2 and err.count("\n") == 1, err
+        assert f"the run in {world.run} trained on {world.dataset.resolve()}" in err and str(other.resolve()) in err
+    assert not (tmp_path / "s.json").exists() and not (world.run / "test" / "scores.json").exists()
+    with pytest.raises(UsageError, match=f"score: the run in {world.run} trained on"):
+        api.score(other, world.run)
+    moved = tmp_path / "moved"
+    shutil.copytree(world.dataset, moved)
+    assert main(["score", str(moved), str(world.run), "--out", str(tmp_path / "m.json")]) == 0
