@@ -179,3 +179,22 @@ def test_score_of_a_cells_run_gives_the_cells_own_figures(tiny_bench, tmp_path, 
                 "psnr_train"):
         assert scored[key] == bench[key], key
     assert f"| tcloud | {cell.method} | 1 |" in out and "(external)" not in out
+
+
+def test_a_scene_loads_its_reference_once_and_its_oracle_is_scored_against_it(tiny_bench, tmp_path, monkeypatch):
+    """A cell whose dataset has no oracle cached yet computes it against the reference the cell is scored
+    against: the scene's test views are loaded as a reference once, not once more inside the oracle."""
+    import mitsnerf.scoring.reference as reference
+    from mitsnerf.generate import generate_dataset
+    from mitsnerf.scene.spec import parse_scene
+
+    config, options = tiny_bench
+    (cell,) = plan_cells(_with_external(config, [], tmp_path),
+                         dataclasses.replace(options("once"), data_root=tmp_path / "data"))
+    generate_dataset(parse_scene(dict(cell.spec), "tcloud"), Path(cell.data_root), progress=False)
+    loads = []
+    real = reference.load_reference
+    monkeypatch.setattr(reference, "load_reference", lambda *a, **k: loads.append(a) or real(*a, **k))
+    _, oracle, ref = worker.SceneLoads().scene(cell, progress=False)
+    assert oracle is not None and len(loads) == 1
+    assert oracle.metrics(3)["noise_floor_psnr_medium"] == ref.noise_floor["psnr_medium"]
