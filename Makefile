@@ -19,9 +19,9 @@ $(STAMP): pyproject.toml scripts/ensure_llvm.sh Makefile
 bench: setup
 	$(VENV)/bin/mitsnerf bench $(ARGS)
 
-# ruff and mypy on the package first (pyproject.toml configures both), then the tests.
+# ruff on the package, its examples and benchmarks, mypy on the package (pyproject.toml configures both), then the tests.
 lint: setup
-	$(PY) -m ruff check mitsnerf
+	$(PY) -m ruff check mitsnerf examples benchmarks
 	$(PY) -m mypy
 
 test: lint

@@ -66,15 +66,15 @@ def variant(method: str, name: str, settings: dict, clean_spp: int = CLEAN_SPP) 
 
 
 def run_one(method: str, name: str, s: dict, data_root: Path, scene: str) -> dict:
-    from mitsnerf import scoring
     from mitsnerf.config import from_dict
     from mitsnerf.data.dataset import load_dataset
-    from mitsnerf.train.evaluate import EvalConfig
     from mitsnerf.generate import generate_dataset
     from mitsnerf.oracle.cache import OracleConfig, ensure_oracle
     from mitsnerf.runs.fit import fit
     from mitsnerf.scene.spec import load_scene
+    from mitsnerf.scoring.reference import load_reference
     from mitsnerf.train import TrainConfig
+    from mitsnerf.train.evaluate import EvalConfig
 
     spec = load_scene(scene)
     if s.get("spec"):
@@ -84,7 +84,7 @@ def run_one(method: str, name: str, s: dict, data_root: Path, scene: str) -> dic
     found = ensure_oracle(dataset, OracleConfig(), evalc.footprint)
     oracle = found.metrics(evalc.footprint) if found is not None else None
     run = fit(dataset, method, s["config"], from_dict(TrainConfig, s["train"]), None, eval_config=evalc,
-              progress=False, reference=scoring.reference(dataset, "test"), oracle=oracle)
+              progress=False, reference=load_reference(dataset, "test"), oracle=oracle)
     m = run.metrics()
     return {"method": method, "variant": name, "spp_train": spec.render.spp_train, "steps": m["steps"],
             "footprint": m["footprint"],

@@ -51,13 +51,13 @@ def settings(name: str, steps: int, combos: dict) -> dict:
 
 
 def run_one(name: str, config: dict, steps: int, data_root: Path, scene: str) -> dict:
-    from mitsnerf import scoring
     from mitsnerf.bench.config import load_bench_config
     from mitsnerf.config import from_dict, to_dict
     from mitsnerf.data.dataset import load_dataset
     from mitsnerf.generate import generate_dataset
     from mitsnerf.runs.fit import fit
     from mitsnerf.scene.spec import load_scene
+    from mitsnerf.scoring.reference import load_reference
     from mitsnerf.train import TrainConfig
     from mitsnerf.train.evaluate import EvalConfig
 
@@ -67,7 +67,7 @@ def run_one(name: str, config: dict, steps: int, data_root: Path, scene: str) ->
     dataset = load_dataset(generate_dataset(load_scene(scene), data_root))
     run = fit(dataset, "mitsuba-inverse", {**base, **config}, from_dict(TrainConfig, {**train, "steps": steps}),
               None, eval_config=from_dict(EvalConfig, to_dict(bench.eval)), progress=False,
-              reference=scoring.reference(dataset, "test"))
+              reference=load_reference(dataset, "test"))
     m = run.metrics()
     keys = ("psnr_test_medium", "psnr_test", "density_rel_l1", "density_rel_mass", "transmittance_mae",
             "train_seconds", "psnr_train")

@@ -142,25 +142,28 @@ def evaluate(run: PathLike, *, footprint: int | None = None) -> dict[str, Any]:
     and score them: the scores ``metrics.json`` holds, recomputed from the saved parameters."""
     from dataclasses import replace
 
-    from mitsnerf import scoring
     from mitsnerf.config import from_dict
     from mitsnerf.runs.fit import load_run, score_model
+    from mitsnerf.scoring.reference import load_reference
     from mitsnerf.train.evaluate import EvalConfig
 
     model, dataset, config = load_run(Path(run))
     eval_config = from_dict(EvalConfig, dict(config.get("eval") or {}), source=Path(run) / "config.json")
     if footprint is not None:
         eval_config = replace(eval_config, footprint=from_dict(EvalConfig, {"footprint": footprint}).footprint)
-    scores, _, _, _ = score_model(model, scoring.reference(dataset, "test"), eval_config)
+    scores, _, _, _ = score_model(model, load_reference(dataset, "test"), eval_config)
     return scores
 
 
 def score(dataset: Dataset | PathLike, renders: PathLike, *, density: PathLike | None = None,
-          name: str | None = None, footprint: int = 1, format: str | None = None,  # noqa: A002 (the CLI's word)
+          name: str | None = None, footprint: int | None = None,
+          format: str | None = None,  # noqa: A002 (the CLI's word)
           exr_alpha: str | None = None) -> dict[str, Any]:
     """Score a folder of renders of ``dataset``'s test views (or a run directory's ``test/``), as ``mitsnerf
     score``: the metrics of a bench cell, with the oracle where the dataset has one cached, and with
-    ``density`` (a ``.npy``/``.vol`` grid of sigma_t over the dataset's box) the density errors."""
+    ``density`` (a ``.npy``/``.vol`` grid of sigma_t over the dataset's box) the density errors. A run
+    directory gives the run's own figures (its footprint, its density scores; ``footprint`` and ``density``
+    override them); one trained on another dataset is a :class:`~mitsnerf.errors.UsageError`."""
     from mitsnerf.runs.external import score_renders
 
     result = score_renders(_open(dataset), Path(renders), density=Path(density) if density is not None else None,

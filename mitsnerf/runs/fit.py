@@ -22,7 +22,7 @@ from typing import Any
 
 import numpy as np
 
-from mitsnerf import env, scoring
+from mitsnerf import env
 from mitsnerf.config import from_dict, to_dict
 from mitsnerf.data.arrays import read_npz
 from mitsnerf.data.atomic import atomic_dir, atomic_write_json
@@ -37,6 +37,9 @@ from mitsnerf.methods.base import HasField, Model, ParameterShapeError, SceneInf
 from mitsnerf.render.background import make_background
 from mitsnerf.render.camera import Rendered
 from mitsnerf.runs.directory import RUN_FILES, remove_run_files
+from mitsnerf.scoring.images import image_scores
+from mitsnerf.scoring.reference import Reference, load_reference
+from mitsnerf.scoring.views import score_views
 from mitsnerf.train import PixelData, TrainConfig, TrainResult, TrainState, make_optimizer, train
 from mitsnerf.train.checkpoint import CHECKPOINT_FILE, Checkpointer, load_checkpoint, restore_optimizer
 from mitsnerf.train.checkpointing import interrupted_message
@@ -52,7 +55,7 @@ class RunResult:
     (what ``config.json`` holds)."""
     train: TrainResult
     scores: dict
-    """:func:`mitsnerf.scoring.score_views` of the test views, plus ``psnr_train``."""
+    """:func:`mitsnerf.scoring.views.score_views` of the test views, plus ``psnr_train``."""
     renders: list[Rendered]
     slices: dict
     """Central slices of the true and learned density (for the report)."""
@@ -145,9 +148,16 @@ def _check_resumable(saved: Mapping[str, Any], current: Mapping[str, Any], where
                                                       f"only {', '.join(RESUMABLE_CHANGES)} may change on resume")
 
 
-def _check_same_dataset(saved: Mapping[str, Any], dataset: Dataset, run_dir: Path) -> None:
-    """Refuse to resume the run in ``run_dir`` (config ``saved``) on another dataset than it trained on:
-    the same manifest ``hash`` where both have one (a moved dataset is the same), else the same path."""
+#: What :func:`check_same_dataset` tells a resume on another dataset to do instead.
+RESUME_ELSEWHERE = "resume it on its own dataset (leave DATASET out), or train a new run elsewhere"
+
+
+def check_same_dataset(saved: Mapping[str, Any], dataset: Dataset, run_dir: Path, option: str = "--resume",
+                       advice: str = RESUME_ELSEWHERE) -> None:
+    """Refuse to use the run in ``run_dir`` (config ``saved``) with another dataset than it trained on (to resume
+    it, to score its renders): the same manifest ``hash`` where both have one (a moved dataset is the same),
+    else the same path. A :class:`~mitsnerf.errors.UsageError` of ``option`` naming the run, both datasets and
+    ``advice``."""
     was, was_hash = saved.get("dataset"), saved.get("dataset_hash")
     now, now_hash = str(Path(dataset.root).resolve()), (dataset.manifest or {}).get("hash")
     same = was_hash == now_hash if (was_hash and now_hash) else was == now
@@ -155,11 +165,8 @@ def _check_same_dataset(saved: Mapping[str, Any], dataset: Dataset, run_dir: Pat
         def tag(h: str | None) -> str:
             return f" (manifest hash {h[:12]})" if h else ""
 
-        raise UsageError(
-            "--resume",
-            f"the run in {run_dir} trained on {was}{tag(was_hash)}, not on {now}{tag(now_hash)}; "
-            "resume it on its own dataset (leave DATASET out), or train a new run elsewhere",
-        )
+        raise UsageError(option, f"the run in {run_dir} trained on {was}{tag(was_hash)}, not on {now}{tag(now_hash)}; "
+                                 f"{advice}")
 
 
 def run_method(config: Mapping[str, Any], where: Path) -> str:
@@ -233,13 +240,13 @@ def fit(
     progress: bool = True,
     resume: bool = False,
     on_log: Callable[[dict, Model], None] | None = None,
-    reference: scoring.Reference | None = None,
+    reference: Reference | None = None,
     oracle: dict | None = None,
     deterministic: bool = False,
 ) -> RunResult:
     """Train ``method`` on ``dataset``, then render and score every test view.
 
-    ``reference``: the test views' :class:`mitsnerf.scoring.Reference` if the caller has it
+    ``reference``: the test views' :class:`mitsnerf.scoring.reference.Reference` if the caller has it
     (else built here); ``oracle``: the oracle's test metrics at the same footprint, for the
     error budget. With ``out_dir``, checkpoints go to ``out_dir/checkpoint.npz`` (a fresh run
     first removes an old run's files there, :func:`mitsnerf.runs.directory.remove_run_files`); ``resume=True``
@@ -254,7 +261,7 @@ def fit(
     """
     refuse_nondeterministic(deterministic)  # before _start empties or reads the run directory
     train_views = dataset.views("train")
-    ref = reference or scoring.reference(dataset, "test")
+    ref = reference or load_reference(dataset, "test")
     model, config = build_model(method, method_overrides, scene_info(dataset, train_views.images), train_config.seed)
     run_config = {"method": method, "method_config": to_dict(config), "train": to_dict(train_config),
                   "eval": to_dict(eval_config), "deterministic": bool(deterministic), **dataset_config(dataset)}
@@ -288,30 +295,28 @@ def fit(
     return run
 
 
-def score_model(model: Model, ref: scoring.Reference, eval_config: EvalConfig,
+def score_model(model: Model, ref: Reference, eval_config: EvalConfig,
                 oracle: dict | None = None) -> tuple[dict, list[Rendered], dict, float]:
     """Render ``ref``'s views with the footprint of ``eval_config`` and score them (the density too, where the
     model has a queryable one): ``(scores, renders, density slices, render seconds)``."""
     renders, seconds = render_views(model, ref.cameras, pixel_center=ref.pixel_center, footprint=eval_config.footprint)
     field = model.field() if isinstance(model, HasField) else None
     density = field.density if isinstance(field, DensityField) else None
-    scores, slices = scoring.score_views(stack_rgb(renders), ref, density, oracle=oracle,
-                                         density_resolution=eval_config.density_resolution,
-                                         od_samples=eval_config.od_samples)
+    scores, slices = score_views(stack_rgb(renders), ref, density, oracle=oracle,
+                                 density_resolution=eval_config.density_resolution,
+                                 od_samples=eval_config.od_samples)
     return scores, renders, slices, seconds
 
 
 def evaluate_run(model: Model, method: str, run_config: dict, result: TrainResult, dataset: Dataset,
-                 ref: scoring.Reference, eval_config: EvalConfig, oracle: dict | None) -> RunResult:
+                 ref: Reference, eval_config: EvalConfig, oracle: dict | None) -> RunResult:
     """Render the test views (and a few training views) with the run's footprint and score them."""
     k = eval_config.footprint
     scores, renders, slices, seconds = score_model(model, ref, eval_config, oracle)
     train_views = dataset.views("train")
     n = min(eval_config.train_eval_views, len(train_views.cameras))
     train_renders, _ = render_views(model, train_views.cameras[:n], pixel_center=train_views.pixel_center, footprint=k)
-    scores["psnr_train"] = scoring.image_scores(stack_rgb(train_renders), train_views.images[:n], with_ssim=False)[
-        "psnr_test"
-    ]
+    scores["psnr_train"] = image_scores(stack_rgb(train_renders), train_views.images[:n], with_ssim=False)["psnr_test"]
     return RunResult(method, run_config, result, scores, renders, slices, num_parameters(model.parameters()),
                      seconds, model)
 
@@ -404,7 +409,7 @@ def resume_run(run_dir: Path, train_overrides: Mapping[str, Any] | None = None, 
     if dataset is None:
         dataset = open_dataset(ckpt.config, path)
         verify_dataset(dataset, hashes=verify_hashes)
-    _check_same_dataset(ckpt.config, dataset, run_dir)
+    check_same_dataset(ckpt.config, dataset, run_dir)
     return fit(dataset, method, ckpt.config.get("method_config"), train_config, run_dir,
                eval_config=eval_config, progress=progress, resume=True,
                deterministic=bool(ckpt.config.get("deterministic")))
