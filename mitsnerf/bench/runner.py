@@ -21,7 +21,6 @@ cell trains (:mod:`mitsnerf.bench.external`), and appear in every output as ``NA
 
 from __future__ import annotations
 
-import os
 import sys
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -59,19 +58,20 @@ from mitsnerf.bench.tables import (
 )
 from mitsnerf.config import from_dict, to_dict
 from mitsnerf.data.atomic import atomic_write_json, atomic_write_text
-from mitsnerf.errors import SpecError, signal_cause
+from mitsnerf.errors import CLI, SpecError, Words, signal_cause
+from mitsnerf.outputs import data_cache
 
-DATA_ENV = "MITSNERF_DATA"
 
-
-def default_data_root() -> Path:
-    return Path(os.environ.get(DATA_ENV) or "data")
+def _cache_dir() -> Path:
+    return data_cache()[0]
 
 
 @dataclass(frozen=True)
 class BenchOptions:
     quick: bool = False
-    data_root: Path = Path("data")
+    data_root: Path = field(default_factory=_cache_dir)
+    """Where the datasets and their oracles are cached (default :func:`mitsnerf.outputs.data_cache`: the user's
+    cache directory, shared by every working directory)."""
     results_root: Path = Path("results")
     progress: bool = True
     executor: str = "sequential"
@@ -90,6 +90,8 @@ class BenchOptions:
     """Write the plots and the HTML report (tables are always written)."""
     verify_hashes: bool = True
     """Check a cached dataset's files against its manifest's sha256 hashes (``--no-verify``: not)."""
+    words: Words = CLI
+    """How messages name the options: the command line's (``--force``) or the Python API's (``force=True``)."""
 
 
 @dataclass
@@ -361,7 +363,8 @@ def _score_externals(config: BenchConfig, options: BenchOptions, cells: list[Sce
     entries = plan_externals(config, options.quick, cells)
     if not entries and not config.methods:
         raise SpecError(config.source, "external", "nothing to run: no method, and no entry has renders for "
-                                                   "the --quick datasets (its quick = { renders = ... } table)")
+                                                   f"the datasets of {options.words(quick=True)} (its quick = "
+                                                   "{ renders = ... } table)")
     if not entries:
         return []
     _generate([c for c in cells if c.scene in {e.scene for e in entries}], options, log)
@@ -387,7 +390,7 @@ def run_benchmark(config: BenchConfig, options: BenchOptions, log: Callable[[str
     """
     from mitsnerf.bench.executors import check_options, run_cells
 
-    check_options(options.executor, options.workers, options.cpus_per_cell, options.address)
+    check_options(options.executor, options.workers, options.cpus_per_cell, options.address, options.words)
     if log is None:
         log = (lambda line: print(line, file=sys.stderr, flush=True)) if options.progress else (lambda line: None)
     scenes = plan_scenes(config, options)
@@ -399,7 +402,7 @@ def run_benchmark(config: BenchConfig, options: BenchOptions, log: Callable[[str
     result.skipped = [c.key for c in cells if c not in pending]
     if result.skipped:
         log(f"{len(result.skipped)} of {len(cells)} cells already done (same config and code); "
-            f"{len(pending)} to run" + (" (--force recomputes them)" if pending else ""))
+            f"{len(pending)} to run" + (f" ({options.words(force=True)} recomputes them)" if pending else ""))
     if pending:
         _generate(pending, options, log)
         total = len(pending)
@@ -423,7 +426,7 @@ def run_benchmark(config: BenchConfig, options: BenchOptions, log: Callable[[str
         try:
             run_cells(options.executor, pending, on_done, on_error, progress=options.progress,
                       workers=options.workers, threads=options.cpus_per_cell, address=options.address,
-                      on_start=on_start)
+                      on_start=on_start, words=options.words)
         except BaseException as exc:  # Ctrl-C, SIGTERM, SIGHUP: the same exit status, the cells kept
             if signal_cause(exc) is None:
                 raise
