@@ -53,6 +53,7 @@ from mitsnerf.bench.tables import (
     csv_table,
     markdown_report,
     oracle_row,
+    quick_banner,
     scene_rows,
     with_oracle_rows,
 )
@@ -283,6 +284,21 @@ def collect(cells: list[Cell]) -> tuple[list[dict], list[dict]]:
     return records, failed
 
 
+def quick_sizes(cells: list[Cell]) -> str:
+    """The sizes a quick run has, in words (for :func:`mitsnerf.bench.tables.quick_banner`): each distinct value
+    across ``cells``, ``16x16 views, 2 test views at 16 spp, 30 steps``."""
+    def values(get) -> str:
+        return "/".join(dict.fromkeys(str(get(c)) for c in cells))
+
+    def size(cell: Cell) -> str:
+        return f"{cell.spec['cameras']['width']}x{cell.spec['cameras']['height']}"
+
+    if not cells:
+        return ""
+    return (f"{values(size)} views, {values(lambda c: c.spec['cameras']['n_test'])} test views at "
+            f"{values(lambda c: c.spec['render']['spp_test'])} spp, {values(lambda c: c.train['steps'])} steps")
+
+
 def write_outputs(config: BenchConfig, options: BenchOptions, cells: list[Cell], result: BenchResult) -> BenchResult:
     """Tables, CSV, JSON, plots and the HTML report from the cells' results on disk and the external entries."""
     out_root = out_root_of(config, options)
@@ -297,12 +313,13 @@ def write_outputs(config: BenchConfig, options: BenchOptions, cells: list[Cell],
     if len(ceilings) > 1:
         average = [{**r, "ceiling": True} for r in average_rows(ceilings, [ORACLE])] + average
     best = best_rules(records)
-    markdown = compact_report(per_scene, average, best)
+    quick = quick_banner(quick_sizes(cells)) if options.quick else None
+    markdown = compact_report(per_scene, average, best, quick)
     files = {"table.md": out_root / "table.md", "table.csv": out_root / "table.csv",
              "average.csv": out_root / "average.csv", "cells.csv": out_root / "cells.csv",
              "results.json": out_root / "results.json"}
     title = f"mitsnerf benchmark {config.name}" + (" (quick)" if options.quick else "")
-    atomic_write_text(files["table.md"], f"# {title}\n\n{markdown_report(per_scene, average, best)}\n")
+    atomic_write_text(files["table.md"], f"# {title}\n\n{markdown_report(per_scene, average, best, quick)}\n")
     atomic_write_text(files["table.csv"], csv_table(per_scene, csv_keys(per_scene)))
     atomic_write_text(files["average.csv"], csv_table(average, csv_keys(average)))
     cell_rows = [cell_row(r) for r in records]
@@ -328,7 +345,7 @@ def write_outputs(config: BenchConfig, options: BenchOptions, cells: list[Cell],
     if options.report:
         files.update(_write_report(out_root, cells, result, records, scenes, methods, title=title, per_scene=per_scene,
                                    average=average, provenance=provenance, config=config_data, failed=failed,
-                                   notes=notes, best=best))
+                                   notes=[quick, *notes] if quick else notes, best=best))
     result.records, result.failed = records, failed
     result.per_scene, result.average, result.markdown, result.files = per_scene, average, markdown, files
     return result
