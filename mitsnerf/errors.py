@@ -74,6 +74,12 @@ class Words:
             return ", ".join(self.API_ELSEWHERE.get(k) or f"{k}={self._value(v)}" for k, v in settings.items())
         return " ".join(self.name(k) + ("" if v is True else f" {self._value(v)}") for k, v in settings.items())
 
+    def again(self, command: str) -> str:
+        """How to repeat a call: ``run the same command again``; ``call api.bench again with the same arguments``."""
+        if self.api:
+            return f"call api.{self.FUNCTIONS.get(command, command)} again with the same arguments"
+        return "run the same command again"
+
     def command(self, command: str, *args: object, **settings: object) -> str:
         """A whole call of ``command`` (``train``, ``generate``, ...) with positional ``args`` and ``settings``."""
         if self.api:

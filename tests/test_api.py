@@ -226,3 +226,19 @@ def test_a_run_inside_the_dataset_is_refused_as_the_command_refuses_it(dataset, 
     text = _raises(UsageError, lambda: api.fit(dataset, "voxel", steps=1, settings=TINY_VOXEL, out=dataset / inside))
     assert text.startswith("out: ") and "is inside the dataset" in text and "e.g. out='runs/NAME'" in text
     assert sorted(p.relative_to(dataset) for p in dataset.rglob("*")) == before
+
+
+def test_a_stopped_bench_says_to_call_it_again_not_to_run_a_command(tmp_path, monkeypatch):
+    import mitsnerf.bench.executors
+    from mitsnerf.errors import Interrupted
+
+    spec = tmp_path / "tiny.toml"
+    spec.write_text(scene_toml(tiny_scene({"name": "stoptiny"})))
+    (tmp_path / "first.toml").write_text(BENCH_TOML.format(spec=spec))
+
+    def stopped(*args, **kwargs):
+        raise Interrupted(15, "stopped by SIGTERM")
+
+    monkeypatch.setattr(mitsnerf.bench.executors, "run_cells", stopped)  # the sweep stopped before its first cell
+    text = _raises(Interrupted, lambda: api.bench(tmp_path / "first.toml", results=tmp_path / "r", data=tmp_path / "d"))
+    assert "call api.bench again with the same arguments to resume" in text

@@ -447,16 +447,16 @@ def run_benchmark(config: BenchConfig, options: BenchOptions, log: Callable[[str
         except BaseException as exc:  # Ctrl-C, SIGTERM, SIGHUP: the same exit status, the cells kept
             if signal_cause(exc) is None:
                 raise
-            raise _stopped(exc, f"{len(result.computed)} cells finished in this run are saved under {out_root}; run "
-                                "the same command again to resume (the cell in flight continues from its "
+            raise _stopped(exc, f"{len(result.computed)} cells finished in this run are saved under {out_root}; "
+                                f"{options.words.again('bench')} to resume (the cell in flight continues from its "
                                 "checkpoint, if it reached one)") from None
     try:
         return write_outputs(config, options, cells, result)
     except BaseException as exc:  # after the last cell: only the tables and the report are missing
         if signal_cause(exc) is None:
             raise
-        raise _stopped(exc, f"every cell is saved under {out_root}; run the same command again to write the tables "
-                            "and the report") from None
+        raise _stopped(exc, f"every cell is saved under {out_root}; {options.words.again('bench')} to write the "
+                            "tables and the report") from None
 
 
 def _stopped(exc: BaseException, saved: str):
