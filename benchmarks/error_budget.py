@@ -115,10 +115,13 @@ def main() -> None:
     parser.add_argument("--scene", default="cloud")
     parser.add_argument("--methods", nargs="+", default=["voxel", "ngp"])
     parser.add_argument("--variants", nargs="+", default=list(VARIANTS), choices=VARIANTS)
-    parser.add_argument("--data", default="data", help="dataset cache root")
+    parser.add_argument("--data", help="dataset cache root (default: mitsnerf's, `mitsnerf env` shows it)")
     parser.add_argument("--spp-train", type=int, help="training views' spp of every variant (default: the scene's)")
     parser.add_argument("--clean-spp", type=int, default=CLEAN_SPP, help="training views' spp of 'clean views'")
     args = parser.parse_args()
+    from mitsnerf.outputs import data_cache
+
+    data_root = Path(args.data) if args.data else data_cache()[0]
 
     import mitsnerf  # noqa: F401  (libLLVM before drjit)
     from mitsnerf import env
@@ -137,7 +140,7 @@ def main() -> None:
         for name in args.variants:
             s = variant(method.name, name, settings, args.clean_spp)
             if s is not None:
-                rows.append(run_one(method.name, name, s, Path(args.data), args.scene))
+                rows.append(run_one(method.name, name, s, data_root, args.scene))
                 print(json.dumps(rows[-1]), flush=True)
     print()
     print(table(rows))

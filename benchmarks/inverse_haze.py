@@ -94,9 +94,12 @@ def main() -> None:
     parser.add_argument("--variants", nargs="+", default=None,
                         help="names of VARIANTS or of --combo (default: the combos if any, else VARIANTS)")
     parser.add_argument("--combo", default="{}", help='JSON {"NAME": {overrides}}: more variants')
-    parser.add_argument("--data", default="data", help="dataset cache root")
+    parser.add_argument("--data", help="dataset cache root (default: mitsnerf's, `mitsnerf env` shows it)")
     parser.add_argument("--jsonl", default=None, help="append each row to this file as it finishes")
     args = parser.parse_args()
+    from mitsnerf.outputs import data_cache
+
+    data_root = Path(args.data) if args.data else data_cache()[0]
 
     import mitsnerf  # noqa: F401  (libLLVM before drjit)
     from mitsnerf import env
@@ -110,7 +113,7 @@ def main() -> None:
     rows = []
     for name in names:
         rows.append(run_one(name, settings(name, args.steps, combos), args.steps,
-                            Path(args.data), args.scene))
+                            data_root, args.scene))
         print(json.dumps(rows[-1]), flush=True)
         if args.jsonl:
             with open(args.jsonl, "a") as fh:

@@ -35,9 +35,12 @@ import numpy as np
 from mitsnerf.data.arrays import read_npy
 from mitsnerf.data.cache import sha256_file
 from mitsnerf.data.dataset import Dataset, true_grid_path
-from mitsnerf.errors import DatasetError
+from mitsnerf.errors import CLI, DatasetError, Placeholder, Words
 
-REGENERATE = "regenerate it (mitsnerf generate SCENE --force)"
+
+def regenerate(words: Words = CLI) -> str:
+    """How a damaged dataset is made again, in ``words``: ``regenerate it (mitsnerf generate SCENE --force)``."""
+    return f"regenerate it ({words.command('generate', Placeholder('SCENE'), force=True)})"
 
 
 @dataclass(frozen=True)
@@ -127,19 +130,20 @@ def grid_problem(grid: np.ndarray, *, lo: float = 0.0, hi: float | None = None,
     return None
 
 
-def check_hashes(root: Path, manifest: dict) -> tuple[int, int]:
+def check_hashes(root: Path, manifest: dict, words: Words = CLI) -> tuple[int, int]:
     """Every file of ``manifest["files"]`` against its sha256; returns (files, bytes) read."""
+    again = regenerate(words)
     files = manifest.get("files")
     if not isinstance(files, dict) or not files:
-        raise DatasetError(root / "manifest.json", "files", "missing: the dataset cannot be verified; " + REGENERATE)
+        raise DatasetError(root / "manifest.json", "files", "missing: the dataset cannot be verified; " + again)
     size = 0
     for rel, digest in files.items():
         path = root / rel
         if not path.is_file():
-            raise DatasetError(path, None, f"missing (manifest.json lists it): the dataset is incomplete; {REGENERATE}")
+            raise DatasetError(path, None, f"missing (manifest.json lists it): the dataset is incomplete; {again}")
         if sha256_file(path) != digest:
             raise DatasetError(path, None, "differs from the sha256 in manifest.json (modified, swapped or damaged "
-                                           f"since generation); {REGENERATE}")
+                                           f"since generation); {again}")
         size += path.stat().st_size
     return len(files), size
 
@@ -193,14 +197,15 @@ def check_views(dataset: Dataset) -> int:
     return total
 
 
-def verify_dataset(dataset: Dataset, *, hashes: bool = True) -> Verified:
-    """Check ``dataset`` as the module says; returns what was read and how long it took."""
+def verify_dataset(dataset: Dataset, *, hashes: bool = True, words: Words = CLI) -> Verified:
+    """Check ``dataset`` as the module says; returns what was read and how long it took. ``words``: how the
+    advice to regenerate it is written (:class:`mitsnerf.errors.Words`)."""
     start = time.perf_counter()
     root, manifest = Path(dataset.root), dataset.manifest
     files = size = 0
     if manifest:
         if hashes:
-            files, size = check_hashes(root, manifest)
+            files, size = check_hashes(root, manifest, words)
         check_grids(root, manifest)
     views = check_views(dataset)
     return Verified(files, size, views, time.perf_counter() - start)

@@ -65,7 +65,7 @@ import numpy as np
 
 from mitsnerf.data.dataset import Dataset
 from mitsnerf.data.images import ALPHA_ATTRIBUTE, over, read_exr_alpha, read_image
-from mitsnerf.errors import DatasetError, UsageError
+from mitsnerf.errors import CLI, DatasetError, UsageError, Words
 from mitsnerf.math.box import Box
 from mitsnerf.math.color import srgb_to_linear
 from mitsnerf.scoring.density import true_density
@@ -140,7 +140,7 @@ def _preview_pair(a: Path, b: Path) -> Path | None:
     return None
 
 
-def image_files(folder: Path, fmt: str | None = None) -> dict[str, Path]:
+def image_files(folder: Path, fmt: str | None = None, words: Words = CLI) -> dict[str, Path]:
     """``{stem: path}`` of the ``.png``/``.exr`` files directly in ``folder`` (only ``fmt`` if given).
 
     Two files with the same stem are refused: which one is meant is not for mitsnerf to guess,
@@ -159,14 +159,16 @@ def image_files(folder: Path, fmt: str | None = None) -> dict[str, Path]:
             continue
         if path.stem in found:
             raise DatasetError(folder, None, f"both {found[path.stem].name} and {path.name}: "
-                                             "say which to score (--format png or --format exr)")
+                                             f"say which to score ({words(format='png')} or "
+                                             f"{words(format='exr')})")
         found[path.stem] = path
     if not found:
         raise DatasetError(folder, None, f"no {' or '.join('.' + k for k in kinds)} images")
     return found
 
 
-def match_renders(folder: Path, names: Sequence[str], fmt: str | None = None) -> tuple[list[Path], str]:
+def match_renders(folder: Path, names: Sequence[str], fmt: str | None = None,
+                  words: Words = CLI) -> tuple[list[Path], str]:
     """The render of each test frame ``names[i]`` and the rule that matched them, ``"name"`` or ``"order"``.
 
     >>> import tempfile; d = Path(tempfile.mkdtemp())
@@ -175,7 +177,7 @@ def match_renders(folder: Path, names: Sequence[str], fmt: str | None = None) ->
     ['frame_9.png', 'frame_10.png']
     """
     folder = Path(folder)
-    files = image_files(folder, fmt)
+    files = image_files(folder, fmt, words)
     if set(files) & set(names):
         missing = [n for n in names if n not in files]
         if missing:
@@ -202,7 +204,7 @@ def match_renders(folder: Path, names: Sequence[str], fmt: str | None = None) ->
     return [numbered[k] for k in sorted(numbered)], "order"
 
 
-def exr_alpha_of(path: Path, img: np.ndarray, override: str | None = None) -> str:
+def exr_alpha_of(path: Path, img: np.ndarray, override: str | None = None, words: Words = CLI) -> str:
     """How the alpha of the RGBA EXR ``img`` (read from ``path``) applies: ``override`` if given, else what
     the file says (``opacity`` is ``"ignore"``), else ``"premultiplied"`` where every pixel of alpha 0 is
     black; a :class:`~mitsnerf.errors.DatasetError` naming ``--exr-alpha`` otherwise (module docstring).
@@ -220,17 +222,19 @@ def exr_alpha_of(path: Path, img: np.ndarray, override: str | None = None) -> st
         return "premultiplied"
     why = "its RGB is not black where alpha is 0 (a background already?)" if clear.any() else "no pixel has alpha 0"
     raise DatasetError(path, "alpha", f"below 1, the file does not say what it means (no {ALPHA_ATTRIBUTE} in its "
-                                      f"header) and {why}: say it with --exr-alpha premultiplied, straight or ignore")
+                                      f"header) and {why}: say it with {words.name('exr_alpha')} premultiplied, "
+                                      "straight or ignore")
 
 
-def _to_linear(path: Path, img: np.ndarray, background: np.ndarray | None, exr_alpha: str | None = None) -> np.ndarray:
+def _to_linear(path: Path, img: np.ndarray, background: np.ndarray | None, exr_alpha: str | None = None,
+               words: Words = CLI) -> np.ndarray:
     """Linear RGB of one render (module docstring): EXR by :func:`exr_alpha_of`, PNG sRGB with straight
     alpha, each composited over ``background`` by its alpha when it has one."""
     exr = path.suffix.lower() == ".exr"
     rgb = img[..., :3] if exr else srgb_to_linear(img[..., :3])
     if img.shape[2] != 4 or background is None:  # no alpha, or alpha 1 everywhere
         return rgb
-    mode = exr_alpha_of(path, img, exr_alpha) if exr else "straight"
+    mode = exr_alpha_of(path, img, exr_alpha, words) if exr else "straight"
     if mode == "ignore":
         return rgb
     return over(rgb, img[..., 3:4], background, premultiplied=mode == "premultiplied")
@@ -239,13 +243,15 @@ def _to_linear(path: Path, img: np.ndarray, background: np.ndarray | None, exr_a
 def read_renders(dataset: Dataset, folder: Path, fmt: str | None = None, split: str = "test",
                  exr_alpha: str | None = None) -> tuple[np.ndarray, list[Path], str]:
     """The renders of ``split``'s views as linear RGB ``(V, H, W, 3)``, their files and the matching rule
-    (``exr_alpha``: None, each EXR as its file says)."""
+    (``exr_alpha``: None, each EXR as its file says). Messages advise settings in the dataset's words
+    (:attr:`mitsnerf.data.dataset.Dataset.words`)."""
+    words = dataset.words
     if exr_alpha is not None and exr_alpha not in EXR_ALPHA:
-        raise UsageError("--exr-alpha", f"must be one of {', '.join(EXR_ALPHA)}, got {exr_alpha!r}")
+        raise UsageError(words.name("exr_alpha"), f"must be one of {', '.join(EXR_ALPHA)}, got {exr_alpha!r}")
     from mitsnerf.render.background import make_background, pixel_background
 
     views = dataset.views(split)
-    paths, rule = match_renders(Path(folder), views.names, fmt)
+    paths, rule = match_renders(Path(folder), views.names, fmt, words)
     images = np.empty(views.images.shape, dtype=np.float32)
     background = None
     for i, (path, name) in enumerate(zip(paths, views.names)):
@@ -262,7 +268,7 @@ def read_renders(dataset: Dataset, folder: Path, fmt: str | None = None, split: 
         if background is None and img.shape[2] == 4 and (img[..., 3] < 1).any():
             bg = make_background(dataset.background, dataset.root)
             background = pixel_background(bg, views.cameras, views.pixel_center).astype(np.float32)
-        images[i] = _to_linear(path, img, None if background is None else background[i], exr_alpha)
+        images[i] = _to_linear(path, img, None if background is None else background[i], exr_alpha, words)
     return images, paths, rule
 
 
@@ -379,16 +385,19 @@ def score_renders(dataset: Dataset, folder: Path, *, density: Path | None = None
     cell (:func:`mitsnerf.scoring.views.score_views`), with the oracle's at ``footprint`` (``oracle``, else
     :func:`read_oracle`'s) where there is one; ``reference``: the test views'
     :class:`~mitsnerf.scoring.reference.Reference` if the caller has it. A run directory is scored as the run
-    (module docstring): ``footprint`` (None: the run's, else 1), ``name`` and ``density`` override it."""
+    (module docstring): ``footprint`` (None: the run's, else 1), ``name`` and ``density`` override it. Messages
+    name settings in the dataset's words (:attr:`mitsnerf.data.dataset.Dataset.words`: ``--format``, or
+    ``format`` from the Python API)."""
+    words = dataset.words
     if fmt is not None and fmt not in FORMATS:
-        raise UsageError("--format", f"must be one of {', '.join(FORMATS)}, got {fmt!r}")
+        raise UsageError(words.name("format"), f"must be one of {', '.join(FORMATS)}, got {fmt!r}")
     if footprint is not None and footprint < 1:
-        raise UsageError("--footprint", f"must be >= 1, got {footprint}")
+        raise UsageError(words.name("footprint"), f"must be >= 1, got {footprint}")
     run = read_run(Path(folder))
     if run is not None:
         from mitsnerf.runs.fit import check_same_dataset
 
-        check_same_dataset(run.config, dataset, run.path, "score", SCORE_ELSEWHERE)
+        check_same_dataset(run.config, dataset, run.path, "renders", SCORE_ELSEWHERE, words)
     k = footprint if footprint is not None else run.footprint if run is not None else 1
     folder = renders_folder(Path(folder))
     grid = read_density(density, dataset.box) if density is not None else None  # bad input before the work
@@ -417,7 +426,7 @@ def _density_of_run(metrics: dict, ref: Reference, run: RunRenders | None) -> st
     """Renders scored without a density grid: a run's own density figures (its ``metrics.json``, what its model's
     density scored) go into ``metrics`` and it says where they come from; else a note that none was given."""
     if run is None or not run.metrics:
-        metrics["density_note"] = "no density grid given (--density)"
+        metrics["density_note"] = "no density grid given"  # data: the same whichever surface scored it
         return None
     metrics.update({key: run.metrics.get(key) for key in density_figures(None, ref)[0]})
     return f"the run's own ({run.path / 'metrics.json'})"

@@ -29,7 +29,7 @@ from mitsnerf.data.atomic import atomic_dir, atomic_write_json
 from mitsnerf.data.dataset import Dataset, load_dataset
 from mitsnerf.data.images import write_exr, write_png
 from mitsnerf.data.verify import verify_dataset
-from mitsnerf.errors import DatasetError, DiskFullError, OutputError, UsageError
+from mitsnerf.errors import CLI, DatasetError, DiskFullError, OutputError, Placeholder, UsageError, Words
 from mitsnerf.fields.protocols import DensityField
 from mitsnerf.math.box import Box
 from mitsnerf.methods import check_model, get_method, methods
@@ -148,16 +148,17 @@ def _check_resumable(saved: Mapping[str, Any], current: Mapping[str, Any], where
                                                       f"only {', '.join(RESUMABLE_CHANGES)} may change on resume")
 
 
-#: What :func:`check_same_dataset` tells a resume on another dataset to do instead.
-RESUME_ELSEWHERE = "resume it on its own dataset (leave DATASET out), or train a new run elsewhere"
+#: What :func:`check_same_dataset` tells a resume on another dataset to do instead (``{dataset}``: how the surface
+#: called names the dataset argument).
+RESUME_ELSEWHERE = "resume it on its own dataset (leave {dataset} out), or train a new run elsewhere"
 
 
-def check_same_dataset(saved: Mapping[str, Any], dataset: Dataset, run_dir: Path, option: str = "--resume",
-                       advice: str = RESUME_ELSEWHERE) -> None:
+def check_same_dataset(saved: Mapping[str, Any], dataset: Dataset, run_dir: Path, option: str = "resume",
+                       advice: str = RESUME_ELSEWHERE, words: Words = CLI) -> None:
     """Refuse to use the run in ``run_dir`` (config ``saved``) with another dataset than it trained on (to resume
     it, to score its renders): the same manifest ``hash`` where both have one (a moved dataset is the same),
-    else the same path. A :class:`~mitsnerf.errors.UsageError` of ``option`` naming the run, both datasets and
-    ``advice``."""
+    else the same path. A :class:`~mitsnerf.errors.UsageError` of the setting ``option`` (in ``words``) naming
+    the run, both datasets and ``advice``."""
     was, was_hash = saved.get("dataset"), saved.get("dataset_hash")
     now, now_hash = str(Path(dataset.root).resolve()), (dataset.manifest or {}).get("hash")
     same = was_hash == now_hash if (was_hash and now_hash) else was == now
@@ -165,8 +166,8 @@ def check_same_dataset(saved: Mapping[str, Any], dataset: Dataset, run_dir: Path
         def tag(h: str | None) -> str:
             return f" (manifest hash {h[:12]})" if h else ""
 
-        raise UsageError(option, f"the run in {run_dir} trained on {was}{tag(was_hash)}, not on {now}{tag(now_hash)}; "
-                                 f"{advice}")
+        raise UsageError(words.name(option), f"the run in {run_dir} trained on {was}{tag(was_hash)}, not on {now}"
+                                             f"{tag(now_hash)}; {advice.format(dataset=words.name('dataset'))}")
 
 
 def run_method(config: Mapping[str, Any], where: Path) -> str:
@@ -209,14 +210,14 @@ def set_checked(model: Model, values: Mapping[str, Any], where: Path, method: st
                            f"method {method!r}{_written_by(run_dir)}; retrain it") from None
 
 
-def _start(out_dir: Path | None, run_config: dict, model: Model, lr: float, resume: bool):
+def _start(out_dir: Path | None, run_config: dict, model: Model, lr: float, resume: bool, words: Words = CLI):
     """``(checkpointer, state)``: where checkpoints go, and the state to continue from (None: a fresh run)."""
     if out_dir is None:
         if resume:
             raise ValueError("resume: needs the run directory (out_dir) holding the checkpoint")
         return None, None
     path = Path(out_dir) / CHECKPOINT_FILE
-    checkpointer = Checkpointer(path, run_config)
+    checkpointer = Checkpointer(path, run_config, words)
     if not resume:
         remove_run_files(Path(out_dir))  # a fresh run: the old one's files go now, when training starts
         return checkpointer, None
@@ -243,6 +244,7 @@ def fit(
     reference: Reference | None = None,
     oracle: dict | None = None,
     deterministic: bool = False,
+    words: Words = CLI,
 ) -> RunResult:
     """Train ``method`` on ``dataset``, then render and score every test view.
 
@@ -256,7 +258,8 @@ def fit(
     held-out curve, :class:`mitsnerf.bench.worker.CurveRecorder`); a resumed run calls it again on
     the checkpoint's last entry when that is the checkpoint's step (a signal may have stopped it
     there), so it must do nothing the second time for an entry it finished. ``deterministic``: train on one
-    thread (:mod:`mitsnerf.train.threads`), recorded in the run config so a resume does too.
+    thread (:mod:`mitsnerf.train.threads`), recorded in the run config so a resume does too. ``words``: how
+    the messages of an interrupted run say to continue (:class:`mitsnerf.errors.Words`).
     The caller holds the run directory (:func:`mitsnerf.runs.directory.claim_run_dir`).
     """
     refuse_nondeterministic(deterministic)  # before _start empties or reads the run directory
@@ -265,7 +268,7 @@ def fit(
     model, config = build_model(method, method_overrides, scene_info(dataset, train_views.images), train_config.seed)
     run_config = {"method": method, "method_config": to_dict(config), "train": to_dict(train_config),
                   "eval": to_dict(eval_config), "deterministic": bool(deterministic), **dataset_config(dataset)}
-    checkpointer, state = _start(out_dir, run_config, model, config.lr, resume)
+    checkpointer, state = _start(out_dir, run_config, model, config.lr, resume, words)
     data = PixelData.from_views(train_views.images, train_views.cameras, train_views.pixel_center)
     if state is not None and on_log is not None and state.history and state.history[-1].get("step") == state.step:
         on_log(state.history[-1], model)  # a signal may have stopped the hook on the checkpoint's own entry
@@ -287,7 +290,7 @@ def fit(
     except KeyboardInterrupt as exc:  # trained and checkpointed: a resume only evaluates
         if checkpointer is None:
             raise
-        raise interrupted_message(exc, checkpointer.path, result.steps, " while evaluating") from None
+        raise interrupted_message(exc, checkpointer.path, result.steps, " while evaluating", words) from None
     except DiskFullError as exc:  # the run directory is as it was, with the final checkpoint: a resume only evaluates
         if checkpointer is None:
             raise
@@ -384,35 +387,36 @@ def _carry_over(old: Path, new: Path) -> None:
 
 
 def resume_run(run_dir: Path, train_overrides: Mapping[str, Any] | None = None, *, progress: bool = True,
-               dataset: Dataset | None = None, verify_hashes: bool = True) -> RunResult:
+               dataset: Dataset | None = None, verify_hashes: bool = True, words: Words = CLI) -> RunResult:
     """Continue the run in ``run_dir`` from its checkpoint (``mitsnerf train --resume``).
 
     Everything comes from the checkpoint's config (method, settings, dataset, box, one thread or
     not); ``train_overrides`` may change only :data:`RESUMABLE_CHANGES`, e.g. ``{"steps": 2000}``
     to train longer (the learning-rate schedule then stretches to the new length). The dataset
     the checkpoint names is verified (:func:`mitsnerf.data.verify.verify_dataset`) when opened
-    here. A finished run (``metrics.json``) resumes only with more steps.
+    here. A finished run (``metrics.json``) resumes only with more steps. ``words``: the settings its messages
+    advise (:class:`mitsnerf.errors.Words`).
     """
     run_dir = Path(run_dir)
     path = run_dir / CHECKPOINT_FILE
     ckpt = load_checkpoint(path)
     refuse_nondeterministic(bool(ckpt.config.get("deterministic")), str(path),
-                            "the run was trained with --deterministic, which this backend cannot continue "
-                            "(resume it with MITSNERF_VARIANT=llvm_ad_rgb): ")
+                            f"the run was trained with {words(deterministic=True)}, which this backend cannot "
+                            "continue (resume it with MITSNERF_VARIANT=llvm_ad_rgb): ")
     train_config = from_dict(TrainConfig, {**(ckpt.config.get("train") or {}), **dict(train_overrides or {})})
     if ckpt.step >= train_config.steps and (run_dir / "metrics.json").is_file():
         raise OutputError(run_dir, None, f"the run finished at step {ckpt.step} (metrics.json); nothing to resume: "
-                                         f"pass --steps N (N > {ckpt.step}) to train it on")
+                                         f"pass {words(steps=Placeholder('N'))} (N > {ckpt.step}) to train it on")
     eval_config = from_dict(EvalConfig, ckpt.config.get("eval") or {})
     method = run_method(ckpt.config, path)
     method_config(method, ckpt.config.get("method_config"), path)  # its settings checked before the data loads
     if dataset is None:
         dataset = open_dataset(ckpt.config, path)
-        verify_dataset(dataset, hashes=verify_hashes)
-    check_same_dataset(ckpt.config, dataset, run_dir)
+        verify_dataset(dataset, hashes=verify_hashes, words=words)
+    check_same_dataset(ckpt.config, dataset, run_dir, words=words)
     return fit(dataset, method, ckpt.config.get("method_config"), train_config, run_dir,
                eval_config=eval_config, progress=progress, resume=True,
-               deterministic=bool(ckpt.config.get("deterministic")))
+               deterministic=bool(ckpt.config.get("deterministic")), words=words)
 
 
 def _written_by(run_dir: Path) -> str:

@@ -106,7 +106,7 @@ def test_a_run_of_another_dataset_is_refused(world, other, tmp_path, capsys):
         assert status == 2 and err.count("\n") == 1, err
         assert f"the run in {world.run} trained on {world.dataset.resolve()}" in err and str(other.resolve()) in err
     assert not (tmp_path / "s.json").exists() and not (world.run / "test" / "scores.json").exists()
-    with pytest.raises(UsageError, match=f"score: the run in {world.run} trained on"):
+    with pytest.raises(UsageError, match=f"^renders: the run in {world.run} trained on"):
         api.score(other, world.run)
     moved = tmp_path / "moved"
     shutil.copytree(world.dataset, moved)
