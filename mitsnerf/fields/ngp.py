@@ -108,6 +108,9 @@ class NGPConfig:
     """How the MLPs are evaluated (:func:`mitsnerf.fields.mlp.network_path`): point-major tensors or
     cooperative vectors (fp32, fp16: its training gradients are wrong at batch sizes), on the same
     parameters; ``auto``: tensors."""
+    split_k: int = param(-1, lo=-1)
+    """Tensor path: each product's split-k batches (:func:`mitsnerf.fields.mlp.matmul_rows`); -1: the backend's
+    default (:func:`mitsnerf.fields.mlp.gemm_split_k`: 64 on CUDA, one product on LLVM), 0 or 1: one product."""
 
     def __post_init__(self) -> None:
         check_fields(self)
@@ -191,7 +194,13 @@ class NGPField:
     def _density_mlp(self, x):
         """(M, density_channels + geo_features): the density pre-activations and the geometry features (tensor
         path)."""
-        return dense_apply(self.params, "density.", 2, rows_tensor(self.TensorXf, self._features(x), dr.width(x)))
+        rows = rows_tensor(self.TensorXf, self._features(x), dr.width(x))
+        return dense_apply(self.params, "density.", 2, rows, slices=self._split_k)
+
+    @property
+    def _split_k(self) -> int | None:
+        """``split_k`` as :func:`dense_apply`'s ``slices`` (None: the backend's default)."""
+        return None if self.config.split_k < 0 else self.config.split_k
 
     @property
     def sigma_channels(self) -> int:
@@ -245,7 +254,7 @@ class NGPField:
         out = self._density_mlp(x)
         sh_rows = rows_tensor(self.TensorXf, sh, width)
         c = (
-            sigmoid(dense_apply(self.params, "color.", n_color, dr.concat([out[:, n:], sh_rows], axis=1)))
+            sigmoid(dense_apply(self.params, "color.", n_color, dr.concat([out[:, n:], sh_rows], axis=1), slices=self._split_k))
             * self.config.c_max
         )
         return type(x)(column(c, 0), column(c, 1), column(c, 2)), self._sigma(self._raw_columns(out), type(x))

@@ -65,3 +65,29 @@ def test_the_fields_networks_use_split_k_where_the_backend_asks_for_it(monkeypat
     split = np.asarray(dense_apply(params, "", 2, x))
     assert shapes == [(4, 2, 4), (2, 4), (4, 2, 8), (2, 8)]  # per layer: 4 batches of 2 rows, then 2 rows
     np.testing.assert_allclose(split, whole, rtol=1e-6, atol=1e-7)
+
+
+@pytest.mark.parametrize(("split_k", "batches"), [(-1, 0), (0, 0), (4, 4)])
+def test_ngps_split_k_setting_sets_its_products_batches(monkeypatch, split_k, batches):
+    """ngp's ``split_k`` (-1: the backend's default, one product on LLVM) reaches every product of its MLPs, and a
+    split field's values are the unsplit one's (what lets a benchmark time ngp with and without it)."""
+    import dataclasses
+
+    from mitsnerf.fields.ngp import NGPConfig, NGPField
+    from mitsnerf.math.box import UNIT_BOX
+
+    config = NGPConfig(n_levels=2, max_resolution=16, hidden=8, geo_features=3, color_hidden=8, sh_degree=1)
+    x = mi.Point3f(*(mi.Float(np.random.default_rng(k).uniform(-0.4, 0.4, 10)) for k in range(3)))
+    d = mi.Vector3f(0, 0, 1)
+    plain = NGPField(dataclasses.replace(config, split_k=0), mi.TensorXf, UNIT_BOX, seed=2)(x, d)
+    shapes, matmul = [], dr.matmul
+
+    def spy(a, b, *args, **kwargs):
+        shapes.append(a.shape)
+        return matmul(a, b, *args, **kwargs)
+
+    monkeypatch.setattr(dr, "matmul", spy)
+    c, sigma = NGPField(dataclasses.replace(config, split_k=split_k), mi.TensorXf, UNIT_BOX, seed=2)(x, d)
+    assert shapes and all((len(s) == 3 and s[0] == batches) if batches else len(s) == 2 for s in shapes[::2])
+    np.testing.assert_allclose(np.asarray(sigma), np.asarray(plain[1]), rtol=1e-5, atol=1e-6)
+    np.testing.assert_allclose(np.asarray(c), np.asarray(plain[0]), rtol=1e-5, atol=1e-6)
