@@ -33,7 +33,8 @@ def network_path(requested: str, TensorXf) -> str:
     over the batch in fp16 and rounds each point's gradient to fp16, so at a training batch (2^17 points,
     each adding ~1e-6) the weight gradients come out 30-75% wrong, signs included, and the hash grid's
     27% (on LLVM as on CUDA; tests/fields/test_network_paths.py), and nerf on fp16 never left the empty box
-    on an H200 (17.2 dB on medium pixels where tensors reached 43.1). Loss scaling (x4096) with the batch in
+    on an H200 (17.2 dB on medium pixels where tensors reached 43.1), nor did ngp (24.7 dB where tensors reached
+    44.8, and 1.35x slower than tensors with split-k, :data:`CUDA_SPLIT_K`). Loss scaling (x4096) with the batch in
     16 separately packed slices brought them within 1.2% on LLVM, not yet built into the fields. ``auto``
     moves to a path only once a GPU run has measured it faster at the same quality. Name a path to use one.
 

@@ -253,8 +253,9 @@ class NGPField:
             return type(x)(*(sigmoid(c_k) * self.config.c_max for c_k in c)), self._sigma(list(out[:n]), type(x))
         out = self._density_mlp(x)
         sh_rows = rows_tensor(self.TensorXf, sh, width)
+        rows = dr.concat([out[:, n:], sh_rows], axis=1)
         c = (
-            sigmoid(dense_apply(self.params, "color.", n_color, dr.concat([out[:, n:], sh_rows], axis=1), slices=self._split_k))
+            sigmoid(dense_apply(self.params, "color.", n_color, rows, slices=self._split_k))
             * self.config.c_max
         )
         return type(x)(column(c, 0), column(c, 1), column(c, 2)), self._sigma(self._raw_columns(out), type(x))

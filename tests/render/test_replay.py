@@ -191,7 +191,8 @@ def _render_float64(sigma, colour, o, d, u, n, background):
 def test_the_gradient_is_as_close_to_float64_finite_differences_as_render_rays():
     """Both renderers against central differences of a float64 renderer (4^3 sigma_t values, 64 rays): the
     replay's running sums in float64 keep nearly opaque rays as accurate as render_rays' suffix sums (both
-    8.3e-7 of the largest entry here; with the sums in float32 the replay was 9.1e-6 off)."""
+    8.3e-7 of the largest entry here on LLVM, the replay 2.03e-6 on CUDA, whose gradient sums run in another order;
+    with the sums in float32 the replay was 9.1e-6 off, which the bound of 4e-6 still rejects)."""
     rng = np.random.default_rng(9)
     res, n, n_rays = 4, 48, 64
     sigma = rng.uniform(0.0, 25.0, (res,) * 3)
@@ -220,8 +221,8 @@ def test_the_gradient_is_as_close_to_float64_finite_differences_as_render_rays()
         dr.backward(dr.mean(dr.square(out.rgb - tgt), axis=None))
         errors[name] = np.abs(np.array(dr.grad(tensor))[..., 0] - fd).max() / np.abs(fd).max()
         dr.clear_grad(tensor)
-    assert errors["render_rays"] < 2e-6
-    assert errors["replay"] < 2e-6
+    assert errors["render_rays"] < 4e-6
+    assert errors["replay"] < 4e-6
 
 
 def test_the_hash_grid_field_replays_through_its_own_derivative(require_network_path):
