@@ -90,11 +90,13 @@ class PixelTransmittance:
 
     t: np.ndarray
     """``(V, H, W)`` float64: the mean transmittance ``mean T`` (a chromatic medium: also the mean over the
-    three channels, which ``medium/``'s alpha does not estimate there: :mod:`mitsnerf.scene.render`)."""
+    three channels, what ``medium/``'s alpha estimates there: :mod:`mitsnerf.scene.render`)."""
     through: np.ndarray | None
     """``(V, H, W, 3)``: the mean of ``T(d) L(d)``, the environment seen through the medium (None: no background)."""
     env: np.ndarray | None
     """``(V, H, W, 3)``: the mean of ``L(d)``, the environment alone (None: no background)."""
+    t_rgb: np.ndarray | None = None
+    """``(V, H, W, 3)`` float64: a chromatic medium's mean ``T_k`` per colour channel ``k`` (None: a grey one)."""
 
 
 def pixel_transmittance(density: Callable[[Any], Any], resolution: int, box: Box, cameras: Sequence[Camera], *,
@@ -103,7 +105,7 @@ def pixel_transmittance(density: Callable[[Any], Any], resolution: int, box: Box
     """Each pixel's mean transmittance over its square and, with ``background`` (``d -> Array3f``, the radiance
     a ray leaving in direction ``d`` sees), the means of ``T(d) L(d)`` and of ``L(d)``, at the K x K stratum
     centres of the pixel (``footprint`` K). ``density``: the grid's lookup (Array3f -> Float) over ``box``;
-    with ``channels = 3`` a chromatic grid's (Array3f -> Array3f): ``T L`` is then per channel."""
+    with ``channels = 3`` a chromatic grid's (Array3f -> Array3f): ``T L`` is then per channel, and so is ``t_rgb``."""
     import mitsuba as mi
 
     from mitsnerf.math.composite import channel_mean
@@ -114,6 +116,7 @@ def pixel_transmittance(density: Callable[[Any], Any], resolution: int, box: Box
     offsets = footprint_offsets(footprint)
     du_all, dv_all = (mi.Float(np.ascontiguousarray(offsets[:, i], np.float32)) for i in range(2))
     t_mean = np.empty(rays.size)
+    t_rgb = np.empty((rays.size, 3)) if channels == 3 else None
     env = None if background is None else (np.empty((rays.size, 3)), np.empty((rays.size, 3)))
     per = max(1, chunk // kk)
     for start in range(0, rays.size, per):
@@ -123,14 +126,17 @@ def pixel_transmittance(density: Callable[[Any], Any], resolution: int, box: Box
         o, d = rays.rays(pixel, dr.gather(mi.Float, du_all, k), dr.gather(mi.Float, dv_all, k))
         t = dr.exp(-optical_depths(density, resolution, box, o, d, channels=channels))
         t_mean[start:start + n] = _pixel_means(channel_mean(t), kk)
+        if t_rgb is not None:
+            t_rgb[start:start + n] = np.stack([_pixel_means(t[i], kk) for i in range(3)], axis=-1)
         if env is not None:
             radiance = dr.zeros(mi.Array3f, dr.width(d)) + mi.Array3f(background(d))  # a constant has width 1
             for out, value in zip(env, (radiance * t, radiance)):
                 out[start:start + n] = np.stack([_pixel_means(value[i], kk) for i in range(3)], axis=-1)
     shape = (len(cameras), cameras[0].height, cameras[0].width)
+    per_channel = None if t_rgb is None else t_rgb.reshape(*shape, 3)
     if env is None:
-        return PixelTransmittance(t_mean.reshape(shape), None, None)
-    return PixelTransmittance(t_mean.reshape(shape), env[0].reshape(*shape, 3), env[1].reshape(*shape, 3))
+        return PixelTransmittance(t_mean.reshape(shape), None, None, per_channel)
+    return PixelTransmittance(t_mean.reshape(shape), env[0].reshape(*shape, 3), env[1].reshape(*shape, 3), per_channel)
 
 
 def _pixel_means(values, kk: int) -> np.ndarray:
