@@ -84,8 +84,11 @@ def render_seed(seed: int, split: str, index: int, channel: int | None = None) -
 
     >>> render_seed(0, "test", 0) != render_seed(0, "test_ref", 0) != render_seed(0, "test_ref", 0, channel=0)
     True
+    >>> len({render_seed(0, "test", 0, channel) for channel in (None, 0, 1, 2)})
+    4
     """
-    entropy = [seed, SPLIT_IDS[split], index] + ([] if channel is None else [channel])
+    # channel + 1: SeedSequence ignores trailing zero words, so channel 0 would take the grey seed
+    entropy = [seed, SPLIT_IDS[split], index] + ([] if channel is None else [channel + 1])
     return int(np.random.SeedSequence(entropy).generate_state(1, dtype=np.uint32)[0])
 
 

@@ -120,10 +120,15 @@ def view_agreement(x: np.ndarray, x_ref: np.ndarray, y: np.ndarray, y_ref: np.nd
 
 def alpha_moments(transmittance, n: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """``(p, Var, mu_4)`` per pixel of an alpha that estimates ``p = 1 - T`` from ``n`` samples, or of the mean of
-    ``C`` independent such alphas for ``transmittance`` ``(V, H, W, C)`` (:func:`transmittance_agreement`).
+    ``C`` independent such alphas for ``transmittance`` ``(V, H, W, C)`` (:func:`transmittance_agreement`)::
 
-    >>> [float(m[0, 0, 0]) for m in alpha_moments(np.full((1, 1, 1), 0.5), 4.0)]
-    [0.5, 0.0625, 0.0078125]
+        p = mean_k p_k,   Var = sum_k p_k q_k / (n C^2),   mu_4 = (sum_k mu_4,k + 6 sum_{j<k} Var_j Var_k) / C^4
+        mu_4,k = p_k q_k (1 + 3 (n - 2) p_k q_k) / n^3,     Var_k = p_k q_k / n,     q_k = 1 - p_k
+
+    >>> [float(m[0, 0, 0]) for m in alpha_moments(np.full((1, 1, 1), 0.5), 4.0)]  # Binomial(4, 1/2) / 4
+    [0.5, 0.0625, 0.009765625]
+    >>> [float(m[0, 0, 0]) for m in alpha_moments(np.full((1, 1, 1, 3), 0.5), 4.0)]  # Binomial(12, 1/2) / 12
+    [0.5, 0.020833333333333332, 0.0012297453703703704]
     """
     t = np.asarray(transmittance, np.float64)
     per = t[..., None] if t.ndim == 3 else t
