@@ -208,7 +208,8 @@ def _render_description(spec: SceneSpec, splits, fallback: str | None, estimator
         "footprint": {s: footprint_for(split_spp(spec, s)) for s in splits},
         "alpha": "1 everywhere with an environment light; else the fraction of samples "
                  "that scattered or were absorbed in the medium (an estimate of 1 - transmittance" + (
-                     "; of the three channels' mean, each channel's renders counted alike)" if per_channel else
+                     "; here of 1 - the colour channels' mean T: the mean of the three channel renders' alphas)"
+                     if per_channel else
                      "; not of a channel's in this chromatic medium)" if spec.volume.chromatic else ")"),
     }
 

@@ -52,10 +52,10 @@ exact ``T_k`` (:func:`compose`'s ``channel_alpha``)::
 (:func:`merge_channels`). A chromatic render by volpath itself follows one channel per path and weights the
 others by ratios of extinctions; its alpha agrees with no channel's ``1 - T`` nor their mean
 (``benchmarks/chromatic_alpha.py``), so a composition from it cannot take the zero-mean term and is
-``M + mean(T_k L_env,k)`` alone (dataset format 6): on the library's ``smoke``
-2.5, 4.7 and 1.7 times a direct render's variance in R, G and B at the same spp, against 1.0, 1.2 and 0.24 for
-the per-channel renders at 2.3 times the seconds (variance x seconds: 3.2 / 6.0 / 2.2 against
-2.3 / 2.7 / 0.56, the direct render 1 but then without ``medium/``; ``benchmarks/chromatic_noise.py``,
+``M + mean(T_k L_env,k)`` alone (dataset format 6): on the library's ``smoke`` at 512 spp 2.4, 4.9 and 1.8
+times a direct render's variance in R, G and B, against 1.0, 1.3 and 0.21 for the per-channel renders, at 1.5
+and 2.7 times the direct render's seconds (variance x seconds: 3.6 / 7.6 / 2.7 against 2.7 / 3.6 / 0.57; a
+direct render, 1, would need a second pass for ``medium/``: 2.5; ``benchmarks/chromatic_noise.py``,
 benchmarks/README.md "The smoke's noise: one grey render per channel").
 """
 
