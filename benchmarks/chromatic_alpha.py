@@ -10,6 +10,11 @@ per split, the mean alpha against the mean ``1 - T`` of each channel, of the cha
 channels' mean extinction, each with the z of the difference (binomial standard error of the mean alpha,
 ``sqrt(sum p (1 - p) / spp) / pixels``). A grey rule the data agreed with would have |z| < 3.
 
+Since dataset format 7 a chromatic medium's ``medium/`` alpha is the mean of three grey renders' alphas, one per
+colour channel: ``check_mean_of_three`` is the manifest's ``transmittance_check`` of it with the package as it is
+now (``mitsnerf.scoring.agreement.transmittance_agreement`` against each channel's ``1 - T_k``, the variance of a
+mean of three binomials); a format-6 dataset's alpha fails it.
+
     .venv/bin/python -m mitsnerf generate smoke --out data        # or any spec with sigma_t_scale = [r, g, b]
     .venv/bin/python benchmarks/chromatic_alpha.py data/smoke-<hash> [--splits test test_ref]
 
@@ -36,6 +41,7 @@ def measure(root: Path, split: str) -> dict:
     from mitsnerf.data.dataset import load_dataset
     from mitsnerf.scene.render import footprint_for
     from mitsnerf.scene.transmittance import pixel_transmittance
+    from mitsnerf.scoring.agreement import transmittance_agreement
     from mitsnerf.scoring.density import true_density
 
     dataset = load_dataset(root)
@@ -51,11 +57,15 @@ def measure(root: Path, split: str) -> dict:
         return 1.0 - pixel_transmittance(density, r, dataset.box, cams, footprint=k, channels=channels).t
 
     alpha = _alphas(root, split)
+    per_channel = pixel_transmittance(true_density(sigma_t, dataset.box), r, dataset.box, cams, footprint=k,
+                                      channels=3).t_rgb
+    check = transmittance_agreement(alpha, per_channel, spp)
     rules = {"red": one_minus_t(sigma_t[..., 0]), "green": one_minus_t(sigma_t[..., 1]),
              "blue": one_minus_t(sigma_t[..., 2]), "mean of the channels' T": one_minus_t(sigma_t, 3),
              "T of the mean extinction": one_minus_t(sigma_t.mean(-1))}
-    out: dict = {"dataset": root.name, "split": split, "spp": spp, "pixels": int(alpha.size),
-                 "mean_alpha": float(alpha.mean())}
+    out: dict = {"dataset": root.name, "format": dataset.manifest.get("format_version"), "split": split, "spp": spp,
+                 "pixels": int(alpha.size), "mean_alpha": float(alpha.mean()),
+                 "check_mean_of_three": {k: check[k] for k in ("passed", "max_abs_z", "max_ratio_z", "critical_z")}}
     for name, p in rules.items():
         se = math.sqrt(float(np.sum(p * (1.0 - p))) / spp) / alpha.size
         out[name] = {"mean_1_minus_T": float(p.mean()), "z": float((alpha.mean() - p.mean()) / se)}

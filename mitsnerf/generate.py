@@ -13,7 +13,8 @@ Every split is rendered once by ``volpath``, as **the medium alone** (:mod:`mits
 environment seen straight through the medium hidden, alpha ``~ 1 - T``), and the full image is composed
 from it (:func:`mitsnerf.scene.render.compose`): ``M`` plus each pixel's mean of ``T(d) L_env(d)``, with
 ``T`` the exact transmittance of the true grid (:mod:`mitsnerf.scene.transmittance`), minus a zero-mean
-term that keeps the image as little noisy as a direct render, so the image costs no second pass. The
+term that keeps the image as little noisy as a direct render, so the image costs no second pass (a
+chromatic medium: each colour channel rendered so, as a grey medium of that channel's extinction). The
 medium-alone renders are ``medium/``, a NeRF-synthetic dataset of its own
 (``transforms_{train,val,test,test_ref}.json``, ``val`` being the test views; RGBA PNGs with straight alpha
 over a transparent background, and premultiplied linear EXRs), which NeRF-synthetic readers load unchanged.
@@ -42,9 +43,18 @@ from mitsnerf.data.verify import without_roundoff
 from mitsnerf.math.box import Box
 from mitsnerf.math.camera import Camera
 from mitsnerf.scene import ground_truth
-from mitsnerf.scene.render import compose, footprint_for, one_pass_reason, render_split, split_spp, write_volume
+from mitsnerf.scene.render import (
+    channel_scenes,
+    compose,
+    footprint_for,
+    one_pass_reason,
+    render_channels,
+    render_split,
+    split_spp,
+    write_volume,
+)
 from mitsnerf.scene.rigs import camera_rig
-from mitsnerf.scene.spec import SceneSpec, list_scenes, load_scene
+from mitsnerf.scene.spec import SceneSpec, SkyLight, list_scenes, load_scene
 from mitsnerf.scene.to_mitsuba import background_description, scene_box, scene_dict, volume_grids
 
 #: Version of the dataset layout and generation rules; part of the dataset hash.
@@ -54,7 +64,9 @@ from mitsnerf.scene.to_mitsuba import background_description, scene_box, scene_d
 #: 5: the medium alone (``medium/``, a NeRF-synthetic view); the spec's ``world.scale``.
 #: 6: one volpath pass per split: the images composed from ``medium/`` and the exact transmittance, ``medium/``
 #:    rendered with its split's seeds (two passes, as in 5, only where the lights need them: ``render.passes``).
-FORMAT_VERSION = 6
+#: 7: a chromatic medium rendered per colour channel (three grey renders composed by the grey rule, ``medium/``'s
+#:    alpha their mean, checked); the manifest's ``render.estimator`` (the image's noise against a direct render).
+FORMAT_VERSION = 7
 SPLITS = ("train", "test", "test_ref")
 #: The medium-alone NeRF-synthetic view, relative to the dataset directory.
 MEDIUM_DIR = "medium"
@@ -119,12 +131,13 @@ def dataset_dir(spec: SceneSpec, out_root: str | os.PathLike, splits: Sequence[s
 
 
 def _write_split(root: Path, spec: SceneSpec, split: str, images: list[np.ndarray], cameras: list[Camera],
-                 box: Box, medium: bool = False, seed_split: str | None = None) -> None:
+                 box: Box, medium: bool = False, seed_split: str | None = None, per_channel: bool = False) -> None:
     """The split's EXR and PNG images and its ``transforms_<split>.json`` (with the box as ``aabb``) under ``root``.
 
     ``medium``: the medium-alone view: the EXRs premultiplied RGBA (``"exr_alpha": "premultiplied"``),
     the PNGs straight RGBA as NeRF-synthetic readers expect, and the test split written also as
-    ``transforms_val.json``. ``seed_split``: whose render seeds the views had (default ``split``).
+    ``transforms_val.json``. ``seed_split``: whose render seeds the views had (default ``split``);
+    ``per_channel``: each view rendered once per colour channel, its ``render_seeds`` entry ``[r, g, b]``.
     """
     from mitsnerf.data.images import unpremultiply, write_exr, write_png
     from mitsnerf.data.transforms import write_transforms
@@ -135,7 +148,8 @@ def _write_split(root: Path, spec: SceneSpec, split: str, images: list[np.ndarra
         write_exr(root / split / f"r_{i:03d}.exr", img, alpha=("premultiplied" if medium else "opacity")
                   if img.shape[2] == 4 else None)
         write_png(root / split / f"r_{i:03d}.png", unpremultiply(img) if medium else img[..., :3])
-    seeds = [render_seed(spec.render.seed, seed_split or split, i) for i in range(len(cameras))]
+    seeds = [render_seed(spec.render.seed, seed_split or split, i) if not per_channel else
+             [render_seed(spec.render.seed, seed_split or split, i, k) for k in range(3)] for i in range(len(cameras))]
     extra = {"aabb": box.to_list(), "split": split, "spp": split_spp(spec, split), "render_seeds": seeds,
              **({"exr_alpha": "premultiplied"} if medium else {})}
     for name in (split, "val") if medium and split == "test" else (split,):
@@ -148,11 +162,17 @@ COMPOSITION = ("RGB = M + mean(T L_env) - mean(L_env) (alpha - (1 - mean T)), (M
                "of the true sigma_t along each ray (mitsnerf.scene.transmittance: trilinear, two-point "
                "Gauss-Legendre per cell), L_env the background; the last term has mean zero and keeps the noise "
                "of a direct render (mitsnerf.scene.render.compose); alpha as render.alpha says")
-COMPOSITION_CHROMATIC = ("RGB_k = M_k + mean(T_k L_env,k) per colour channel k, (M, alpha) medium/'s render of "
-                         "the pixel, T_k the exact transmittance of sigma_t's channel k "
-                         "(mitsnerf.scene.transmittance), means over K x K stratified points of the pixel "
-                         "(render.footprint); no alpha term: in a "
-                         "chromatic medium volpath's alpha is not a channel's 1 - T (mitsnerf.scene.render)")
+COMPOSITION_CHROMATIC = ("RGB_k = M_k + mean(T_k L_env,k) - mean(L_env,k) (alpha_k - (1 - mean T_k)) per colour "
+                         "channel k, (M_k, alpha_k) the render of channel k alone, the medium alone as a grey medium "
+                         "of extinction sigma_t[..., k] (seeds render_seed(render.seed, split, view index, k)), T_k "
+                         "the exact transmittance of that channel (mitsnerf.scene.transmittance), means over K x K "
+                         "stratified points of the pixel (render.footprint): the grey rule per channel "
+                         "(mitsnerf.scene.render); medium/ holds M_k in channel k and the mean of the alpha_k")
+#: The direct renders that measure a composed image's noise against a direct render's (``render.estimator``):
+#: the test views twice, with the seeds of ``test_direct`` and ``test_ref_direct``, at the test spp over this
+#: (at least :data:`DIRECT_CHECK_MIN_SPP`, at most the test spp).
+DIRECT_CHECK_SPP_DIVISOR = 32
+DIRECT_CHECK_MIN_SPP = 16
 
 
 def volume_description(spec: SceneSpec) -> dict[str, Any]:
@@ -167,42 +187,66 @@ def volume_description(spec: SceneSpec) -> dict[str, Any]:
     }
 
 
+def _per_channel(spec: SceneSpec, fallback: str | None) -> bool:
+    """Whether each colour channel is rendered on its own (a chromatic medium in one pass)."""
+    return fallback is None and spec.volume.chromatic
+
+
+def _render_description(spec: SceneSpec, splits, fallback: str | None, estimator: dict) -> dict[str, Any]:
+    """The manifest's ``render``: how the images were made."""
+    one_pass, per_channel = fallback is None, _per_channel(spec, fallback)
+    return {
+        "integrator": "volpath", "max_depth": spec.render.max_depth, "film": "hdrfilm, rgba, box filter",
+        "pixel_center": 0.5, "spp": {s: split_spp(spec, s) for s in splits}, "seed": spec.render.seed,
+        "seed_rule": "mitsnerf.scene.render.render_seed(render.seed, split, view index" + (
+            ", colour channel): each view rendered once per channel" if per_channel else ")"),
+        "passes": 1 if one_pass else 2,
+        "two_passes_because": fallback,
+        "composition": ((COMPOSITION_CHROMATIC if per_channel else COMPOSITION) if one_pass
+                        else "the image rendered directly by volpath"),
+        "estimator": estimator,
+        "footprint": {s: footprint_for(split_spp(spec, s)) for s in splits},
+        "alpha": "1 everywhere with an environment light; else the fraction of samples "
+                 "that scattered or were absorbed in the medium (an estimate of 1 - transmittance" + (
+                     "; here of 1 - the colour channels' mean T: the mean of the three channel renders' alphas)"
+                     if per_channel else
+                     "; not of a channel's in this chromatic medium)" if spec.volume.chromatic else ")"),
+    }
+
+
+def _medium_render_rule(spec: SceneSpec, fallback: str | None) -> str:
+    """The manifest's ``medium.render``."""
+    rule = ("volpath with hide_emitters: the medium's own radiance; alpha is the fraction of a pixel's samples whose "
+            "camera ray collided in the medium, an estimate of 1 - T")
+    if _per_channel(spec, fallback):
+        return (rule + "; here each colour channel k rendered alone as a grey medium of extinction sigma_t[..., k]: "
+                "RGB channel k from its render, alpha the mean of the three renders' alphas, an estimate of 1 - "
+                "the channels' mean T")
+    if spec.volume.chromatic:
+        return rule + " in a grey medium (this chromatic one's estimates no single 1 - T: see transmittance_check)"
+    return rule
+
+
 def _manifest(spec: SceneSpec, digest: str, splits, box: Box, timings: dict, checks: dict, tmp: Path,
               fallback: str | None) -> dict:
     from mitsnerf.env import provenance
 
     files = {p.relative_to(tmp).as_posix(): sha256_file(p) for p in sorted(tmp.rglob("*")) if p.is_file()}
-    one_pass = fallback is None
     return {
         "format_version": FORMAT_VERSION, "name": spec.name, "hash": digest, "spec": spec.to_dict(),
         "source": spec.source, "provenance": provenance(), "box": box.to_list(),
         "inputs": {str(path): {"field": f"volume.{field}", "sha256": sha256_file(path)}
                    for field, path in spec.volume.input_files().items()},
         "background": background_description(spec), "volume": volume_description(spec),
-        "render": {
-            "integrator": "volpath", "max_depth": spec.render.max_depth, "film": "hdrfilm, rgba, box filter",
-            "pixel_center": 0.5, "spp": {s: split_spp(spec, s) for s in splits}, "seed": spec.render.seed,
-            "seed_rule": "mitsnerf.scene.render.render_seed(render.seed, split, view index)",
-            "passes": 1 if one_pass else 2,
-            "two_passes_because": fallback,
-            "composition": ((COMPOSITION_CHROMATIC if spec.volume.chromatic else COMPOSITION) if one_pass
-                            else "the image rendered directly by volpath"),
-            "footprint": {s: footprint_for(split_spp(spec, s)) for s in splits},
-            "alpha": "1 everywhere with an environment light; else the fraction of samples "
-                     "that scattered or were absorbed in the medium (an estimate of 1 - transmittance" + (
-                         "; not of a channel's in this chromatic medium)" if spec.volume.chromatic else ")"),
-        },
+        "render": _render_description(spec, splits, fallback, checks["estimator"]),
         "splits": list(splits), "timings": timings, "noise_floor": checks["noise_floor"],
         "medium": {
             "dir": MEDIUM_DIR,
             "layout": "NeRF-synthetic: transforms_{train,val,test,test_ref}.json (val: the test views), "
                       "r_NNN.png RGBA with straight alpha (sRGB, colour clipped to [0, 1]), r_NNN.exr "
                       "premultiplied linear RGBA",
-            "render": "volpath with hide_emitters: the medium's own radiance; alpha is the fraction of a pixel's "
-                      "samples whose camera ray collided in the medium, an estimate of 1 - T" + (
-                          " in a grey medium (this chromatic one's estimates no single 1 - T: see transmittance_check)"
-                          if spec.volume.chromatic else ""),
-            "seeds": "its split's: the renders the images are composed from" if one_pass
+            "render": _medium_render_rule(spec, fallback),
+            "seeds": "its split's: the renders the images are composed from" if fallback is None
                      else "those of the splits <split>_medium, independent of the images'",
             "transmittance_check": checks["transmittance_check"],
             "composite_check": checks["composite_check"],
@@ -212,7 +256,7 @@ def _manifest(spec: SceneSpec, digest: str, splits, box: Box, timings: dict, che
 
 
 def _checks(tmp: Path, spec: SceneSpec, box: Box, sigma_t: np.ndarray, cams: dict, images: dict,
-            medium: dict, transmittance: dict, one_pass: bool) -> dict:
+            medium: dict, transmittance: dict, fallback: str | None) -> dict:
     """The noise floor, the transmittance check of ``medium/``'s alpha, the composite check (two passes only)
     and the near/far coverage of the test views."""
     from mitsnerf.render.background import make_background, pixel_background
@@ -220,8 +264,8 @@ def _checks(tmp: Path, spec: SceneSpec, box: Box, sigma_t: np.ndarray, cams: dic
     from mitsnerf.scoring.images import noise_floor
     from mitsnerf.scoring.medium import medium_masks, near_far_coverage
 
-    out: dict[str, Any] = {"noise_floor": None, "composite_check": None, "nerf_synthetic": None,
-                           "transmittance_check": _transmittance_check(spec, medium, transmittance)}
+    out: dict[str, Any] = {"noise_floor": None, "composite_check": None, "nerf_synthetic": None, "masks": None,
+                           "transmittance_check": _transmittance_check(spec, medium, transmittance, fallback)}
     if "test" not in images:
         return out
     near, far = NERF_SYNTHETIC_NEAR_FAR
@@ -229,12 +273,12 @@ def _checks(tmp: Path, spec: SceneSpec, box: Box, sigma_t: np.ndarray, cams: dic
         sigma_t, box, cams["test"], near, far)}
     if "test_ref" in images:
         full, full_ref = np.stack(images["test"]), np.stack(images["test_ref"])
-        masks = medium_masks(sigma_t, box, cams["test"])
+        out["masks"] = masks = medium_masks(sigma_t, box, cams["test"])
         out["noise_floor"] = noise_floor(full, full_ref, masks)
-        if not one_pass and spec.volume.chromatic:
+        if fallback is not None and spec.volume.chromatic:
             out["composite_check"] = {"passed": None, "note": "chromatic extinction: medium/'s alpha is not a "
                                                               "channel's 1 - T, so M + (1 - alpha) B is not the image"}
-        elif not one_pass:
+        elif fallback is not None:
             env = pixel_background(make_background(background_description(spec), tmp), cams["test"])
             out["composite_check"] = {
                 **composite_agreement(full, full_ref, np.stack(medium["test"]), np.stack(medium["test_ref"]), env),
@@ -243,23 +287,78 @@ def _checks(tmp: Path, spec: SceneSpec, box: Box, sigma_t: np.ndarray, cams: dic
     return out
 
 
-def _transmittance_check(spec: SceneSpec, medium: dict, transmittance: dict) -> dict[str, Any]:
+def _transmittance_check(spec: SceneSpec, medium: dict, transmittance: dict, fallback: str | None) -> dict[str, Any]:
     """Per split, :func:`mitsnerf.scoring.agreement.transmittance_agreement` of ``medium/``'s alpha against
-    ``1 - T``."""
+    ``1 - T`` (a chromatic medium rendered per channel: against ``1 - mean_k T_k``, ``transmittance`` per channel)."""
     from mitsnerf.scoring.agreement import transmittance_agreement
 
     if spec.render.max_depth == 1:
         return {"passed": None, "note": "render.max_depth = 1: volpath counts no camera sample as collided, so "
                                         "medium/'s alpha is 0, not an estimate of 1 - T"}
-    if spec.volume.chromatic:
-        return {"passed": None, "note": "chromatic extinction: volpath draws a camera path's real collisions with "
-                                        "probabilities that mix the colour channels by the path's throughput, so "
-                                        "medium/'s alpha is not a channel's 1 - T (mitsnerf.scene.render)"}
+    if spec.volume.chromatic and not _per_channel(spec, fallback):
+        return {"passed": None, "note": "chromatic extinction rendered as one chromatic scene (two passes): "
+                                        "volpath's alpha there is not a channel's 1 - T (mitsnerf.scene.render)"}
     per = {s: transmittance_agreement(np.stack(medium[s])[..., 3], transmittance[s], split_spp(spec, s))
            for s in medium}
+    variance = ("mean of the channels' p_k (1 - p_k) / spp over 3, alpha the mean of three independent renders'"
+                if _per_channel(spec, fallback) else "p (1 - p) / spp")
     return {"passed": all(c["passed"] for c in per.values()), "splits": per,
             "rule": "mitsnerf.scoring.agreement.transmittance_agreement: per view, medium/'s alpha against 1 - T, "
-                    "T the exact transmittance averaged over the pixel (render.footprint), variance p (1 - p) / spp"}
+                    "T the exact transmittance averaged over the pixel (render.footprint) and, in a chromatic "
+                    f"medium, over the colour channels; variance {variance}"}
+
+
+def _estimator(spec: SceneSpec, fallback: str | None, images: dict, cams: dict, masks: np.ndarray | None,
+               direct_scene, progress: bool) -> dict[str, Any]:
+    """The manifest's ``render.estimator``: which estimator made the images and its noise per colour channel
+    against a direct volpath render of the full scene at the same spp, measured on the test views.
+
+    ``variance_rgb``: a pixel's variance per channel, from ``test`` against ``test_ref`` on medium pixels
+    (:func:`mitsnerf.scoring.images.pixel_variance`). A direct render's: the image itself (two passes), the
+    same samples (a grey medium's composition under a constant environment or none), else measured by
+    :func:`_direct_variance` (``direct_scene``: a callable loading the full scene)."""
+    from mitsnerf.scoring.images import pixel_variance
+
+    name = "direct" if fallback is not None else "composed per channel" if spec.volume.chromatic else "composed"
+    out: dict[str, Any] = {"name": name, "renders_per_view": 3 if _per_channel(spec, fallback) else 1,
+                           "variance_rgb": None, "direct_variance_rgb": None, "variance_ratio_to_direct_rgb": None,
+                           "rule": "variance: mean over the test views' medium pixels of (test - test_ref)^2 / 2 "
+                                   "per colour channel; ratio: that over a direct volpath render's at the test spp"}
+    identity = fallback is not None or not (spec.volume.chromatic or isinstance(spec.environment, SkyLight))
+    out["direct"] = ("the image is a direct volpath render" if fallback is not None else
+                     "the direct volpath render with the same seeds, sample for sample (mitsnerf.scene.render)"
+                     if identity else None)
+    if masks is None or not masks.any():
+        return {**out, "note": "not measured: needs the test_ref split (render.noise_floor) and medium pixels in "
+                               "the test views"}
+    variance = pixel_variance(np.stack(images["test"]), np.stack(images["test_ref"]), masks)
+    if identity:
+        direct = variance
+    else:
+        direct, out["direct"] = _direct_variance(spec, direct_scene(), cams["test"], masks, progress)
+    ratio = [float(v / d) if d > 0 else None for v, d in zip(variance, direct)]
+    return {**out, "variance_rgb": [float(v) for v in variance], "direct_variance_rgb": [float(d) for d in direct],
+            "variance_ratio_to_direct_rgb": ratio}
+
+
+def _direct_variance(spec: SceneSpec, scene, cameras: list[Camera], masks: np.ndarray,
+                     progress: bool) -> tuple[np.ndarray, dict[str, Any]]:
+    """A direct volpath render's pixel variance per channel at the test spp, from two renders of the test views
+    at a reduced spp ``s`` (:data:`DIRECT_CHECK_SPP_DIVISOR`), scaled by ``s / spp`` (a pixel is the mean of its
+    samples, independent: its variance is ``1 / spp`` of one sample's); and what was rendered."""
+    from mitsnerf.scoring.images import pixel_variance
+
+    spp = split_spp(spec, "test")
+    reduced = min(spp, max(DIRECT_CHECK_MIN_SPP, spp // DIRECT_CHECK_SPP_DIVISOR))
+    pair, seconds = [], 0.0
+    for seeds in ("test_direct", "test_ref_direct"):
+        views, timing = render_split(scene, spec, "test", cameras, progress, seed_split=seeds, spp=reduced)
+        pair.append(np.stack(views))
+        seconds += timing["seconds"]
+    return pixel_variance(pair[0], pair[1], masks) * (reduced / spp), {
+        "measured": "two direct volpath renders of the full scene (seeds of test_direct and test_ref_direct), "
+                    "their variance scaled by spp / test spp", "views": len(cameras), "spp": reduced,
+        "seconds": seconds}
 
 
 class _Truth:
@@ -284,22 +383,27 @@ class _Truth:
                                    background=self.background if with_background else None)
 
 
-def _render(scene, spec: SceneSpec, split: str, cameras: list[Camera], truth: _Truth, one_pass: bool,
+def _render(scenes: list, spec: SceneSpec, split: str, cameras: list[Camera], truth: _Truth, one_pass: bool,
             timings: dict, progress: bool) -> tuple[list[np.ndarray], list[np.ndarray], np.ndarray]:
-    """One split: ``(images, medium-alone images, each pixel's mean T)``, its timings into ``timings``."""
+    """One split: ``(images, medium-alone images, what medium/'s alpha estimates 1 - of)``: each pixel's mean
+    ``T``, ``(V, H, W)``, or with one grey scene per colour channel (``scenes``) each channel's, ``(V, H, W, 3)``.
+    Its timings go into ``timings``."""
     k = footprint_for(split_spp(spec, split))
-    if one_pass:
-        medium, timings[split] = render_split(scene, spec, split, cameras, progress, medium_alone=True)
+    alphas = None
+    if one_pass and len(scenes) == 3:
+        medium, alphas, timings[split] = render_channels(scenes, spec, split, cameras, progress)
+    elif one_pass:
+        medium, timings[split] = render_split(scenes[0], spec, split, cameras, progress, medium_alone=True)
     else:
-        images, timings[split] = render_split(scene, spec, split, cameras, progress)
-        medium, timings[f"{MEDIUM_DIR}/{split}"] = render_split(scene, spec, split, cameras, progress,
+        images, timings[split] = render_split(scenes[0], spec, split, cameras, progress)
+        medium, timings[f"{MEDIUM_DIR}/{split}"] = render_split(scenes[0], spec, split, cameras, progress,
                                                                 medium_alone=True, seed_split=f"{split}_medium")
     start = time.perf_counter()
     seen = truth.transmittance(cameras, k, with_background=one_pass)
     timings[split]["transmittance_seconds"] = time.perf_counter() - start
     if one_pass:
-        images = compose(medium, seen, spec.environment is not None, spec.volume.chromatic)
-    return images, medium, seen.t
+        images = compose(medium, seen, spec.environment is not None, alphas)
+    return images, medium, seen.t if alphas is None else seen.t_rgb
 
 
 def _build(tmp: Path, spec: SceneSpec, splits: tuple[str, ...], digest: str, progress: bool) -> dict:
@@ -311,23 +415,27 @@ def _build(tmp: Path, spec: SceneSpec, splits: tuple[str, ...], digest: str, pro
     sigma_t, albedo = volume_grids(spec)
     ground_truth.check_grids(spec, sigma_t, albedo)
     write_volume(tmp, spec, sigma_t, albedo, box)
-    scene = mi.load_dict(scene_dict(spec, sigma_t, albedo))
-    truth = _Truth(tmp, spec, sigma_t, box)
     fallback = one_pass_reason(spec)
+    per_channel = _per_channel(spec, fallback)
+    scenes = channel_scenes(spec, sigma_t, albedo) if per_channel else [mi.load_dict(scene_dict(spec, sigma_t, albedo))]
+    truth = _Truth(tmp, spec, sigma_t, box)
     cams = {s: camera_rig(spec.cameras, "train" if s == "train" else "test") for s in splits}
     images: dict[str, Any] = {}
     medium: dict[str, Any] = {}
     transmittance: dict[str, Any] = {}
     timings: dict[str, Any] = {}
     for split in splits:
-        images[split], medium[split], transmittance[split] = _render(scene, spec, split, cams[split], truth,
+        images[split], medium[split], transmittance[split] = _render(scenes, spec, split, cams[split], truth,
                                                                      fallback is None, timings, progress)
         ground_truth.check_views(spec, split, images[split])
         images[split] = [without_roundoff(view) for view in images[split]]  # what the check let pass as rounding is 0
-        _write_split(tmp, spec, split, images[split], cams[split], box)
+        _write_split(tmp, spec, split, images[split], cams[split], box, per_channel=per_channel)
         _write_split(tmp / MEDIUM_DIR, spec, split, medium[split], cams[split], box, medium=True,
-                     seed_split=split if fallback is None else f"{split}_medium")
-    checks = _checks(tmp, spec, box, sigma_t, cams, images, medium, transmittance, fallback is None)
+                     seed_split=split if fallback is None else f"{split}_medium", per_channel=per_channel)
+    checks = _checks(tmp, spec, box, sigma_t, cams, images, medium, transmittance, fallback)
+    checks["estimator"] = _estimator(spec, fallback, images, cams, checks.pop("masks"),
+                                     lambda: scenes[0] if not per_channel else
+                                     mi.load_dict(scene_dict(spec, sigma_t, albedo)), progress)
     timings["total_seconds"] = time.perf_counter() - started
     return _manifest(spec, digest, splits, box, timings, checks, tmp, fallback)
 

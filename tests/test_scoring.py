@@ -188,6 +188,31 @@ def test_transmittance_agreement_rejects_a_shared_bias_a_per_pixel_error_and_imp
     assert transmittance_agreement(stray, t, 2048)["views"][0]["impossible"] == 1
 
 
+@pytest.mark.parametrize("spp", [4, 64, 2048])
+def test_transmittance_agreement_of_the_mean_of_channel_renders_holds_its_error_rate_and_its_variance(spp):
+    """A chromatic medium rendered per colour channel: alpha the mean of three independent binomial alphas, each
+    estimating its channel's 1 - T_k. With the per-channel transmittances the check holds its error rate and its
+    dispersion ratio is about 1 (read as one binomial of the mean T, the variance is too large: ratio about 1/3,
+    a per-pixel error of a few times the noise would pass); a 4% shared bias is rejected at 2048 spp."""
+    from mitsnerf.scoring.agreement import transmittance_agreement
+
+    rng = np.random.default_rng(spp + 1)
+    t = np.stack([_transmittance_map(rng) ** f for f in (0.5, 1.0, 2.0)], axis=-1)  # (V, H, W, 3): T_k
+
+    def alpha():
+        return np.mean([rng.binomial(spp, 1 - t[..., k]) / spp for k in range(3)], axis=0)
+
+    checks = [transmittance_agreement(alpha(), t, spp) for _ in range(300)]
+    assert sum(not c["passed"] for c in checks) <= 2  # family alpha 1e-3: 0.3 expected
+    ratios = [v["ratio"] for c in checks for v in c["views"]]
+    assert 0.95 < np.mean(ratios) < 1.05
+    grey = [v["ratio"] for v in transmittance_agreement(alpha(), t.mean(-1), spp)["views"]]
+    assert np.mean(grey) < 0.6
+    if spp == 2048:
+        biased = np.clip(alpha() * 1.04, 0, 1)
+        assert not transmittance_agreement(biased, t, spp)["passed"]
+
+
 def test_view_agreement_is_per_view_and_has_power():
     from mitsnerf.scoring.agreement import view_agreement
 

@@ -38,17 +38,25 @@ sample for sample (the paths are the same); under a sky the escaped samples' ``L
 by the pixel's mean and the exact covariance term ``mean(T L) - mean(T) B`` restores the expectation.
 Without an environment the image is ``M``. Where the lights do not allow it (:func:`one_pass_reason`)
 each split is rendered twice, the image directly and the medium alone with the seeds of
-``<split>_medium``.
+``<split>_medium`` (a chromatic medium then as one chromatic scene).
 
-**A chromatic medium** (3-channel ``sigma_t``): volpath follows one colour channel per path and
-weights the others by ratios of transmittances, and Mitsuba 3.9 draws a real collision with a probability
-that mixes the channels by the path's throughput (``Medium::get_interaction_probabilities``), so alpha is
-not the collision probability of any channel, nor their mean (``benchmarks/chromatic_alpha.py`` on the
-library's ``smoke``, 8 views at 2048 spp: z from 61 to 668 against each channel's ``1 - T`` and the
-channels' mean; it agrees with ``1 - T`` of the channels' mean extinction, z -1.2 and +0.4, an observation
-rather than a derived identity, since the mixing weights change along the path). The image is then
-``M + mean(T L_env)`` per channel, without the alpha term: unbiased whatever alpha estimates (a camera path
-escapes with weighted throughput ``T_k`` in channel ``k`` on average), and alpha is recorded, not checked.
+**A chromatic medium** (3-channel ``sigma_t``, :func:`render_channels`): each colour channel is rendered on
+its own, as a grey medium of extinction ``sigma_t[..., k]`` (the same albedo and lights; radiative transfer in
+RGB does not couple the channels, so channel ``k`` of that render is channel ``k`` of the chromatic medium's),
+with seeds of its own (:func:`render_seed`'s ``channel``), and composed by the grey rule with that channel's
+exact ``T_k`` (:func:`compose`'s ``channel_alpha``)::
+
+    image_k = M_k + mean(T_k L_env,k) - mean(L_env,k) (alpha_k - (1 - mean T_k))
+
+``medium/`` holds ``M_k`` in channel ``k`` and alpha ``mean_k alpha_k``, an unbiased estimate of ``1 - mean_k T_k``
+(:func:`merge_channels`). A chromatic render by volpath itself follows one channel per path and weights the
+others by ratios of extinctions; its alpha agrees with no channel's ``1 - T`` nor their mean
+(``benchmarks/chromatic_alpha.py``), so a composition from it cannot take the zero-mean term and is
+``M + mean(T_k L_env,k)`` alone (dataset format 6): on the library's ``smoke`` at 512 spp 2.4, 4.9 and 1.8
+times a direct render's variance in R, G and B, against 1.0, 1.3 and 0.21 for the per-channel renders, at 1.5
+and 2.7 times the direct render's seconds (variance x seconds: 3.6 / 7.6 / 2.7 against 2.7 / 3.6 / 0.57; a
+direct render, 1, would need a second pass for ``medium/``: 2.5; ``benchmarks/chromatic_noise.py``,
+benchmarks/README.md "The smoke's noise: one grey render per channel").
 """
 
 from __future__ import annotations
@@ -66,17 +74,22 @@ from mitsnerf.scene.spec import SceneSpec, SkyLight
 from mitsnerf.scene.to_mitsuba import ENVMAP_FILE, load_sensor
 from mitsnerf.scene.transmittance import PixelTransmittance
 
-SPLIT_IDS = {"train": 0, "test": 1, "test_ref": 2, "train_medium": 3, "test_medium": 4, "test_ref_medium": 5}
+SPLIT_IDS = {"train": 0, "test": 1, "test_ref": 2, "train_medium": 3, "test_medium": 4, "test_ref_medium": 5,
+             "test_direct": 6, "test_ref_direct": 7}
 
 
-def render_seed(seed: int, split: str, index: int) -> int:
-    """The Mitsuba sampler seed (uint32) of view ``index`` of ``split``: distinct per view and split.
+def render_seed(seed: int, split: str, index: int, channel: int | None = None) -> int:
+    """The Mitsuba sampler seed (uint32) of view ``index`` of ``split``: distinct per view and split, and per
+    colour ``channel`` when a chromatic medium's channels are rendered one by one (:func:`render_channels`).
 
-    >>> render_seed(0, "test", 0) != render_seed(0, "test_ref", 0)
+    >>> render_seed(0, "test", 0) != render_seed(0, "test_ref", 0) != render_seed(0, "test_ref", 0, channel=0)
     True
+    >>> len({render_seed(0, "test", 0, channel) for channel in (None, 0, 1, 2)})
+    4
     """
-    ss = np.random.SeedSequence([seed, SPLIT_IDS[split], index])
-    return int(ss.generate_state(1, dtype=np.uint32)[0])
+    # channel + 1: SeedSequence ignores trailing zero words, so channel 0 would take the grey seed
+    entropy = [seed, SPLIT_IDS[split], index] + ([] if channel is None else [channel + 1])
+    return int(np.random.SeedSequence(entropy).generate_state(1, dtype=np.uint32)[0])
 
 
 def split_spp(spec: SceneSpec, split: str) -> int:
@@ -138,23 +151,61 @@ def footprint_for(spp: int) -> int:
 
 
 def compose(medium: list[np.ndarray], seen: PixelTransmittance, has_environment: bool,
-            chromatic: bool = False) -> list[np.ndarray]:
+            channel_alpha: list[np.ndarray] | None = None) -> list[np.ndarray]:
     """The full images from the medium-alone renders (RGBA ``(H, W, 4)`` each) and what each pixel sees
     through the medium (``seen``: its mean ``T``, ``T L_env`` and ``L_env``; no environment: ``through`` None):
-    ``RGB = M + mean(T L) - mean(L) (alpha - (1 - mean T))`` (module docstring; ``chromatic``: without the
-    alpha term), and alpha 1 under an environment light (Mitsuba's full render), else the medium's alpha (the
-    full render is then the medium render itself)."""
+    ``RGB = M + mean(T L) - mean(L) (alpha - (1 - mean T))`` (module docstring), and alpha 1 under an
+    environment light (Mitsuba's full render), else the medium's alpha (the full render is then the medium
+    render itself). ``channel_alpha``: a chromatic medium rendered per channel (:func:`render_channels`), each
+    view's ``(H, W, 3)`` alphas, one per colour channel, with ``seen.t_rgb`` the channels' ``mean T_k``.
+
+    >>> seen = PixelTransmittance(np.full((1, 1, 1), 0.5), np.full((1, 1, 1, 3), 0.25), np.full((1, 1, 1, 3), 0.5))
+    >>> compose([np.array([[[0.25, 0.25, 0.25, 1.0]]])], seen, True)[0].tolist()  # a collided sample: M
+    [[[0.25, 0.25, 0.25, 1.0]]]
+    >>> compose([np.array([[[0.0, 0.0, 0.0, 0.0]]])], seen, True)[0].tolist()  # an escaped one: the background
+    [[[0.5, 0.5, 0.5, 1.0]]]
+    """
     out = []
     for i, img in enumerate(medium):
         full = np.array(img, dtype=np.float32, copy=True)
         if seen.through is not None and seen.env is not None:
-            zero_mean = (0.0 if chromatic else
-                         img[..., 3:4].astype(np.float64) - (1.0 - seen.t[i][..., None]))
+            if channel_alpha is None:
+                zero_mean = img[..., 3:4].astype(np.float64) - (1.0 - seen.t[i][..., None])
+            else:
+                assert seen.t_rgb is not None, "a per-channel composition needs each channel's T"
+                zero_mean = channel_alpha[i].astype(np.float64) - (1.0 - seen.t_rgb[i])
             full[..., :3] = (img[..., :3] + seen.through[i] - seen.env[i] * zero_mean).astype(np.float32)
         if has_environment:
             full[..., 3] = 1.0
         out.append(full)
     return out
+
+
+def merge_channels(renders: list[list[np.ndarray]]) -> tuple[list[np.ndarray], list[np.ndarray]]:
+    """A chromatic medium's ``medium/`` views from its three grey renders (``renders[k]``: the RGBA views of
+    channel ``k``'s medium alone): RGB channel ``k`` from render ``k``, alpha the mean of the three alphas
+    (an estimate of ``1 - mean_k T_k``); and each view's ``(H, W, 3)`` per-channel alphas (:func:`compose`).
+
+    >>> views, alphas = merge_channels([[np.full((1, 1, 4), k + 1.0)] for k in range(3)])
+    >>> views[0].tolist(), alphas[0].tolist()
+    ([[[1.0, 2.0, 3.0, 2.0]]], [[[1.0, 2.0, 3.0]]])
+    """
+    merged, alphas = [], []
+    for views in zip(*renders):
+        alpha = np.stack([v[..., 3] for v in views], axis=-1).astype(np.float32)
+        rgb = np.stack([v[..., k] for k, v in enumerate(views)], axis=-1)
+        merged.append(np.concatenate([rgb, alpha.mean(-1, keepdims=True)], axis=-1).astype(np.float32))
+        alphas.append(alpha)
+    return merged, alphas
+
+
+def channel_scenes(spec: SceneSpec, sigma_t: np.ndarray, albedo: np.ndarray) -> list:
+    """A chromatic medium's three grey Mitsuba scenes: channel ``k``'s with the extinction ``sigma_t[..., k]``."""
+    import mitsuba as mi
+
+    from mitsnerf.scene.to_mitsuba import scene_dict
+
+    return [mi.load_dict(scene_dict(spec, np.ascontiguousarray(sigma_t[..., k]), albedo)) for k in range(3)]
 
 
 def medium_alone_integrator(spec: SceneSpec):
@@ -165,32 +216,55 @@ def medium_alone_integrator(spec: SceneSpec):
 
 
 def render_split(scene, spec: SceneSpec, split: str, cameras: list[Camera], progress: bool, *,
-                 medium_alone: bool = False, seed_split: str | None = None) -> tuple[list[np.ndarray], dict[str, Any]]:
+                 medium_alone: bool = False, seed_split: str | None = None, channel: int | None = None,
+                 spp: int | None = None) -> tuple[list[np.ndarray], dict[str, Any]]:
     """Every view of ``split`` (RGBA float32 (H, W, 4)) and the timings of the rendering.
 
     ``medium_alone``: the medium without the environment seen through it (module docstring).
-    ``seed_split``: whose seeds (:func:`render_seed`) the views take, default ``split``.
+    ``seed_split``: whose seeds (:func:`render_seed`) the views take, default ``split``; ``channel``: the colour
+    channel a chromatic medium's grey ``scene`` renders (its own seeds). ``spp``: default the split's.
     """
     import mitsuba as mi
     from tqdm.auto import tqdm
 
-    spp = split_spp(spec, split)
+    spp = spp or split_spp(spec, split)
     integrator = medium_alone_integrator(spec) if medium_alone else None
     seed_split = seed_split or split
     images, seconds = [], []
-    with tqdm(total=len(cameras), desc=f"{spec.name} {seed_split}", unit="view", disable=None if progress else True,
+    what = seed_split if channel is None else f"{seed_split} {'RGB'[channel]}"
+    with tqdm(total=len(cameras), desc=f"{spec.name} {what}", unit="view", disable=None if progress else True,
               leave=False) as bar:
         for i, cam in enumerate(cameras):
             bar.set_postfix_str(f"r_{i:03d} ({spp} spp)")
             sensor = load_sensor(cam, spp)
             start = time.perf_counter()
             images.append(np.array(mi.render(scene, sensor=sensor, integrator=integrator, spp=spp,
-                                             seed=render_seed(spec.render.seed, seed_split, i)), dtype=np.float32))
+                                             seed=render_seed(spec.render.seed, seed_split, i, channel)),
+                                   dtype=np.float32))
             seconds.append(time.perf_counter() - start)
             bar.update()
-    total = float(sum(seconds))
-    w, h = cameras[0].width, cameras[0].height
-    timing = {"views": len(cameras), "spp": spp, "seconds": total, "seconds_per_view": total / len(cameras),
-              "first_view_seconds": seconds[0],
-              "samples_per_second": w * h * spp * len(cameras) / total if total > 0 else None}
-    return images, timing
+    return images, _timing(cameras, spp, float(sum(seconds)), seconds[0])
+
+
+def _timing(cameras: list[Camera], spp: int, total: float, first: float, renders: int = 1) -> dict[str, Any]:
+    """A split's render timings: ``total`` seconds, ``first`` those of its first view (kernel compilation
+    included), ``renders`` renders of each view at ``spp``."""
+    samples = cameras[0].width * cameras[0].height * spp * len(cameras) * renders
+    return {"views": len(cameras), "spp": spp, "seconds": total, "seconds_per_view": total / len(cameras),
+            "first_view_seconds": first, "samples_per_second": samples / total if total > 0 else None}
+
+
+def render_channels(scenes: list, spec: SceneSpec, split: str, cameras: list[Camera],
+                    progress: bool) -> tuple[list[np.ndarray], list[np.ndarray], dict[str, Any]]:
+    """A chromatic medium's split, each colour channel rendered alone as the medium alone of its grey scene
+    (:func:`channel_scenes`, module docstring): ``(medium/'s views, per-channel alphas, timings)``
+    (:func:`merge_channels`); the timings add up the three renders (``renders_per_view``: 3)."""
+    renders, timings = [], []
+    for k, scene in enumerate(scenes):
+        views, timing = render_split(scene, spec, split, cameras, progress, medium_alone=True, channel=k)
+        renders.append(views)
+        timings.append(timing)
+    medium, alphas = merge_channels(renders)
+    timing = _timing(cameras, split_spp(spec, split), sum(t["seconds"] for t in timings),
+                     sum(t["first_view_seconds"] for t in timings), renders=len(scenes))
+    return medium, alphas, {**timing, "renders_per_view": len(scenes)}

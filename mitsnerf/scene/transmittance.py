@@ -20,7 +20,9 @@ relative). A ray whose ``tau`` passes :data:`TAU_STOP` (``T < 1e-13``) stops the
 samples uniformly on its square ``[col, col + 1) x [row, row + 1)`` and the box filter (radius 1/2)
 gives each sample to that pixel alone with weight 1, so a pixel's expectation is the plain mean over
 its square. It is taken at the ``K x K`` stratum centres (:func:`mitsnerf.math.rays.footprint_offsets`,
-the midpoint rule in two dimensions, second order where ``T`` is smooth over the pixel).
+the midpoint rule in two dimensions, second order where ``T`` is smooth over the pixel), summed in float64; where
+the mean is above 1/2 as ``1 - mean(1 - T)`` with ``1 - T`` to float32's relative precision (:func:`absorbed`), so a
+pixel at the medium's faint edge keeps its small collision probability.
 """
 
 from __future__ import annotations
@@ -90,11 +92,13 @@ class PixelTransmittance:
 
     t: np.ndarray
     """``(V, H, W)`` float64: the mean transmittance ``mean T`` (a chromatic medium: also the mean over the
-    three channels, which ``medium/``'s alpha does not estimate there: :mod:`mitsnerf.scene.render`)."""
+    three channels, what ``medium/``'s alpha estimates there: :mod:`mitsnerf.scene.render`)."""
     through: np.ndarray | None
     """``(V, H, W, 3)``: the mean of ``T(d) L(d)``, the environment seen through the medium (None: no background)."""
     env: np.ndarray | None
     """``(V, H, W, 3)``: the mean of ``L(d)``, the environment alone (None: no background)."""
+    t_rgb: np.ndarray | None = None
+    """``(V, H, W, 3)`` float64: a chromatic medium's mean ``T_k`` per colour channel ``k`` (None: a grey one)."""
 
 
 def pixel_transmittance(density: Callable[[Any], Any], resolution: int, box: Box, cameras: Sequence[Camera], *,
@@ -103,7 +107,7 @@ def pixel_transmittance(density: Callable[[Any], Any], resolution: int, box: Box
     """Each pixel's mean transmittance over its square and, with ``background`` (``d -> Array3f``, the radiance
     a ray leaving in direction ``d`` sees), the means of ``T(d) L(d)`` and of ``L(d)``, at the K x K stratum
     centres of the pixel (``footprint`` K). ``density``: the grid's lookup (Array3f -> Float) over ``box``;
-    with ``channels = 3`` a chromatic grid's (Array3f -> Array3f): ``T L`` is then per channel."""
+    with ``channels = 3`` a chromatic grid's (Array3f -> Array3f): ``T L`` is then per channel, and so is ``t_rgb``."""
     import mitsuba as mi
 
     from mitsnerf.math.composite import channel_mean
@@ -114,6 +118,7 @@ def pixel_transmittance(density: Callable[[Any], Any], resolution: int, box: Box
     offsets = footprint_offsets(footprint)
     du_all, dv_all = (mi.Float(np.ascontiguousarray(offsets[:, i], np.float32)) for i in range(2))
     t_mean = np.empty(rays.size)
+    t_rgb = np.empty((rays.size, 3)) if channels == 3 else None
     env = None if background is None else (np.empty((rays.size, 3)), np.empty((rays.size, 3)))
     per = max(1, chunk // kk)
     for start in range(0, rays.size, per):
@@ -121,18 +126,49 @@ def pixel_transmittance(density: Callable[[Any], Any], resolution: int, box: Box
         idx = dr.arange(mi.UInt32, n * kk)
         pixel, k = idx // kk + start, idx % kk
         o, d = rays.rays(pixel, dr.gather(mi.Float, du_all, k), dr.gather(mi.Float, dv_all, k))
-        t = dr.exp(-optical_depths(density, resolution, box, o, d, channels=channels))
-        t_mean[start:start + n] = _pixel_means(channel_mean(t), kk)
+        tau = optical_depths(density, resolution, box, o, d, channels=channels)
+        t, p = dr.exp(-tau), absorbed(tau)
+        t_mean[start:start + n] = _mean_t(channel_mean(t), channel_mean(p), kk)
+        if t_rgb is not None:
+            t_rgb[start:start + n] = np.stack([_mean_t(t[i], p[i], kk) for i in range(3)], axis=-1)
         if env is not None:
             radiance = dr.zeros(mi.Array3f, dr.width(d)) + mi.Array3f(background(d))  # a constant has width 1
             for out, value in zip(env, (radiance * t, radiance)):
                 out[start:start + n] = np.stack([_pixel_means(value[i], kk) for i in range(3)], axis=-1)
     shape = (len(cameras), cameras[0].height, cameras[0].width)
+    per_channel = None if t_rgb is None else t_rgb.reshape(*shape, 3)
     if env is None:
-        return PixelTransmittance(t_mean.reshape(shape), None, None)
-    return PixelTransmittance(t_mean.reshape(shape), env[0].reshape(*shape, 3), env[1].reshape(*shape, 3))
+        return PixelTransmittance(t_mean.reshape(shape), None, None, per_channel)
+    return PixelTransmittance(t_mean.reshape(shape), env[0].reshape(*shape, 3), env[1].reshape(*shape, 3), per_channel)
 
 
 def _pixel_means(values, kk: int) -> np.ndarray:
-    """The means of consecutive blocks of ``kk`` entries (one pixel's rays), float64."""
-    return np.asarray(dr.block_sum(values, kk), np.float64) / kk
+    """The means of consecutive blocks of ``kk`` entries (one pixel's rays), summed in float64 (a float32 sum of
+    ``kk`` values near 1 would round away deficits below its ulp, about ``kk`` 6e-8)."""
+    return np.asarray(dr.block_sum(dr.float64_array_t(type(values))(values), kk), np.float64) / kk
+
+
+def _mean_t(t, p, kk: int) -> np.ndarray:
+    """Each pixel's mean ``T`` from its rays' ``T`` and ``1 - T`` (``p``, :func:`absorbed`): the mean of ``T`` where
+    it is below 1/2, else 1 - the mean of ``p``, each to its own relative precision (float64 sums)."""
+    direct = _pixel_means(t, kk)
+    return np.where(direct < 0.5, direct, 1.0 - _pixel_means(p, kk))
+
+
+#: Below this optical depth :func:`absorbed` takes its series.
+SERIES_BELOW = 1e-3
+
+
+def absorbed(tau):
+    """``1 - exp(-tau)``, the probability that a ray of optical depth ``tau`` (Float or Array3f) collides, to
+    float32's relative precision where it is tiny too: ``1 - exp(-tau)`` in float32 is 0 below ``tau`` about
+    6e-8 and coarse above, so below :data:`SERIES_BELOW` it is the series ``tau (1 - tau / 2 (1 - tau / 3))``
+    (first term left out ``tau^4 / 24``, 4e-14 there). The transmittance check reads ``p = 1 - mean T`` of a pixel
+    at the medium's faint edge from it: a pixel whose ``p`` came out 0 would call any collision in it impossible.
+
+    >>> from drjit.llvm import Float
+    >>> [f"{x:.6g}" for x in absorbed(Float(1e-9, 1e-5, 2.0))]
+    ['1e-09', '9.99995e-06', '0.864665']
+    """
+    small = tau < SERIES_BELOW
+    return dr.select(small, tau * (1.0 - 0.5 * tau * (1.0 - tau * (1.0 / 3.0))), 1.0 - dr.exp(-tau))

@@ -118,6 +118,28 @@ def view_agreement(x: np.ndarray, x_ref: np.ndarray, y: np.ndarray, y_ref: np.nd
             "max_ratio_z": max((v["ratio_z"] for v in views if "ratio_z" in v), default=None)}
 
 
+def alpha_moments(transmittance, n: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """``(p, Var, mu_4)`` per pixel of an alpha that estimates ``p = 1 - T`` from ``n`` samples, or of the mean of
+    ``C`` independent such alphas for ``transmittance`` ``(V, H, W, C)`` (:func:`transmittance_agreement`)::
+
+        p = mean_k p_k,   Var = sum_k p_k q_k / (n C^2),   mu_4 = (sum_k mu_4,k + 6 sum_{j<k} Var_j Var_k) / C^4
+        mu_4,k = p_k q_k (1 + 3 (n - 2) p_k q_k) / n^3,     Var_k = p_k q_k / n,     q_k = 1 - p_k
+
+    >>> [float(m[0, 0, 0]) for m in alpha_moments(np.full((1, 1, 1), 0.5), 4.0)]  # Binomial(4, 1/2) / 4
+    [0.5, 0.0625, 0.009765625]
+    >>> [float(m[0, 0, 0]) for m in alpha_moments(np.full((1, 1, 1, 3), 0.5), 4.0)]  # Binomial(12, 1/2) / 12
+    [0.5, 0.020833333333333332, 0.0012297453703703704]
+    """
+    t = np.asarray(transmittance, np.float64)
+    per = t[..., None] if t.ndim == 3 else t
+    p = np.clip(1.0 - per, 0.0, 1.0)
+    pq, c = p * (1.0 - p), per.shape[-1]
+    var = pq / n
+    mu4 = pq * (1.0 + 3.0 * (n - 2.0) * pq) / n**3
+    cross = (var.sum(-1) ** 2 - (var**2).sum(-1)) / 2.0  # sum over j < k of Var_j Var_k
+    return p.mean(-1), var.sum(-1) / c**2, (mu4.sum(-1) + 6.0 * cross) / c**4
+
+
 def transmittance_agreement(alpha: np.ndarray, transmittance: np.ndarray, spp: int,
                             family_alpha: float = FAMILY_ALPHA) -> dict[str, Any]:
     """Is the alpha of medium-alone renders an estimate of ``1 - T``? A test per view with the exact variance.
@@ -132,17 +154,22 @@ def transmittance_agreement(alpha: np.ndarray, transmittance: np.ndarray, spp: i
 
         z = sum D / sqrt(sum Var)      ratio = sum D^2 / sum Var,      ratio_sd = sqrt(sum (mu_4 - Var^2)) / sum Var
 
+    ``transmittance`` ``(V, H, W, C)``: alpha is the mean of ``C`` independent renders' alphas, render ``k``'s
+    an estimate of ``1 - T_k`` at ``spp`` (a chromatic medium rendered per colour channel): ``p`` is the mean
+    of the ``p_k``, ``Var`` the sum of theirs over ``C^2``, ``mu_4 = (sum mu_4,k + 6 sum_{j<k} Var_j Var_k) / C^4``.
+
     The ``2 V`` tests are one family held at the error rate ``family_alpha`` (:func:`critical_z` ``c``): a
     view passes when ``|z| < c``, the ratio's :func:`ratio_z` ``< c`` and no pixel of ``p = 0`` (a ray that misses
     the medium) has alpha above 1e-6 (``impossible``). The check has power against a transmittance off by a
     shared factor (``z``) and against one right on average but wrong per pixel (``ratio``: a shifted
     pixel centre, the footprint ignored).
+
+    >>> t = np.full((1, 4, 4), 0.5)
+    >>> transmittance_agreement(t, t, 64)["passed"], transmittance_agreement(t * 0, t, 64)["passed"]
+    (True, False)
     """
     a = np.asarray(alpha, np.float64)
-    p = np.clip(1.0 - np.asarray(transmittance, np.float64), 0.0, 1.0)
-    q, n = 1.0 - p, float(spp)
-    var = p * q / n
-    mu4 = p * q * (1.0 + 3.0 * (n - 2.0) * p * q) / n**3
+    p, var, mu4 = alpha_moments(transmittance, float(spp))
     d = a - p
     c = critical_z(2 * len(a), family_alpha)
     views: list[dict[str, Any]] = []

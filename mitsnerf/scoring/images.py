@@ -75,6 +75,19 @@ def noise_floor(test: np.ndarray, ref: np.ndarray, masks: np.ndarray) -> dict[st
     }
 
 
+def pixel_variance(test: np.ndarray, ref: np.ndarray, masks: np.ndarray) -> np.ndarray:
+    """The variance of one image's pixel per colour channel, from two independent renders of the same views
+    ``(V, H, W, >= 3)``: ``mean over masked pixels of (test - ref)^2 / 2`` (unbiased: ``E (a - b)^2 = 2 Var``),
+    float64 ``(3,)``; ``masks`` ``(V, H, W)`` bool.
+
+    >>> a, b = np.zeros((1, 1, 2, 3)), np.array([[[[1.0, 2.0, 0.0], [3.0, 0.0, 0.0]]]])
+    >>> pixel_variance(a, b, np.array([[[True, False]]])).tolist()
+    [0.5, 2.0, 0.0]
+    """
+    d = np.asarray(test, np.float64)[..., :3] - np.asarray(ref, np.float64)[..., :3]
+    return 0.5 * (d[np.asarray(masks, bool)] ** 2).mean(axis=0)
+
+
 def png_noise_floor(test: np.ndarray, test_ref: np.ndarray, masks: np.ndarray) -> dict[str, Any]:
     """The noise floor of renders handed over as 8-bit sRGB PNG: :func:`noise_floor` of the second
     ground-truth render ``test_ref`` quantised as a PNG (:func:`mitsnerf.data.images.png_quantised`)

@@ -86,6 +86,23 @@ def test_pixel_means_with_one_ray_are_the_centre_rays_and_a_constant_background_
     assert not np.allclose(shifted.t, one.t, rtol=1e-2)
 
 
+@pytest.mark.parametrize("sigma", [1e-9, 1e-6, 1e-4])
+def test_a_faint_medium_keeps_its_small_collision_probability(sigma):
+    """A pixel's 1 - mean T where the medium is faint (its edge): the mean over the pixel's rays of tau to
+    float32's relative precision, not 0 (1 - exp(-tau) in float32 rounds to 0 below tau ~ 6e-8) nor rounded away
+    in a float32 sum of K x K values near 1; a chromatic grid's per-channel T_k alike."""
+    grid = np.full((8, 8, 8), sigma, np.float32)
+    cams = [Camera.from_fov(look_at((2.0, 0.5, 0.3), (0, 0, 0), (0, 0, 1)), 6, 5, 40.0)]
+    seen = pixel_transmittance(true_density(grid, UNIT_BOX), 8, UNIT_BOX, cams, footprint=16)
+    sub = [_tau(grid, UNIT_BOX, *camera_rays_numpy(cams, offset=tuple(f))) for f in footprint_offsets(16)]
+    expected = np.mean(sub, axis=0).reshape(seen.t.shape)  # 1 - exp(-tau) = tau to 1e-4 relative here
+    assert (expected > 0).mean() > 0.8 and np.allclose(1.0 - seen.t, expected, rtol=2e-4, atol=0)
+    rgb = np.stack([grid, 2 * grid, 4 * grid], axis=-1)
+    chromatic = pixel_transmittance(true_density(rgb, UNIT_BOX), 8, UNIT_BOX, cams, footprint=16, channels=3)
+    assert np.allclose(1.0 - chromatic.t_rgb, expected[..., None] * [1, 2, 4], rtol=4e-4, atol=0)
+    assert np.allclose(1.0 - chromatic.t, expected * 7 / 3, rtol=4e-4, atol=0)
+
+
 @pytest.mark.parametrize("chunk", [64, 1 << 21])
 def test_chunks_do_not_change_the_result(chunk):
     grid = np.random.default_rng(5).uniform(0, 10, size=(8, 8, 8)).astype(np.float32)
