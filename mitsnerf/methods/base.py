@@ -232,6 +232,20 @@ def num_parameters(params: Mapping[str, Any]) -> int:
     return int(sum(dr.prod(v.shape) if hasattr(v, "shape") and v.shape else dr.width(v) for v in params.values()))
 
 
+def scene_spec(scene: SceneInfo, method: str, why: str):
+    """The dataset's scene spec (:class:`mitsnerf.scene.spec.SceneSpec`, parsed from its manifest) for a method
+    that needs what only it holds (``why``: e.g. "its spec gives the lights"); a dataset without one (foreign
+    data: NeRF-synthetic, instant-ngp) is a :class:`mitsnerf.errors.DatasetError` in one line naming the method."""
+    from mitsnerf.errors import DatasetError
+    from mitsnerf.scene.spec import parse_scene
+
+    spec_data = (scene.manifest or {}).get("spec")
+    if not spec_data:
+        raise DatasetError(None, "manifest.json: spec", f"{method} needs a dataset made by 'mitsnerf generate' "
+                                                        f"({why})")
+    return parse_scene(spec_data, "manifest.json: spec")
+
+
 def cover_radiance(field_config, scene: SceneInfo):
     """``field_config`` with ``c_max`` (the largest colour its head can output) raised to
     ``max(1, 1.25 x scene.radiance_max)`` when the training images are brighter than it."""
