@@ -16,12 +16,14 @@ $(STAMP): pyproject.toml scripts/ensure_llvm.sh Makefile
 	$(PY) -m pip install -q --disable-pip-version-check -e '.[test,ray]'
 	touch $(STAMP)
 
+# mitsnerf bench ends with where its datasets are and the next commands, spelled $(VENV)/bin/mitsnerf here.
 bench: setup
 	$(VENV)/bin/mitsnerf bench $(ARGS)
+	@echo "(the mitsnerf command is in $(VENV)/bin: '. $(VENV)/bin/activate' puts it on PATH in this shell)"
 
-# ruff and mypy on the package first (pyproject.toml configures both), then the tests.
+# ruff on the package, its examples and benchmarks, mypy on the package (pyproject.toml configures both), then the tests.
 lint: setup
-	$(PY) -m ruff check mitsnerf
+	$(PY) -m ruff check mitsnerf examples benchmarks
 	$(PY) -m mypy
 
 test: lint

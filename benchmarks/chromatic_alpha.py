@@ -33,10 +33,10 @@ def _alphas(root: Path, split: str) -> np.ndarray:
 
 
 def measure(root: Path, split: str) -> dict:
-    from mitsnerf import scoring
     from mitsnerf.data.dataset import load_dataset
     from mitsnerf.scene.render import footprint_for
     from mitsnerf.scene.transmittance import pixel_transmittance
+    from mitsnerf.scoring.density import true_density
 
     dataset = load_dataset(root)
     spp = int(dataset.manifest["render"]["spp"][split])
@@ -47,7 +47,7 @@ def measure(root: Path, split: str) -> dict:
     r, k = sigma_t.shape[0], footprint_for(spp)
 
     def one_minus_t(grid: np.ndarray, channels: int = 1) -> np.ndarray:
-        density = scoring.true_density(np.ascontiguousarray(grid), dataset.box)
+        density = true_density(np.ascontiguousarray(grid), dataset.box)
         return 1.0 - pixel_transmittance(density, r, dataset.box, cams, footprint=k, channels=channels).t
 
     alpha = _alphas(root, split)

@@ -66,15 +66,15 @@ def variant(method: str, name: str, settings: dict, clean_spp: int = CLEAN_SPP) 
 
 
 def run_one(method: str, name: str, s: dict, data_root: Path, scene: str) -> dict:
-    from mitsnerf import scoring
     from mitsnerf.config import from_dict
     from mitsnerf.data.dataset import load_dataset
-    from mitsnerf.train.evaluate import EvalConfig
     from mitsnerf.generate import generate_dataset
     from mitsnerf.oracle.cache import OracleConfig, ensure_oracle
     from mitsnerf.runs.fit import fit
     from mitsnerf.scene.spec import load_scene
+    from mitsnerf.scoring.reference import load_reference
     from mitsnerf.train import TrainConfig
+    from mitsnerf.train.evaluate import EvalConfig
 
     spec = load_scene(scene)
     if s.get("spec"):
@@ -84,7 +84,7 @@ def run_one(method: str, name: str, s: dict, data_root: Path, scene: str) -> dic
     found = ensure_oracle(dataset, OracleConfig(), evalc.footprint)
     oracle = found.metrics(evalc.footprint) if found is not None else None
     run = fit(dataset, method, s["config"], from_dict(TrainConfig, s["train"]), None, eval_config=evalc,
-              progress=False, reference=scoring.reference(dataset, "test"), oracle=oracle)
+              progress=False, reference=load_reference(dataset, "test"), oracle=oracle)
     m = run.metrics()
     return {"method": method, "variant": name, "spp_train": spec.render.spp_train, "steps": m["steps"],
             "footprint": m["footprint"],
@@ -115,10 +115,13 @@ def main() -> None:
     parser.add_argument("--scene", default="cloud")
     parser.add_argument("--methods", nargs="+", default=["voxel", "ngp"])
     parser.add_argument("--variants", nargs="+", default=list(VARIANTS), choices=VARIANTS)
-    parser.add_argument("--data", default="data", help="dataset cache root")
+    parser.add_argument("--data", help="dataset cache root (default: mitsnerf's, `mitsnerf env` shows it)")
     parser.add_argument("--spp-train", type=int, help="training views' spp of every variant (default: the scene's)")
     parser.add_argument("--clean-spp", type=int, default=CLEAN_SPP, help="training views' spp of 'clean views'")
     args = parser.parse_args()
+    from mitsnerf.outputs import data_cache
+
+    data_root = Path(args.data) if args.data else data_cache()[0]
 
     import mitsnerf  # noqa: F401  (libLLVM before drjit)
     from mitsnerf import env
@@ -137,7 +140,7 @@ def main() -> None:
         for name in args.variants:
             s = variant(method.name, name, settings, args.clean_spp)
             if s is not None:
-                rows.append(run_one(method.name, name, s, Path(args.data), args.scene))
+                rows.append(run_one(method.name, name, s, data_root, args.scene))
                 print(json.dumps(rows[-1]), flush=True)
     print()
     print(table(rows))

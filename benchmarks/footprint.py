@@ -17,8 +17,6 @@ import json
 import time
 from pathlib import Path
 
-import numpy as np
-
 
 def default_budgets() -> dict[str, dict]:
     """Each method's config and train settings in the default benchmark (``make bench``)."""
@@ -33,11 +31,11 @@ def default_budgets() -> dict[str, dict]:
 
 
 def measure(dataset, method: str, settings: dict, jitter: bool, ks, ref) -> list[dict]:
-    from mitsnerf import scoring
     from mitsnerf.config import from_dict
-    from mitsnerf.train.evaluate import render_views, stack_rgb
     from mitsnerf.runs.fit import fit
+    from mitsnerf.scoring.images import image_scores
     from mitsnerf.train import TrainConfig
+    from mitsnerf.train.evaluate import render_views, stack_rgb
 
     train = from_dict(TrainConfig, {**settings["train"], "pixel_jitter": jitter})
     start = time.perf_counter()
@@ -46,7 +44,7 @@ def measure(dataset, method: str, settings: dict, jitter: bool, ks, ref) -> list
     rows = []
     for k in ks:
         renders, _ = render_views(run.model, ref.cameras, pixel_center=ref.pixel_center, footprint=k)
-        s = scoring.image_scores(stack_rgb(renders), ref.images, ref.masks, with_ssim=False)
+        s = image_scores(stack_rgb(renders), ref.images, ref.masks, with_ssim=False)
         rows.append({"method": method, "pixel_jitter": jitter, "footprint": k, "steps": train.steps,
                      "psnr": s["psnr_test"], "psnr_medium": s["psnr_test_medium"], "fit_seconds": seconds})
         print(json.dumps(rows[-1]), flush=True)
@@ -73,12 +71,13 @@ def main() -> None:
     args = parser.parse_args()
 
     import mitsnerf  # noqa: F401  (libLLVM before drjit)
-    from mitsnerf import env, scoring
+    from mitsnerf import env
     from mitsnerf.data.dataset import load_dataset
+    from mitsnerf.scoring.reference import load_reference
 
     env.set_variant()
     dataset = load_dataset(Path(args.dataset))
-    ref = scoring.reference(dataset, "test")
+    ref = load_reference(dataset, "test")
     budgets = default_budgets()
     rows = []
     for method in args.methods:

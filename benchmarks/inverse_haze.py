@@ -51,13 +51,13 @@ def settings(name: str, steps: int, combos: dict) -> dict:
 
 
 def run_one(name: str, config: dict, steps: int, data_root: Path, scene: str) -> dict:
-    from mitsnerf import scoring
     from mitsnerf.bench.config import load_bench_config
     from mitsnerf.config import from_dict, to_dict
     from mitsnerf.data.dataset import load_dataset
     from mitsnerf.generate import generate_dataset
     from mitsnerf.runs.fit import fit
     from mitsnerf.scene.spec import load_scene
+    from mitsnerf.scoring.reference import load_reference
     from mitsnerf.train import TrainConfig
     from mitsnerf.train.evaluate import EvalConfig
 
@@ -67,7 +67,7 @@ def run_one(name: str, config: dict, steps: int, data_root: Path, scene: str) ->
     dataset = load_dataset(generate_dataset(load_scene(scene), data_root))
     run = fit(dataset, "mitsuba-inverse", {**base, **config}, from_dict(TrainConfig, {**train, "steps": steps}),
               None, eval_config=from_dict(EvalConfig, to_dict(bench.eval)), progress=False,
-              reference=scoring.reference(dataset, "test"))
+              reference=load_reference(dataset, "test"))
     m = run.metrics()
     keys = ("psnr_test_medium", "psnr_test", "density_rel_l1", "density_rel_mass", "transmittance_mae",
             "train_seconds", "psnr_train")
@@ -94,9 +94,12 @@ def main() -> None:
     parser.add_argument("--variants", nargs="+", default=None,
                         help="names of VARIANTS or of --combo (default: the combos if any, else VARIANTS)")
     parser.add_argument("--combo", default="{}", help='JSON {"NAME": {overrides}}: more variants')
-    parser.add_argument("--data", default="data", help="dataset cache root")
+    parser.add_argument("--data", help="dataset cache root (default: mitsnerf's, `mitsnerf env` shows it)")
     parser.add_argument("--jsonl", default=None, help="append each row to this file as it finishes")
     args = parser.parse_args()
+    from mitsnerf.outputs import data_cache
+
+    data_root = Path(args.data) if args.data else data_cache()[0]
 
     import mitsnerf  # noqa: F401  (libLLVM before drjit)
     from mitsnerf import env
@@ -110,7 +113,7 @@ def main() -> None:
     rows = []
     for name in names:
         rows.append(run_one(name, settings(name, args.steps, combos), args.steps,
-                            Path(args.data), args.scene))
+                            data_root, args.scene))
         print(json.dumps(rows[-1]), flush=True)
         if args.jsonl:
             with open(args.jsonl, "a") as fh:

@@ -35,7 +35,10 @@ from pathlib import Path
 import numpy as np
 
 import mitsnerf  # noqa: F401  (libLLVM before drjit)
-from mitsnerf import env, scoring
+from mitsnerf import env
+from mitsnerf.scoring.density import true_density
+from mitsnerf.scoring.images import noise_floor
+from mitsnerf.scoring.medium import medium_masks
 
 
 def _setup(name: str, views: int, spp: int | None):
@@ -66,16 +69,16 @@ def noise(name: str, views: int, spp: int, k: int) -> dict:
     spec, sigma_t, box, background, cams, load = _setup(name, views, spp)
     if background is None:
         return {"scene": name, "note": "no environment: the image is the medium render, nothing to choose"}
-    seen = pixel_transmittance(scoring.true_density(sigma_t, box), sigma_t.shape[0], box, cams, footprint=k,
+    seen = pixel_transmittance(true_density(sigma_t, box), sigma_t.shape[0], box, cams, footprint=k,
                                background=background)
     scene = load()
     med = [np.stack(render_split(scene, spec, s, cams, False, medium_alone=True)[0]) for s in ("test", "test_ref")]
-    masks = scoring.medium_masks(sigma_t, box, cams)
+    masks = medium_masks(sigma_t, box, cams)
     p = (1.0 - seen.t)[..., None]
 
     def floor(beta):
         a, b = (m[..., :3] + seen.through - beta * (m[..., 3:4] - p) for m in med)
-        return round(scoring.noise_floor(a, b, masks)["psnr_medium"], 2)
+        return round(noise_floor(a, b, masks)["psnr_medium"], 2)
 
     alpha_sum = med[0][..., 3:4] + med[1][..., 3:4]
     mu = np.where(alpha_sum > 0, (med[0][..., :3] + med[1][..., :3]) / np.maximum(alpha_sum, 1e-9), 0.0)
@@ -89,7 +92,7 @@ def footprint(name: str, views: int) -> dict:
     from mitsnerf.scene.transmittance import pixel_transmittance
 
     spec, sigma_t, box, _, cams, _ = _setup(name, views, None)
-    fn = scoring.true_density(sigma_t, box)
+    fn = true_density(sigma_t, box)
     t = {k: pixel_transmittance(fn, sigma_t.shape[0], box, cams, footprint=k).t for k in (8, 16, 32)}
     p = 1.0 - t[32]
     hit = p > 1e-6

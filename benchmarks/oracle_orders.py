@@ -72,11 +72,12 @@ def rescore(dataset, oracle, window: str, orders, footprint: int) -> dict:
     from mitsnerf.oracle.field import DirectionalOracleField, render_field
     from mitsnerf.render.background import make_background
     from mitsnerf.scene.lights import delta_lights
-    from mitsnerf.scoring import reference, score_views
+    from mitsnerf.scoring.reference import load_reference
+    from mitsnerf.scoring.views import score_views
 
     spec, sigma_t, albedo = _grids(dataset)
     sh, irradiance = (np.load(oracle.path / f"{name}.npy") for name in ("lbar_sh", "delta_irradiance"))
-    ref, background = reference(dataset, "test"), make_background(dataset.background, dataset.root)
+    ref, background = load_reference(dataset, "test"), make_background(dataset.background, dataset.root)
     out: dict = {}
     for clamp in (True, False):
         for o in orders:

@@ -35,10 +35,10 @@ def main() -> None:
     env.set_variant()
     from mitsnerf.data.dataset import load_dataset
     from mitsnerf.oracle.cache import OracleConfig, compute_oracle
-    from mitsnerf.scoring import reference
+    from mitsnerf.scoring.reference import load_reference
 
     dataset = load_dataset(args.dataset)
-    masks = reference(dataset, "test").masks
+    masks = load_reference(dataset, "test").masks
     for spp, res, dres, n in itertools.product(args.spp, args.resolution, args.delta_resolution, args.n_samples):
         config = OracleConfig(spp=spp, resolution=res, delta_resolution=dres, n_samples=n,
                               noise_replicas=args.replicas)

@@ -81,7 +81,8 @@ def layer_gemm_flops(n: int, repeats: int = 5) -> float:
         w = rng.random((c_out, c_in), dtype=np.float32)
         x = rng.random((c_in, n), dtype=np.float32)
         dy = rng.random((c_out, n), dtype=np.float32)
-        for product in (lambda: w @ x, lambda: w.T @ dy, lambda: dy @ x.T):
+        products = (lambda w=w, x=x: w @ x, lambda w=w, dy=dy: w.T @ dy, lambda dy=dy, x=x: dy @ x.T)
+        for product in products:  # each timed in the iteration that made it (bound all the same)
             product()
             times = []
             for _ in range(repeats):
@@ -116,7 +117,8 @@ def nominal_flops() -> tuple[float | None, str]:
         return None, "no clock found"
     cores = os.cpu_count() or 1
     per_cycle = 2 * lanes * 2
-    return cores * mhz * 1e6 * per_cycle, f"{cores} cores x {mhz:.0f} MHz x {per_cycle} FLOP/cycle (2 FMA units x {lanes} lanes, assumed)"
+    return cores * mhz * 1e6 * per_cycle, (f"{cores} cores x {mhz:.0f} MHz x {per_cycle} FLOP/cycle "
+                                           f"(2 FMA units x {lanes} lanes, assumed)")
 
 
 def time_steps(step, steps: int) -> float:
@@ -347,7 +349,8 @@ def main() -> int:
                     help="a Python with torch installed (skipped if missing)")
     ap.add_argument("--no-peak", action="store_true", help="skip the numpy matmul roof (a few seconds)")
     ap.add_argument("--profile", action="store_true",
-                    help="also the channel-major paths' kernels per step and time inside kernels (Dr.Jit's kernel history)")
+                    help="also the channel-major paths' kernels per step and time inside kernels "
+                         "(Dr.Jit's kernel history)")
     args = ap.parse_args()
     variant = env.set_variant()
     fpp = flops_per_point()

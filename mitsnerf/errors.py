@@ -10,7 +10,10 @@ from __future__ import annotations
 
 import errno
 import os
+import shlex
+from dataclasses import dataclass
 from pathlib import Path
+from types import MappingProxyType
 
 
 def unknown(kind: str, name: object, known) -> str:
@@ -20,6 +23,76 @@ def unknown(kind: str, name: object, known) -> str:
     "unknown method 'nope' (known: nerf, ngp)"
     """
     return f"unknown {kind} {name!r} (known: {', '.join(known) or 'none'})"
+
+
+class Placeholder(str):
+    """A value a message leaves for the user to fill in (``N``, ``SCENE``): written bare by either :class:`Words`."""
+
+
+@dataclass(frozen=True)
+class Words:
+    """How a message names what the user can set, in the language of the surface they called: the command
+    line's options (``--force``, ``--resume --steps N``, ``mitsnerf train --resume --out RUN``) or the Python
+    API's arguments (``force=True``, ``resume=True, steps=N``, ``api.fit(resume=True, out='RUN')``). A function
+    whose refusal advises a setting takes ``words`` (default :data:`CLI`) and writes that advice through it;
+    :mod:`mitsnerf.api` passes :data:`API`. Settings are named by their Python names (``exr_alpha``)::
+
+        >>> N = Placeholder("N")
+        >>> CLI(resume=True, steps=N), API(resume=True, steps=N)
+        ('--resume --steps N', 'resume=True, steps=N')
+        >>> CLI.name("exr_alpha"), API.name("exr_alpha"), CLI.name("dataset"), API(format="png")
+        ('--exr-alpha', 'exr_alpha', 'DATASET', "format='png'")
+        >>> CLI.command("train", resume=True, out="runs/a b"), API.command("train", resume=True, out="runs/a b")
+        ("mitsnerf train --resume --out 'runs/a b'", "api.fit(resume=True, out='runs/a b')")
+    """
+
+    api: bool = False
+
+    #: Command-line arguments that are positional (named by their metavar), not ``--options``.
+    POSITIONAL = MappingProxyType({"dataset": "DATASET", "renders": "RENDERS", "run": "RUN", "scene": "SCENE",
+                                   "config": "CONFIG"})
+    #: The API function that does a command's work.
+    FUNCTIONS = MappingProxyType({"train": "fit", "generate": "generate", "score": "score", "bench": "bench"})
+    #: What the API says for a command-line option it has no argument for.
+    API_ELSEWHERE = MappingProxyType({"box": "a Dataset loaded with mitsnerf.data.dataset.load_dataset(DIR, box=...)"})
+
+    def name(self, option: str) -> str:
+        """The setting itself (an error's ``where``): ``--exr-alpha`` or ``DATASET``; ``exr_alpha``."""
+        if self.api:
+            return self.API_ELSEWHERE.get(option, option)
+        return self.POSITIONAL.get(option) or "--" + option.replace("_", "-")
+
+    def _value(self, value: object) -> str:
+        if isinstance(value, Placeholder) or (not self.api and not isinstance(value, (str, os.PathLike))):
+            return str(value)
+        text = os.fspath(value) if isinstance(value, os.PathLike) else value
+        return repr(text) if self.api else shlex.quote(str(text))
+
+    def __call__(self, **settings: object) -> str:
+        """``settings`` as the user writes them: ``--resume --steps N`` (a flag for True); ``resume=True, steps=N``."""
+        if self.api:
+            return ", ".join(self.API_ELSEWHERE.get(k) or f"{k}={self._value(v)}" for k, v in settings.items())
+        return " ".join(self.name(k) + ("" if v is True else f" {self._value(v)}") for k, v in settings.items())
+
+    def again(self, command: str) -> str:
+        """How to repeat a call: ``run the same command again``; ``call api.bench again with the same arguments``."""
+        if self.api:
+            return f"call api.{self.FUNCTIONS.get(command, command)} again with the same arguments"
+        return "run the same command again"
+
+    def command(self, command: str, *args: object, **settings: object) -> str:
+        """A whole call of ``command`` (``train``, ``generate``, ...) with positional ``args`` and ``settings``."""
+        if self.api:
+            inner = ", ".join([self._value(a) for a in args] + ([self(**settings)] if settings else []))
+            return f"api.{self.FUNCTIONS.get(command, command)}({inner})"
+        words = ["mitsnerf", command, *(self._value(a) for a in args)]
+        return " ".join(words + ([self(**settings)] if settings else []))
+
+
+CLI = Words(api=False)
+"""The command line's words (``--force``)."""
+API = Words(api=True)
+"""The Python API's words (``force=True``)."""
 
 
 class MitsnerfError(Exception):
@@ -49,6 +122,16 @@ class DatasetError(MitsnerfError):
 
 class TrainingError(MitsnerfError):
     """Training cannot go on (NaN or diverging loss; the last good checkpoint is kept)."""
+
+
+class MethodError(MitsnerfError):
+    """A method's code breaks the contract of :mod:`mitsnerf.methods.base` where only running it shows
+    (its model has no parameters, its loss depends on none of them): names the method and where it
+    came from, the part of the contract, and what was seen. Raised before training changes anything.
+
+    >>> str(MethodError("method 'fog' (MITSNERF_METHODS: fog=./fog.py:Fog)", "parameters()", "is empty"))
+    "method 'fog' (MITSNERF_METHODS: fog=./fog.py:Fog): parameters(): is empty"
+    """
 
 
 class UsageError(MitsnerfError, ValueError):

@@ -18,11 +18,11 @@ medium-alone renders are ``medium/``, a NeRF-synthetic dataset of its own
 (``transforms_{train,val,test,test_ref}.json``, ``val`` being the test views; RGBA PNGs with straight alpha
 over a transparent background, and premultiplied linear EXRs), which NeRF-synthetic readers load unchanged.
 The manifest records the statistical check that their alpha agrees with the exact ``1 - T``
-(:func:`mitsnerf.scoring.transmittance_agreement`, per view), and how much of the medium a reader with
-NeRF-synthetic's fixed near/far sees (:func:`mitsnerf.scoring.near_far_coverage`). Where the lights do not
+(:func:`mitsnerf.scoring.agreement.transmittance_agreement`, per view), and how much of the medium a reader with
+NeRF-synthetic's fixed near/far sees (:func:`mitsnerf.scoring.medium.near_far_coverage`). Where the lights do not
 allow one pass (:func:`mitsnerf.scene.render.one_pass_reason`) every split is rendered twice, as before
 format 6, and the manifest says so (``render.passes``) and records the composite check
-(:func:`mitsnerf.scoring.composite_agreement`) instead.
+(:func:`mitsnerf.scoring.agreement.composite_agreement`) instead.
 """
 
 from __future__ import annotations
@@ -38,6 +38,7 @@ import numpy as np
 
 from mitsnerf.config import to_dict
 from mitsnerf.data.cache import clean_temps, dataset_lock, is_complete, sha256_file
+from mitsnerf.data.verify import without_roundoff
 from mitsnerf.math.box import Box
 from mitsnerf.math.camera import Camera
 from mitsnerf.scene import ground_truth
@@ -214,36 +215,38 @@ def _checks(tmp: Path, spec: SceneSpec, box: Box, sigma_t: np.ndarray, cams: dic
             medium: dict, transmittance: dict, one_pass: bool) -> dict:
     """The noise floor, the transmittance check of ``medium/``'s alpha, the composite check (two passes only)
     and the near/far coverage of the test views."""
-    from mitsnerf import scoring
     from mitsnerf.render.background import make_background, pixel_background
+    from mitsnerf.scoring.agreement import composite_agreement
+    from mitsnerf.scoring.images import noise_floor
+    from mitsnerf.scoring.medium import medium_masks, near_far_coverage
 
     out: dict[str, Any] = {"noise_floor": None, "composite_check": None, "nerf_synthetic": None,
                            "transmittance_check": _transmittance_check(spec, medium, transmittance)}
     if "test" not in images:
         return out
     near, far = NERF_SYNTHETIC_NEAR_FAR
-    out["nerf_synthetic"] = {"near": near, "far": far, "test_optical_depth_within": scoring.near_far_coverage(
+    out["nerf_synthetic"] = {"near": near, "far": far, "test_optical_depth_within": near_far_coverage(
         sigma_t, box, cams["test"], near, far)}
     if "test_ref" in images:
         full, full_ref = np.stack(images["test"]), np.stack(images["test_ref"])
-        masks = scoring.medium_masks(sigma_t, box, cams["test"])
-        out["noise_floor"] = scoring.noise_floor(full, full_ref, masks)
+        masks = medium_masks(sigma_t, box, cams["test"])
+        out["noise_floor"] = noise_floor(full, full_ref, masks)
         if not one_pass and spec.volume.chromatic:
             out["composite_check"] = {"passed": None, "note": "chromatic extinction: medium/'s alpha is not a "
                                                               "channel's 1 - T, so M + (1 - alpha) B is not the image"}
         elif not one_pass:
             env = pixel_background(make_background(background_description(spec), tmp), cams["test"])
             out["composite_check"] = {
-                **scoring.composite_agreement(full, full_ref, np.stack(medium["test"]), np.stack(medium["test_ref"]),
-                                              env),
-                "rule": "mitsnerf.scoring.composite_agreement: test and test_ref against medium/test and "
+                **composite_agreement(full, full_ref, np.stack(medium["test"]), np.stack(medium["test_ref"]), env),
+                "rule": "mitsnerf.scoring.agreement.composite_agreement: test and test_ref against medium/test and "
                         "medium/test_ref composited over the environment (mean over 4 x 4 points of each pixel)"}
     return out
 
 
 def _transmittance_check(spec: SceneSpec, medium: dict, transmittance: dict) -> dict[str, Any]:
-    """Per split, :func:`mitsnerf.scoring.transmittance_agreement` of ``medium/``'s alpha against ``1 - T``."""
-    from mitsnerf import scoring
+    """Per split, :func:`mitsnerf.scoring.agreement.transmittance_agreement` of ``medium/``'s alpha against
+    ``1 - T``."""
+    from mitsnerf.scoring.agreement import transmittance_agreement
 
     if spec.render.max_depth == 1:
         return {"passed": None, "note": "render.max_depth = 1: volpath counts no camera sample as collided, so "
@@ -252,21 +255,21 @@ def _transmittance_check(spec: SceneSpec, medium: dict, transmittance: dict) -> 
         return {"passed": None, "note": "chromatic extinction: volpath draws a camera path's real collisions with "
                                         "probabilities that mix the colour channels by the path's throughput, so "
                                         "medium/'s alpha is not a channel's 1 - T (mitsnerf.scene.render)"}
-    per = {s: scoring.transmittance_agreement(np.stack(medium[s])[..., 3], transmittance[s], split_spp(spec, s))
+    per = {s: transmittance_agreement(np.stack(medium[s])[..., 3], transmittance[s], split_spp(spec, s))
            for s in medium}
     return {"passed": all(c["passed"] for c in per.values()), "splits": per,
-            "rule": "mitsnerf.scoring.transmittance_agreement: per view, medium/'s alpha against 1 - T, T the "
-                    "exact transmittance averaged over the pixel (render.footprint), variance p (1 - p) / spp"}
+            "rule": "mitsnerf.scoring.agreement.transmittance_agreement: per view, medium/'s alpha against 1 - T, "
+                    "T the exact transmittance averaged over the pixel (render.footprint), variance p (1 - p) / spp"}
 
 
 class _Truth:
     """What the background term needs: the true density, its grid resolution, the box and the environment."""
 
     def __init__(self, tmp: Path, spec: SceneSpec, sigma_t: np.ndarray, box: Box) -> None:
-        from mitsnerf import scoring
         from mitsnerf.render.background import make_background
+        from mitsnerf.scoring.density import true_density
 
-        self.density = scoring.true_density(sigma_t, box)
+        self.density = true_density(sigma_t, box)
         self.resolution = int(sigma_t.shape[0])
         self.channels = int(sigma_t.shape[3]) if sigma_t.ndim == 4 else 1
         self.box = box
@@ -320,6 +323,7 @@ def _build(tmp: Path, spec: SceneSpec, splits: tuple[str, ...], digest: str, pro
         images[split], medium[split], transmittance[split] = _render(scene, spec, split, cams[split], truth,
                                                                      fallback is None, timings, progress)
         ground_truth.check_views(spec, split, images[split])
+        images[split] = [without_roundoff(view) for view in images[split]]  # what the check let pass as rounding is 0
         _write_split(tmp, spec, split, images[split], cams[split], box)
         _write_split(tmp / MEDIUM_DIR, spec, split, medium[split], cams[split], box, medium=True,
                      seed_split=split if fallback is None else f"{split}_medium")
@@ -356,10 +360,13 @@ def generate_dataset(spec: SceneSpec, out_root: str | os.PathLike, *, force: boo
     hashes); one that fails is said so and rendered again.
     ``splits``: a subset of ``("train", "test", "test_ref")`` (default: all, ``test_ref`` only with
     ``render.noise_floor``); the noise floor is measured when both ``test`` and ``test_ref`` are made.
-    Uses the current Mitsuba variant, else :func:`mitsnerf.env.set_variant`'s default.
+    Uses the current Mitsuba variant, else :func:`mitsnerf.env.set_variant`'s default. The volume's input
+    files are checked first (:meth:`~mitsnerf.scene.spec.VolumeSpec.check_inputs`): a bad one is refused
+    before anything is written.
     """
     from mitsnerf.data.atomic import atomic_dir, atomic_write_json
 
+    spec.volume.check_inputs()
     _ensure_variant()
     splits = _resolve_splits(spec, splits)
     digest = spec.content_hash(hash_extra(splits, spec))

@@ -11,6 +11,9 @@ mount, a process without ``CAP_DAC_OVERRIDE``). A problem is one
 ``flock`` on a lock file that records the holder's process id; the kernel releases it when the
 process dies, however it dies.
 
+:func:`data_cache` is where datasets (and their oracles) are kept when no location is given: one
+directory per user, shared by every working directory, as pip, Hugging Face and torch keep theirs.
+
 >>> import tempfile
 >>> d = Path(tempfile.mkdtemp())
 >>> check_output_dir(d / "new" / "run", "--out")       # to be created: its parent's parent is writable
@@ -31,10 +34,58 @@ import errno
 import fcntl
 import os
 import secrets
-from collections.abc import Callable, Iterator
+import stat
+from collections.abc import Callable, Iterator, Mapping
 from pathlib import Path
 
 from mitsnerf.errors import OutputError
+
+DATA_ENV = "MITSNERF_DATA"
+"""The environment variable that names the dataset cache (:func:`data_cache`)."""
+
+
+def data_cache(environ: Mapping[str, str] | None = None) -> tuple[Path, str]:
+    """``(directory, what chose it)``: where datasets and their oracles are cached when no location is given.
+    ``$MITSNERF_DATA``, else ``$XDG_CACHE_HOME/mitsnerf`` (an absolute ``XDG_CACHE_HOME`` only, as the XDG
+    base-directory rules say), else ``~/.cache/mitsnerf``.
+
+    >>> data_cache({"MITSNERF_DATA": "/scratch/d", "XDG_CACHE_HOME": "/c"})
+    (PosixPath('/scratch/d'), '$MITSNERF_DATA')
+    >>> data_cache({"XDG_CACHE_HOME": "/c"})
+    (PosixPath('/c/mitsnerf'), '$XDG_CACHE_HOME')
+    >>> data_cache({"XDG_CACHE_HOME": "relative", "HOME": "/home/u"})
+    (PosixPath('/home/u/.cache/mitsnerf'), '~/.cache')
+    """
+    env = os.environ if environ is None else environ
+    if env.get(DATA_ENV):
+        return Path(os.path.expanduser(env[DATA_ENV])), f"${DATA_ENV}"
+    xdg = env.get("XDG_CACHE_HOME", "")
+    if os.path.isabs(xdg):
+        return Path(xdg) / "mitsnerf", "$XDG_CACHE_HOME"
+    home = env.get("HOME") or str(Path.home())
+    return Path(home) / ".cache" / "mitsnerf", "~/.cache"
+
+
+def directory_size(path: str | os.PathLike) -> tuple[int, int]:
+    """``(bytes, files)`` of the regular files under ``path`` (links not followed; (0, 0) if it is missing).
+
+    >>> import tempfile
+    >>> d = Path(tempfile.mkdtemp())
+    >>> (d / "a").write_bytes(b"12345")
+    5
+    >>> directory_size(d), directory_size(d / "missing")
+    ((5, 1), (0, 0))
+    """
+    total = files = 0
+    for root, _, names in os.walk(os.fspath(path)):
+        for name in names:
+            try:
+                st = os.lstat(os.path.join(root, name))
+            except OSError:  # removed meanwhile (a writer's temporary)
+                continue
+            if stat.S_ISREG(st.st_mode):
+                total, files = total + st.st_size, files + 1
+    return total, files
 
 
 def _existing_ancestor(path: Path, option: str) -> Path:

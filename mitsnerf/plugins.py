@@ -16,20 +16,27 @@ The methods (:mod:`mitsnerf.methods`) and the volume families (:mod:`mitsnerf.vo
    ``NAME=MODULE:ATTR`` entries separated by ``,`` or ``:``, for code that is not installed; ``MODULE``
    is a dotted module name on ``sys.path`` or the path of a ``.py`` file.
 
-A broken plugin (an import error, an object of the wrong type, a name taken by an earlier source)
-is one line in :attr:`Registry.problems`, naming the entry point or variable and the problem; every
-other entry keeps working. Asking for a broken entry by name raises that line.
+A broken plugin (an import error, a module that calls ``sys.exit`` while imported, an object of the
+wrong type, a malformed variable entry, a ``.py`` file whose name would replace another module) is one
+line in :attr:`Registry.problems`, naming the entry point or variable entry and the problem; every other
+entry keeps working. Asking for a broken entry by name raises that line.
+
+A name means one entry. A plugin cannot replace a built-in, nor a later source an earlier one: a name
+claimed twice keeps its first claimant in the mapping (so listings show it), the later claim is a problem
+line, and :meth:`Registry.why_not` refuses the name, naming both, until one is renamed; so neither is used
+silently where a user asked for the name.
 
 Each entry carries its :class:`Source`; a plugin's :attr:`Source.version` (its distribution's name and
 version, and a sha256 of its package's Python source) is what a benchmark cell's or a dataset's key
 covers beyond mitsnerf's own version, so editing a plugin reruns what it decides, and nothing else.
 
 >>> parse_variable("MITSNERF_METHODS", "a=pkg.mod:A,b=./b.py:Model:c=mod:obj.attr")
-[('a', 'pkg.mod', 'A'), ('b', './b.py', 'Model'), ('c', 'mod', 'obj.attr')]
->>> parse_variable("MITSNERF_METHODS", "a=pkg")
-Traceback (most recent call last):
-...
-mitsnerf.plugins.PluginError: MITSNERF_METHODS: 'a=pkg': not NAME=MODULE:ATTR
+([('a', 'pkg.mod', 'A'), ('b', './b.py', 'Model'), ('c', 'mod', 'obj.attr')], {})
+>>> entries, problems = parse_variable("MITSNERF_METHODS", "a=pkg,b=m:B")
+>>> entries
+[('b', 'm', 'B')]
+>>> print(problems["a"])
+MITSNERF_METHODS: 'a=pkg': not NAME=MODULE:ATTR (no ':ATTR' after the module: which object to register?)
 """
 
 from __future__ import annotations
@@ -125,12 +132,20 @@ class Registry(Mapping[str, T]):
         raise KeyError(self.why_not(name))
 
     def why_not(self, name: Any) -> str | None:
-        """None if ``name`` is registered, else the one line saying why not: unknown (naming the known
-        entries) or broken (and why)."""
+        """None if ``name`` may be used, else the one line saying why not: unknown (naming the known
+        entries), broken (and why), or claimed twice (naming both claims: the module docstring). Every
+        place a user names an entry asks this first.
+
+        >>> r = Registry("colour", {"red": Entry("red", 1, Source(BUILT_IN, "here"))},
+        ...              {"red": "MY_COLOURS: red=x:y: the name 'red' is taken by the built-in colour (here)"})
+        >>> r.why_not("red")
+        "colour 'red' is claimed twice: MY_COLOURS: red=x:y: the name 'red' is taken by the built-in colour (here)"
+        """
+        if isinstance(name, str) and name in self.problems:
+            state = "claimed twice" if name in self.entries else "broken"
+            return f"{self.what} {name!r} is {state}: {self.problems[name]}"
         if isinstance(name, str) and name in self.entries:
             return None
-        if isinstance(name, str) and name in self.problems:
-            return f"{self.what} {name!r} is broken: {self.problems[name]}"
         return unknown(self.what, name, sorted(self.entries))
 
 
@@ -154,25 +169,35 @@ class Kind(Generic[T]):
 
 def load(kind: Kind[T], environ: Mapping[str, str] | None = None) -> Registry[T]:
     """The registry ``kind`` describes: built-ins, then entry points, then the variable in ``environ``
-    (default ``os.environ``). An entry whose name an earlier source took is a problem, not an override."""
+    (default ``os.environ``). A name an earlier source claimed is a problem, never an override (the module
+    docstring)."""
     environ = os.environ if environ is None else environ
     entries: dict[str, Entry[T]] = {}
-    problems: dict[str, str] = {}
+    claims: dict[str, str] = {}
     for name, value, source in _built_ins(kind):
         entries[name] = Entry(name, kind.check(name, value), source)
+        claims[name] = f"the built-in {kind.what} ({source.where}), which a plugin cannot replace: rename the plugin"
+    problems: dict[str, str] = {}
     for name, loader, where in _plugins(kind, environ.get(kind.variable, ""), problems):
-        if name in entries:
-            problems[name] = f"{where}: the name {name!r} is taken by the {entries[name].source.kind} " \
-                             f"{kind.what} ({entries[name].source.where}); rename it"
+        if name in claims:
+            line = f"{where}: the name {name!r} is taken by {claims[name]} (until then {name!r} is refused)"
+            problems[name] = f"{problems[name]}; {line}" if name in problems else line
             continue
+        claims[name] = f"{where}: rename one of them"
         try:
             value, source = loader()
             entries[name] = Entry(name, kind.check(name, value), source)
-        except PluginError as exc:
-            problems[name] = f"{where}: {exc}"
-        except Exception as exc:  # a plugin's import may raise anything: it is the plugin's problem, not ours
-            problems[name] = f"{where}: {type(exc).__name__}: {exc}"
+        except Exception as exc:  # noqa: BLE001 (a plugin's import may raise anything: the plugin's problem, not ours)
+            problems[name] = f"{where}: {_why(exc)}"
+        except SystemExit as exc:  # sys.exit in a plugin must not end every command, the built-ins' included
+            problems[name] = f"{where}: the module called sys.exit({exc.code!r}) while it was imported; " \
+                             "a plugin module may only define things"
     return Registry(kind.what, MappingProxyType(entries), MappingProxyType(problems))
+
+
+def _why(exc: Exception) -> str:
+    """What a plugin that failed to load did: a :class:`PluginError`'s own sentence, else the exception."""
+    return str(exc) if isinstance(exc, PluginError) else f"{type(exc).__name__}: {exc}"
 
 
 def _built_ins(kind: Kind) -> Iterator[tuple[str, Any, Source]]:
@@ -196,11 +221,8 @@ def _plugins(kind: Kind, variable: str, problems: dict[str, str]):
     for ep in sorted(importlib.metadata.entry_points(group=kind.group), key=lambda e: e.name):
         where = f"entry point {kind.group}: {ep.name} = {ep.value}"
         yield ep.name, (lambda ep=ep, where=where: _load_entry_point(ep, where)), where
-    try:
-        parsed = parse_variable(kind.variable, variable)
-    except PluginError as exc:
-        problems[kind.variable] = str(exc)
-        return
+    parsed, malformed = parse_variable(kind.variable, variable)
+    problems.update(malformed)
     for name, module, attr in parsed:
         where = f"{kind.variable}: {name}={module}:{attr}"
         yield name, (lambda m=module, a=attr, where=where: _load_variable_entry(m, a, where)), where
@@ -225,14 +247,14 @@ def _load_variable_entry(module_text: str, attr: str, where: str) -> tuple[Any, 
 
 
 def _import_module(text: str) -> ModuleType:
-    """A dotted module name, or a ``.py`` file's path (imported under its stem's name)."""
+    """A dotted module name, or a ``.py`` file's path (imported under its stem's name, :func:`file_module_name`)."""
     if not (text.endswith(".py") or "/" in text or os.sep in text):
         return importlib.import_module(text)
     path = Path(text).expanduser().resolve()
     if not path.is_file():
         raise PluginError(f"no such file {str(path)!r}")
-    name = path.stem
-    if name in sys.modules and getattr(sys.modules[name], "__file__", None) == str(path):
+    name = file_module_name(path)
+    if name in sys.modules:
         return sys.modules[name]
     spec = importlib.util.spec_from_file_location(name, path)
     if spec is None or spec.loader is None:
@@ -247,17 +269,72 @@ def _import_module(text: str) -> ModuleType:
     return module
 
 
-def parse_variable(variable: str, text: str) -> list[tuple[str, str, str]]:
-    """``[(name, module, attr)]`` of a ``NAME=MODULE:ATTR`` list separated by ``,`` or ``:`` (see the
-    module docstring); a :class:`PluginError` naming the variable and the first entry that is not one."""
-    out = []
+def file_module_name(path: Path) -> str:
+    """The module name a plugin's ``.py`` file is imported under: its stem, registered in ``sys.modules``
+    (dataclasses and pickling look classes up there). A :class:`PluginError` if that name is another
+    module's, already imported, of the standard library or on ``sys.path``: importing the file under it
+    would replace that module for every other user of it (a ``json.py`` breaks the built-ins).
+
+    >>> file_module_name(Path("/tmp/json.py"))  # doctest: +ELLIPSIS
+    Traceback (most recent call last):
+    ...
+    mitsnerf.plugins.PluginError: '/tmp/json.py' would be imported as module 'json', which would replace Python's ...
+    """
+    name = path.stem
+    if "." in name or not name:
+        raise PluginError(f"{str(path)!r}: {name!r} is not a module name (no '.'); rename the file")
+    loaded = sys.modules.get(name)
+    file = getattr(loaded, "__file__", None)
+    if file and Path(file).resolve() == path:
+        return name  # imported before (by an earlier registry, or the other registry)
+    if name in sys.stdlib_module_names:
+        return _shadow(path, name, f"Python's standard-library module {name}")
+    if loaded is not None:
+        return _shadow(path, name, f"the module {name} already imported ({file or 'built into Python'})")
+    try:
+        spec = importlib.util.find_spec(name)
+    except (ImportError, ValueError):
+        spec = None
+    origin = None if spec is None else spec.origin  # None: a namespace package (a bare directory), hidden harmlessly
+    if origin and Path(origin).resolve() != path:
+        return _shadow(path, name, f"the module {name} ({origin})")
+    return name
+
+
+def _shadow(path: Path, name: str, what: str) -> str:
+    raise PluginError(f"{str(path)!r} would be imported as module {name!r}, which would replace {what}; "
+                      "rename the file")
+
+
+def parse_variable(variable: str, text: str) -> tuple[list[tuple[str, str, str]], dict[str, str]]:
+    """``([(name, module, attr)], {key: problem})`` of a ``NAME=MODULE:ATTR`` list separated by ``,`` or ``:``
+    (see the module docstring). An item that is not one is a problem line naming the variable and the item,
+    keyed by its NAME (so asking for that name says why), or by its text where it has none; the items beside
+    it are parsed as usual."""
+    out, problems = [], {}
     for chunk in filter(None, (c.strip() for c in text.split(","))):
         for item in re.split(rf":(?={_NAME}=)", chunk):
             match = _ENTRY.fullmatch(item)
-            if match is None:
-                raise PluginError(f"{variable}: {item!r}: not NAME=MODULE:ATTR")
-            out.append((match["name"], match["module"], match["attr"]))
-    return out
+            if match is not None:
+                out.append((match["name"], match["module"], match["attr"]))
+                continue
+            name, eq, rest = item.partition("=")
+            key = name if eq and re.fullmatch(_NAME, name) else item
+            problems[key] = f"{variable}: {item!r}: not NAME=MODULE:ATTR ({_malformed(name, eq, rest)})"
+    return out, problems
+
+
+def _malformed(name: str, eq: str, rest: str) -> str:
+    """Which part of ``NAME=MODULE:ATTR`` an item lacks (``name``, ``eq``, ``rest``: the item split at its
+    first ``=``)."""
+    if not eq:
+        return "no '=': which name to register it under?"
+    if not re.fullmatch(_NAME, name):
+        return f"{name!r} is not a NAME: letters, digits, '_', '.', '-', not starting with one of the last three"
+    module, colon, attr = rest.rpartition(":")
+    if not colon or not module:
+        return "no ':ATTR' after the module: which object to register?"
+    return f"{attr!r} is not an attribute path (Python names separated by '.')"
 
 
 def source_digest(module: ModuleType) -> str:

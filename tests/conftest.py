@@ -1,9 +1,12 @@
-"""Shared fixtures: the Mitsuba variant, the tiny scene spec, the checkout's files, and tiny synthetic grids."""
+"""Shared fixtures: the Mitsuba variant, the tiny scene spec, the checkout's files, and tiny synthetic grids; the
+dataset cache moved to a temporary directory for the whole session."""
 
 from __future__ import annotations
 
 import os
+import shutil
 import subprocess
+import tempfile
 from pathlib import Path
 
 import numpy as np
@@ -11,6 +14,24 @@ import pytest
 
 import mitsnerf  # (configures libLLVM before drjit loads)
 from mitsnerf import env
+
+CACHE_KEY = pytest.StashKey[str]()
+"""Where this session's ``XDG_CACHE_HOME`` points (:func:`pytest_configure`)."""
+
+
+def pytest_configure(config) -> None:
+    """The suite never writes the user's dataset cache (``~/.cache/mitsnerf``, or ``$MITSNERF_DATA``): before any
+    test is collected, ``XDG_CACHE_HOME`` points at a temporary directory (removed at the end) and
+    ``MITSNERF_DATA`` is unset, for this process and every child it starts."""
+    os.environ.pop("MITSNERF_DATA", None)
+    os.environ["XDG_CACHE_HOME"] = tempfile.mkdtemp(prefix="mitsnerf-test-cache-")
+    config.stash[CACHE_KEY] = os.environ["XDG_CACHE_HOME"]
+
+
+def pytest_unconfigure(config) -> None:
+    cache = config.stash.get(CACHE_KEY, None)
+    if cache is not None:
+        shutil.rmtree(cache, ignore_errors=True)
 
 
 @pytest.fixture(scope="session", autouse=True)
@@ -68,6 +89,34 @@ def tiny_scene(overrides: dict | None = None) -> dict:
     from mitsnerf.config import apply_overrides
 
     return apply_overrides(TINY_SCENE, overrides or {})
+
+
+def scene_toml(spec: dict) -> str:
+    """A scene spec (plain data, as :data:`TINY_SCENE`) written as TOML: its tables and lists of tables.
+
+    >>> print(scene_toml({"name": "t", "cameras": {"width": 8}, "lights": [{"type": "constant"}]}))
+    name = "t"
+    [cameras]
+    width = 8
+    [[lights]]
+    type = "constant"
+    <BLANKLINE>
+    """
+    import json
+
+    def value(v) -> str:
+        if isinstance(v, dict):
+            return "{ " + ", ".join(f"{k} = {value(x)}" for k, x in v.items()) + " }"
+        if isinstance(v, (list, tuple)):
+            return "[" + ", ".join(value(x) for x in v) + "]"
+        return ("true" if v else "false") if isinstance(v, bool) else json.dumps(v)
+
+    lines = [f"{k} = {value(v)}" for k, v in spec.items() if not isinstance(v, (dict, list))]
+    for table, body in spec.items():
+        for entry in (body if isinstance(body, list) else [body] if isinstance(body, dict) else []):
+            lines.append(f"[[{table}]]" if isinstance(body, list) else f"[{table}]")
+            lines += [f"{k} = {value(v)}" for k, v in entry.items()]
+    return "\n".join(lines) + "\n"
 
 
 def child_pythonpath(repo: Path) -> str:

@@ -181,6 +181,14 @@ def test_nan_loss_names_the_step_and_keeps_the_previous_checkpoint(tmp_path):
     np.testing.assert_array_equal(np.array(model.x), params_after[5])  # step 5's update never happened
 
 
+def test_a_nan_loss_at_the_first_step_says_so_and_names_no_step_before_it(tmp_path):
+    model = _Quadratic(scale=lambda step: float("nan"))
+    with pytest.raises(TrainingError) as caught:
+        train(model, None, TrainConfig(steps=3, log_every=1), 0.1, progress=False)
+    assert str(caught.value) == ("step 0: loss became nan; stopped, the initial parameters kept (before the first "
+                                 "step); no checkpoint (no run directory)")
+
+
 def test_a_diverging_loss_stops_training_and_keeps_the_last_healthy_checkpoint(tmp_path):
     path = tmp_path / CHECKPOINT_FILE
     model = _Quadratic(scale=lambda step: 1.0 if step < 10 else 1e4)

@@ -69,7 +69,7 @@ def test_methods_check_tensorf_conforms(site, tmp_path):
     done = _mitsnerf(site, "methods", "--check", "tensorf", "--no-progress", cwd=tmp_path)
     assert done.returncode == 0, done.stdout + done.stderr
     lines = done.stdout.strip().splitlines()
-    assert lines[-1] == "tensorf: conforms" and sum(line.startswith("ok ") for line in lines) == 6, done.stdout
+    assert lines[-1] == "tensorf: conforms" and sum(line.startswith("ok ") for line in lines) == 7, done.stdout
 
 
 SCENE = """name = "tcloud"

@@ -6,12 +6,13 @@ import numpy as np
 import pytest
 
 from mitsnerf.fields.grid import GridField
-from mitsnerf.scoring import (NO_DENSITY, density_scores, error_budget, image_scores, medium_masks, optical_depth_scores,
-                              ray_optical_depths)
+from mitsnerf.math.box import UNIT_BOX, Box
+from mitsnerf.math.camera import Camera, look_at
 from mitsnerf.math.color import linear_to_srgb
 from mitsnerf.math.metrics import psnr
-from mitsnerf.math.camera import Camera, look_at
-from mitsnerf.math.box import UNIT_BOX, Box
+from mitsnerf.scoring.density import NO_DENSITY, density_scores, optical_depth_scores, ray_optical_depths
+from mitsnerf.scoring.images import error_budget, image_scores
+from mitsnerf.scoring.medium import medium_masks
 
 
 def grid_density(sigma_t, scale=1.0):
@@ -133,7 +134,9 @@ def test_optical_depth_and_medium_mask_of_a_uniform_box():
 def test_an_anisotropic_medium_is_also_scored_against_its_reduced_extinction(blob_grid):
     """g = 0.5, albedo 0.8: sigma_t (1 - 0.4) renders alike; a density that found it scores 0 there, 0.4 against
     sigma_t; an isotropic medium's reduced scores are None."""
-    from mitsnerf.scoring import Reference, reduced_extinction, score_views
+    from mitsnerf.scoring.density import reduced_extinction
+    from mitsnerf.scoring.reference import Reference
+    from mitsnerf.scoring.views import score_views
 
     cams = _cameras()
     images = np.zeros((len(cams), 12, 12, 3))
@@ -159,7 +162,7 @@ def _transmittance_map(rng, shape=(3, 24, 24)) -> np.ndarray:
 @pytest.mark.parametrize("spp", [4, 64, 2048])
 def test_transmittance_agreement_holds_its_error_rate_on_binomial_alpha(spp):
     """Alpha drawn as the film makes it (binomial over spp samples): rejected at about the family's rate."""
-    from mitsnerf.scoring import transmittance_agreement
+    from mitsnerf.scoring.agreement import transmittance_agreement
 
     rng = np.random.default_rng(spp)
     t = _transmittance_map(rng)
@@ -168,7 +171,7 @@ def test_transmittance_agreement_holds_its_error_rate_on_binomial_alpha(spp):
 
 
 def test_transmittance_agreement_rejects_a_shared_bias_a_per_pixel_error_and_impossible_alpha():
-    from mitsnerf.scoring import transmittance_agreement
+    from mitsnerf.scoring.agreement import transmittance_agreement
 
     rng = np.random.default_rng(7)
     t = _transmittance_map(rng)
@@ -186,7 +189,7 @@ def test_transmittance_agreement_rejects_a_shared_bias_a_per_pixel_error_and_imp
 
 
 def test_view_agreement_is_per_view_and_has_power():
-    from mitsnerf.scoring import view_agreement
+    from mitsnerf.scoring.agreement import view_agreement
 
     rng = np.random.default_rng(3)
     truth = rng.uniform(0.2, 1.0, size=(4, 16, 16, 3))

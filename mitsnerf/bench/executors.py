@@ -25,9 +25,12 @@ import signal
 import sys
 import traceback
 from collections.abc import Callable, Sequence
+from pathlib import Path
+from types import FrameType
 from typing import Any
 
 from mitsnerf.bench.cells import Cell
+from mitsnerf.errors import CLI, UsageError, Words
 
 EXECUTORS = ("sequential", "pool", "ray")
 OnDone = Callable[[Cell, dict, bytes], None]
@@ -124,7 +127,7 @@ def ray_available() -> bool:
 
 
 def run_ray(cells: Sequence[Cell], on_done: OnDone, on_error: OnError, *, address: str | None = None,
-            workers: int = 0, threads: int = 0) -> None:
+            workers: int = 0, threads: int = 0, words: Words = CLI) -> None:
     """Run the cells as Ray tasks: on the cluster at ``address``, else on a local instance.
 
     ``workers``: at most that many cells in flight (0: as many as the cluster schedules);
@@ -134,10 +137,7 @@ def run_ray(cells: Sequence[Cell], on_done: OnDone, on_error: OnError, *, addres
     try:
         import ray
     except ImportError:
-        from mitsnerf.errors import UsageError
-
-        raise UsageError("--executor ray", "Ray is not installed; pip install 'mitsnerf[ray]' "
-                                           "(or: pip install 'ray[default]')") from None
+        raise UsageError(words(executor="ray"), NO_RAY) from None
 
     threads = threads or 1
     started_here = not ray.is_initialized()
@@ -175,36 +175,113 @@ def run_ray(cells: Sequence[Cell], on_done: OnDone, on_error: OnError, *, addres
             ray.shutdown()
 
 
-def check_options(executor: str, workers: int = 0, threads: int = 0, address: str | None = None) -> None:
-    """A :class:`~mitsnerf.errors.UsageError` (a ValueError naming the CLI option) for settings the
-    executor cannot honour."""
-    from mitsnerf.errors import UsageError
+def _is_main_guard(node) -> bool:
+    """Whether an ``ast`` node is ``if __name__ == "__main__":`` (either side of the ``==``)."""
+    import ast
 
+    test = node.test if isinstance(node, ast.If) else None
+    if not isinstance(test, ast.Compare) or len(test.ops) != 1 or not isinstance(test.ops[0], ast.Eq):
+        return False
+    sides = [test.left, test.comparators[0]]
+    return any(isinstance(a, ast.Name) and a.id == "__name__" for a in sides) and \
+        any(isinstance(b, ast.Constant) and b.value == "__main__" for b in sides)
+
+
+def _guarded(source: str, line: int) -> bool:
+    """Whether line ``line`` of a module's ``source`` lies in the body of an ``if __name__ == "__main__":``.
+
+    >>> _guarded("import x\\nif __name__ == '__main__':\\n    x.run()\\n", 3), _guarded("import x\\nx.run()\\n", 2)
+    (True, False)
+    """
+    import ast
+
+    return any(isinstance(node, ast.If) and _is_main_guard(node)
+               and node.body[0].lineno <= line <= (node.body[-1].end_lineno or line)
+               for node in ast.walk(ast.parse(source)))
+
+
+def unguarded_main_line() -> str | None:
+    """``FILE:LINE`` of the statement of the ``__main__`` script running now when it is not under ``if __name__
+    == "__main__":``, else None (guarded; or no script to import again: a notebook, the REPL, ``python -c``,
+    ``python -m PACKAGE``).
+
+    A process pool started with ``spawn`` imports that script again in every worker (as ``__mp_main__``), so
+    the statement would run again there: the worker would do the caller's work again and, reaching the pool,
+    stop while it bootstraps (multiprocessing's ``RuntimeError: An attempt has been made to start a new process
+    before the current process has finished its bootstrapping phase``), leaving the pool broken and each cell
+    failed with no reason. Read from the caller's stack and the script's source: what the worker would do,
+    known before it is started."""
+    import sys
+
+    main = sys.modules.get("__main__")
+    spec_name = getattr(getattr(main, "__spec__", None), "name", None) or ""
+    path = getattr(main, "__file__", None)
+    if main is None or path is None or spec_name == "__main__" or spec_name.endswith(".__main__"):
+        return None  # what multiprocessing's spawn does not import again (spawn._fixup_main_from_name)
+    frame: FrameType | None = sys._getframe(1)
+    module_frame = None
+    while frame is not None:
+        if frame.f_globals is vars(main) and frame.f_code.co_name == "<module>":
+            module_frame = frame
+        frame = frame.f_back
+    if module_frame is None:
+        return None
+    try:
+        source = Path(path).read_text(encoding="utf-8")
+    except (OSError, UnicodeDecodeError):
+        return None
+    try:
+        guarded = _guarded(source, module_frame.f_lineno)
+    except (SyntaxError, ValueError):  # not Python as read here: nothing can be said
+        return None
+    return None if guarded else f"{path}:{module_frame.f_lineno}"
+
+
+def check_main_guard(words: Words = CLI) -> None:
+    """A :class:`~mitsnerf.errors.UsageError` naming the script line and the ``if __name__ == "__main__":`` guard
+    when a ``spawn`` pool started here would run the caller's script again (:func:`unguarded_main_line`)."""
+    where = unguarded_main_line()
+    if where is not None:
+        raise UsageError(words(executor="pool"), f"its workers start by spawn, which imports the script again, and "
+                                                 f"{where} (this call) is not under 'if __name__ == \"__main__\":', "
+                                                 "so every worker would run it again and fail while it starts; put "
+                                                 "the call under that guard (a notebook needs nothing)")
+
+
+NO_RAY = "Ray is not installed; pip install 'mitsnerf[ray]' (or: pip install 'ray[default]')"
+
+
+def check_options(executor: str, workers: int = 0, threads: int = 0, address: str | None = None,
+                  words: Words = CLI) -> None:
+    """A :class:`~mitsnerf.errors.UsageError` (a ValueError naming the option in ``words``: ``--workers``, or
+    ``workers`` from the Python API) for settings the executor cannot honour."""
     if executor not in EXECUTORS:
-        raise UsageError("--executor", f"must be one of {', '.join(EXECUTORS)}, got {executor!r}")
+        raise UsageError(words.name("executor"), f"must be one of {', '.join(EXECUTORS)}, got {executor!r}")
     if address is not None and executor != "ray":
-        raise UsageError("--address", "only with --executor ray")
-    if workers < 0 or threads < 0:
-        raise UsageError("--workers, --cpus-per-cell", "must be >= 0")
+        raise UsageError(words.name("address"), f"only with {words(executor='ray')}")
+    for name, value in (("workers", workers), ("cpus_per_cell", threads)):
+        if value < 0:
+            raise UsageError(words.name(name), f"must be >= 0, got {value}")
     if executor == "sequential" and workers > 1:
-        raise UsageError("--workers", "the sequential executor runs one cell at a time (use --executor pool or ray)")
+        raise UsageError(words.name("workers"), "the sequential executor runs one cell at a time (use "
+                                                f"{words(executor='pool')} or {words(executor='ray')})")
     if executor == "ray" and not ray_available():
-        raise UsageError(
-            "--executor ray", "Ray is not installed; pip install 'mitsnerf[ray]' (or: pip install 'ray[default]')"
-        )
+        raise UsageError(words(executor="ray"), NO_RAY)
+    if executor == "pool":
+        check_main_guard(words)
 
 
 def run_cells(executor: str, cells: Sequence[Cell], on_done: OnDone, on_error: OnError, *, progress: bool = True,
               workers: int = 0, threads: int = 0, address: str | None = None,
-              on_start: Callable[[Cell], None] | None = None) -> None:
+              on_start: Callable[[Cell], None] | None = None, words: Words = CLI) -> None:
     """Dispatch to the named executor (one of :data:`EXECUTORS`); ``on_start`` (sequential only)
-    is called before each cell."""
-    check_options(executor, workers, threads, address)
+    is called before each cell; ``words``: how refusals name the options (:class:`mitsnerf.errors.Words`)."""
+    check_options(executor, workers, threads, address, words)
     if executor == "sequential":
         run_sequential(cells, on_done, on_error, progress=progress, threads=threads, on_start=on_start)
     elif executor == "pool":
         run_pool(cells, on_done, on_error, workers=workers, threads=threads)
     elif executor == "ray":
-        run_ray(cells, on_done, on_error, address=address, workers=workers, threads=threads)
+        run_ray(cells, on_done, on_error, address=address, workers=workers, threads=threads, words=words)
     else:  # pragma: no cover (check_options)
         raise ValueError(f"--executor: unknown {executor!r}")

@@ -21,7 +21,6 @@ cell trains (:mod:`mitsnerf.bench.external`), and appear in every output as ``NA
 
 from __future__ import annotations
 
-import os
 import sys
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -54,24 +53,26 @@ from mitsnerf.bench.tables import (
     csv_table,
     markdown_report,
     oracle_row,
+    quick_banner,
     scene_rows,
     with_oracle_rows,
 )
 from mitsnerf.config import from_dict, to_dict
 from mitsnerf.data.atomic import atomic_write_json, atomic_write_text
-from mitsnerf.errors import SpecError, signal_cause
+from mitsnerf.errors import CLI, SpecError, Words, signal_cause
+from mitsnerf.outputs import data_cache
 
-DATA_ENV = "MITSNERF_DATA"
 
-
-def default_data_root() -> Path:
-    return Path(os.environ.get(DATA_ENV) or "data")
+def _cache_dir() -> Path:
+    return data_cache()[0]
 
 
 @dataclass(frozen=True)
 class BenchOptions:
     quick: bool = False
-    data_root: Path = Path("data")
+    data_root: Path = field(default_factory=_cache_dir)
+    """Where the datasets and their oracles are cached (default :func:`mitsnerf.outputs.data_cache`: the user's
+    cache directory, shared by every working directory)."""
     results_root: Path = Path("results")
     progress: bool = True
     executor: str = "sequential"
@@ -90,6 +91,8 @@ class BenchOptions:
     """Write the plots and the HTML report (tables are always written)."""
     verify_hashes: bool = True
     """Check a cached dataset's files against its manifest's sha256 hashes (``--no-verify``: not)."""
+    words: Words = CLI
+    """How messages name the options: the command line's (``--force``) or the Python API's (``force=True``)."""
 
 
 @dataclass
@@ -281,6 +284,21 @@ def collect(cells: list[Cell]) -> tuple[list[dict], list[dict]]:
     return records, failed
 
 
+def quick_sizes(cells: list[Cell]) -> str:
+    """The sizes a quick run has, in words (for :func:`mitsnerf.bench.tables.quick_banner`): each distinct value
+    across ``cells``, ``16x16 views, 2 test views at 16 spp, 30 steps``."""
+    def values(get) -> str:
+        return "/".join(dict.fromkeys(str(get(c)) for c in cells))
+
+    def size(cell: Cell) -> str:
+        return f"{cell.spec['cameras']['width']}x{cell.spec['cameras']['height']}"
+
+    if not cells:
+        return ""
+    return (f"{values(size)} views, {values(lambda c: c.spec['cameras']['n_test'])} test views at "
+            f"{values(lambda c: c.spec['render']['spp_test'])} spp, {values(lambda c: c.train['steps'])} steps")
+
+
 def write_outputs(config: BenchConfig, options: BenchOptions, cells: list[Cell], result: BenchResult) -> BenchResult:
     """Tables, CSV, JSON, plots and the HTML report from the cells' results on disk and the external entries."""
     out_root = out_root_of(config, options)
@@ -295,12 +313,13 @@ def write_outputs(config: BenchConfig, options: BenchOptions, cells: list[Cell],
     if len(ceilings) > 1:
         average = [{**r, "ceiling": True} for r in average_rows(ceilings, [ORACLE])] + average
     best = best_rules(records)
-    markdown = compact_report(per_scene, average, best)
+    quick = quick_banner(quick_sizes(cells)) if options.quick else None
+    markdown = compact_report(per_scene, average, best, quick)
     files = {"table.md": out_root / "table.md", "table.csv": out_root / "table.csv",
              "average.csv": out_root / "average.csv", "cells.csv": out_root / "cells.csv",
              "results.json": out_root / "results.json"}
     title = f"mitsnerf benchmark {config.name}" + (" (quick)" if options.quick else "")
-    atomic_write_text(files["table.md"], f"# {title}\n\n{markdown_report(per_scene, average, best)}\n")
+    atomic_write_text(files["table.md"], f"# {title}\n\n{markdown_report(per_scene, average, best, quick)}\n")
     atomic_write_text(files["table.csv"], csv_table(per_scene, csv_keys(per_scene)))
     atomic_write_text(files["average.csv"], csv_table(average, csv_keys(average)))
     cell_rows = [cell_row(r) for r in records]
@@ -326,7 +345,7 @@ def write_outputs(config: BenchConfig, options: BenchOptions, cells: list[Cell],
     if options.report:
         files.update(_write_report(out_root, cells, result, records, scenes, methods, title=title, per_scene=per_scene,
                                    average=average, provenance=provenance, config=config_data, failed=failed,
-                                   notes=notes, best=best))
+                                   notes=[quick, *notes] if quick else notes, best=best))
     result.records, result.failed = records, failed
     result.per_scene, result.average, result.markdown, result.files = per_scene, average, markdown, files
     return result
@@ -361,7 +380,8 @@ def _score_externals(config: BenchConfig, options: BenchOptions, cells: list[Sce
     entries = plan_externals(config, options.quick, cells)
     if not entries and not config.methods:
         raise SpecError(config.source, "external", "nothing to run: no method, and no entry has renders for "
-                                                   "the --quick datasets (its quick = { renders = ... } table)")
+                                                   f"the datasets of {options.words(quick=True)} (its quick = "
+                                                   "{ renders = ... } table)")
     if not entries:
         return []
     _generate([c for c in cells if c.scene in {e.scene for e in entries}], options, log)
@@ -387,7 +407,7 @@ def run_benchmark(config: BenchConfig, options: BenchOptions, log: Callable[[str
     """
     from mitsnerf.bench.executors import check_options, run_cells
 
-    check_options(options.executor, options.workers, options.cpus_per_cell, options.address)
+    check_options(options.executor, options.workers, options.cpus_per_cell, options.address, options.words)
     if log is None:
         log = (lambda line: print(line, file=sys.stderr, flush=True)) if options.progress else (lambda line: None)
     scenes = plan_scenes(config, options)
@@ -399,7 +419,7 @@ def run_benchmark(config: BenchConfig, options: BenchOptions, log: Callable[[str
     result.skipped = [c.key for c in cells if c not in pending]
     if result.skipped:
         log(f"{len(result.skipped)} of {len(cells)} cells already done (same config and code); "
-            f"{len(pending)} to run" + (" (--force recomputes them)" if pending else ""))
+            f"{len(pending)} to run" + (f" ({options.words(force=True)} recomputes them)" if pending else ""))
     if pending:
         _generate(pending, options, log)
         total = len(pending)
@@ -423,20 +443,20 @@ def run_benchmark(config: BenchConfig, options: BenchOptions, log: Callable[[str
         try:
             run_cells(options.executor, pending, on_done, on_error, progress=options.progress,
                       workers=options.workers, threads=options.cpus_per_cell, address=options.address,
-                      on_start=on_start)
+                      on_start=on_start, words=options.words)
         except BaseException as exc:  # Ctrl-C, SIGTERM, SIGHUP: the same exit status, the cells kept
             if signal_cause(exc) is None:
                 raise
-            raise _stopped(exc, f"{len(result.computed)} cells finished in this run are saved under {out_root}; run "
-                                "the same command again to resume (the cell in flight continues from its "
+            raise _stopped(exc, f"{len(result.computed)} cells finished in this run are saved under {out_root}; "
+                                f"{options.words.again('bench')} to resume (the cell in flight continues from its "
                                 "checkpoint, if it reached one)") from None
     try:
         return write_outputs(config, options, cells, result)
     except BaseException as exc:  # after the last cell: only the tables and the report are missing
         if signal_cause(exc) is None:
             raise
-        raise _stopped(exc, f"every cell is saved under {out_root}; run the same command again to write the tables "
-                            "and the report") from None
+        raise _stopped(exc, f"every cell is saved under {out_root}; {options.words.again('bench')} to write the "
+                            "tables and the report") from None
 
 
 def _stopped(exc: BaseException, saved: str):

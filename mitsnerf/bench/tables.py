@@ -173,7 +173,9 @@ def _cell_text(row: dict, key: str, digits: int) -> str:
     text = _fmt(row.get(key), digits)
     if key == "budget" and isinstance(row.get("budget"), str) and _is_number(row.get("steps")):
         return f"{row['steps']:.0f} {row['budget']}"
-    return f"{text} (ceiling)" if key == "method" and row.get("ceiling") else text
+    if key == "method" and row.get("ceiling"):
+        return f"{text} (ceiling, beaten: see below)" if row.get("beaten_by") else f"{text} (ceiling)"
+    return text
 
 
 def is_best(row: dict, key: str, digits: int, marks: dict[tuple[Any, str], Any], group: str | None) -> bool:
@@ -329,9 +331,51 @@ def cost_columns(rows: Sequence[dict]) -> tuple[Column, ...]:
     return COST[:-1] + tuple((f"seconds_to_{t}db", f"s to {t} dB medium", 1) for t in targets) + COST[-1:]
 
 
+def _beats(row: dict, ceiling: float) -> bool:
+    """Whether a method row's medium PSNR is above ``ceiling`` as the table prints them (2 decimals)."""
+    return not row.get("ceiling") and _is_number(row.get("psnr_test_medium")) \
+        and round(float(row["psnr_test_medium"]), 2) > round(ceiling, 2)
+
+
+def mark_beaten(rows: Sequence[dict], group: str = "scene") -> list[dict]:
+    """``rows`` with ``beaten_by`` (the methods above it) on each ceiling row that a row of its group beats, so the
+    table marks it and :func:`reference_lines` gives the reason.
+
+    >>> rows = mark_beaten([{"scene": "a", "method": "oracle", "ceiling": True, "psnr_test_medium": 20.0},
+    ...                     {"scene": "a", "method": "nerf", "psnr_test_medium": 21.3}])
+    >>> rows[0]["beaten_by"], _cell_text(rows[0], "method", 0)
+    (['nerf'], 'oracle (ceiling, beaten: see below)')
+    """
+    out = []
+    for row in rows:
+        if row.get("ceiling") and _is_number(row.get("psnr_test_medium")):
+            above = [r["method"] for r in rows if r.get(group) == row.get(group) and _beats(r, row["psnr_test_medium"])]
+            row = {**row, "beaten_by": above} if above else row
+        out.append(row)
+    return out
+
+
+def _oracle_words(members: Sequence[dict], oracle: float, perfect: float | None) -> str:
+    """What the oracle scores, and why, where it looks impossible: a method above it, or it above a perfect model."""
+    ceiling = next(r for r in members if r.get("ceiling"))
+    basis = ceiling.get("ceiling_basis")
+    basis = basis if isinstance(basis, str) and basis != "mixed" else "see each scene's line"
+    text = f"; the oracle scores {_fmt(oracle, 2)} dB"
+    if perfect is not None and round(oracle, 2) > round(perfect, 2):
+        text += (", above that perfect-model figure: both are estimates (the oracle's in-scattered light: "
+                 f"{basis}; the perfect model's: the two renders' own noise), close enough to cross")
+    above = [r for r in members if _beats(r, oracle)]
+    if above:
+        names = ", ".join(f"{r['method']} {_fmt(r['psnr_test_medium'], 2)}" for r in above)
+        text += (f"; {names} above it: this ceiling is an estimate ({basis}), below the true one by its own error, "
+                 "and a model that averages that error out can pass it")
+    return text + "."
+
+
 def reference_lines(rows: Sequence[dict], group: str = "scene") -> list[str]:
     """Per group of ``rows`` (a scene, or the mean over scenes): how well its two reference renders agree on
-    medium pixels, what a perfect model would score, and the oracle (the ceiling).
+    medium pixels, what a perfect model would score, and the oracle (the ceiling), with the reason beside it
+    where a method scores above it or it above the perfect model (:func:`_oracle_words`).
 
     >>> (line,) = reference_lines([{"scene": "cloud", "method": "oracle", "ceiling": True, "psnr_test_medium": 44.82,
     ...                             "noise_floor_psnr_medium": 43.97}])
@@ -346,13 +390,16 @@ def reference_lines(rows: Sequence[dict], group: str = "scene") -> list[str]:
         floor = next((r["noise_floor_psnr_medium"] for r in members if _is_number(r.get("noise_floor_psnr_medium"))),
                      None)
         oracle = next((r["psnr_test_medium"] for r in members if r.get("ceiling")), None)
-        text = (
-            f"two reference renders agree to {_fmt(floor, 2)} dB (medium pixels): a perfect model would score about "
-            f"{_fmt(float(floor) + PERFECT_DB, 2)} dB"
-            if floor is not None and _is_number(floor)
-            else "no reference agreement measured (render.noise_floor = false)"
-        )
-        lines.append(f"{name}: {text}" + (f"; the oracle scores {_fmt(oracle, 2)} dB." if _is_number(oracle) else "."))
+        perfect = float(floor) + PERFECT_DB if floor is not None else None
+        if perfect is not None:
+            text = (f"two reference renders agree to {_fmt(floor, 2)} dB (medium pixels): a perfect model would "
+                    f"score about {_fmt(perfect, 2)} dB")
+        elif not any(_is_number(r.get("psnr_test_medium")) for r in members):
+            text = "no cell finished, so nothing was scored"
+        else:
+            text = "no reference agreement measured (render.noise_floor = false)"
+        lines.append(f"{name}: {text}" + (_oracle_words(members, oracle, perfect) if isinstance(oracle, float)
+                                          and _is_number(oracle) else "."))
     return lines
 
 
@@ -361,12 +408,27 @@ def _notes(rows: Sequence[dict]) -> list[str]:
     return [f"{r['scene']} {r['method']}: {r['note']}" for r in rows if r.get("note") and not r.get("ceiling")]
 
 
-def compact_report(per_scene: Sequence[dict], average: Sequence[dict], best: dict[str, str] | None = None) -> str:
+def quick_banner(sizes: str = "") -> str:
+    """The line a quick table starts with: what it is for, and what it is not.
+
+    >>> quick_banner("16x16 views, 30 steps").startswith("Quick profile (16x16 views, 30 steps): a smoke test")
+    True
+    """
+    shown = f" ({sizes})" if sizes else ""
+    return (f"Quick profile{shown}: a smoke test that every step runs, not a measurement. At this size the figures "
+            "rank nothing and may leave their usual ranges (a method above the oracle, the oracle above the perfect-"
+            "model figure, an SSIM below 0); the benchmark without its quick profile gives figures to read.")
+
+
+def compact_report(per_scene: Sequence[dict], average: Sequence[dict], best: dict[str, str] | None = None,
+                   quick: str | None = None) -> str:
     """What ``mitsnerf bench`` prints: :data:`COMPACT` per scene (and averaged), each table's reference line(s)
-    and notes, and the legend of its columns."""
+    and notes, and the legend of its columns; ``quick``: the :func:`quick_banner` a quick table starts with."""
     best = BEST if best is None else best
-    parts = ["## Per scene", "", markdown_table(per_scene, COMPACT, best, group="scene"), "",
-             *reference_lines(per_scene), *_notes(per_scene)]
+    per_scene, average = mark_beaten(per_scene), mark_beaten(average)
+    parts = ([quick, ""] if quick else []) + [
+        "## Per scene", "", markdown_table(per_scene, COMPACT, best, group="scene"), "",
+        *reference_lines(per_scene), *_notes(per_scene)]
     if len({r["scene"] for r in per_scene}) > 1:
         parts += ["", "## Averaged over scenes", "", markdown_table(average, COMPACT, best), "",
                   *reference_lines(average), *_notes(average)]
@@ -376,11 +438,14 @@ def compact_report(per_scene: Sequence[dict], average: Sequence[dict], best: dic
     return "\n".join(parts)
 
 
-def markdown_report(per_scene: Sequence[dict], average: Sequence[dict], best: dict[str, str] | None = None) -> str:
-    """The Markdown written as ``table.md``: every column, quality and cost, per scene and averaged."""
+def markdown_report(per_scene: Sequence[dict], average: Sequence[dict], best: dict[str, str] | None = None,
+                    quick: str | None = None) -> str:
+    """The Markdown written as ``table.md``: every column, quality and cost, per scene and averaged (``quick``:
+    the :func:`quick_banner` first)."""
     best = BEST if best is None else best
+    per_scene, average = mark_beaten(per_scene), mark_beaten(average)
     cost = cost_columns(per_scene)
-    parts = [
+    parts = ([quick, ""] if quick else []) + [
         "## Quality per scene",
         "",
         markdown_table(per_scene, QUALITY, best, group="scene"),
@@ -421,6 +486,28 @@ ORACLE = "oracle"
 """The method label of the ceiling rows."""
 
 
+def ceiling_basis(info: dict) -> str:
+    """What an oracle's ceiling rests on (``info``: its ``oracle.json``), in words: the volpath directions per
+    point behind its in-scattered light J, their error, its grid, and the spherical-harmonic order of an
+    anisotropic medium's.
+
+    >>> print(ceiling_basis({"config": {"spp": 8, "resolution": 16}, "mc_error": {"lbar_rel_se_median": 0.138},
+    ...                      "directional": {"g": 0.85, "order": 2}}).replace(", ", ",\\n"))
+    J from 8 volpath directions per point of a 16^3 grid,
+    median relative error 14%,
+    to spherical-harmonic order 2 for g = 0.85
+    """
+    cfg = info.get("config") or {}
+    text = f"J from {cfg.get('spp')} volpath directions per point of a {cfg.get('resolution') or 'true'}^3 grid"
+    err = (info.get("mc_error") or {}).get("lbar_rel_se_median")
+    if isinstance(err, float) and _is_number(err):
+        text += f", median relative error {100 * err:.0f}%"
+    directional = info.get("directional")
+    if isinstance(directional, dict) and directional.get("order") is not None:
+        text += f", to spherical-harmonic order {directional['order']} for g = {directional.get('g')}"
+    return text
+
+
 def oracle_row(scene: str, metrics: dict, info: dict) -> dict:
     """The ceiling row of ``scene``: the oracle's scores at the evaluation footprint, its settings in the note.
 
@@ -439,6 +526,7 @@ def oracle_row(scene: str, metrics: dict, info: dict) -> dict:
     row["psnr_test_medium_k1"] = k1
     row["oracle_seconds"] = sum((info.get("seconds") or {}).values()) or None
     res = cfg.get("resolution") or "true"
+    row["ceiling_basis"] = ceiling_basis(info)
     row["note"] = (f"ceiling: J by volpath ({cfg.get('spp')} directions, {res}^3 grid), N = {cfg.get('n_samples')}, "
                    f"footprint {info.get('footprint')}; medium at footprint 1: {_fmt(k1, 2)}")
     return row

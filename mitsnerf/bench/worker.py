@@ -20,7 +20,7 @@ from typing import Any
 import numpy as np
 
 from mitsnerf.bench.cells import IN_FLIGHT_FILE, RECORD_FORMAT, Cell, SceneData
-from mitsnerf.scoring import image_scores
+from mitsnerf.scoring.images import image_scores
 
 PEAK_MEMORY_NOTE = ("peak_rss_mb: RSS high-water mark (resource.getrusage ru_maxrss) of the process that ran "
                     "the cell, read when it ended; in a reused process (the sequential executor) it includes "
@@ -116,9 +116,11 @@ def _open_dataset(cell: Cell, progress: bool):
     return load_dataset(generate_dataset(spec, Path(cell.data_root), progress=progress))
 
 
-def cell_oracle(cell: Cell | SceneData, dataset=None, log=lambda line: None):
+def cell_oracle(cell: Cell | SceneData, dataset=None, log=lambda line: None, reference=None):
     """The cached oracle (:class:`mitsnerf.oracle.cache.Oracle`) of the cell's dataset at its eval
-    footprint, computed and cached first if missing; None when the cell has none (or foreign data)."""
+    footprint, computed and cached first if missing (with ``reference``, the test views'
+    :class:`~mitsnerf.scoring.reference.Reference`, where the caller has it); None when the cell has none
+    (or foreign data)."""
     from mitsnerf.config import from_dict
     from mitsnerf.data.dataset import load_dataset
     from mitsnerf.oracle.cache import OracleConfig, ensure_oracle
@@ -130,7 +132,7 @@ def cell_oracle(cell: Cell | SceneData, dataset=None, log=lambda line: None):
             return None
         dataset = load_dataset(Path(cell.dataset_dir))
     config = from_dict(OracleConfig, dict(cell.oracle))
-    return ensure_oracle(dataset, config, int(cell.eval.get("footprint", 1)), log)
+    return ensure_oracle(dataset, config, int(cell.eval.get("footprint", 1)), log, reference)
 
 
 def oracle_summary(oracle, footprint: int) -> dict[str, Any] | None:
@@ -162,13 +164,14 @@ class SceneLoads:
         """``(dataset, oracle, reference)`` of ``cell``'s scene, loaded unless it was the last one asked for."""
         import json
 
-        from mitsnerf.scoring import reference
+        from mitsnerf.scoring.reference import load_reference
 
         key = (cell.dataset_dir, json.dumps(cell.oracle, sort_keys=True), cell.eval.get("footprint", 1))
         if self.key != key or self.loaded is None:
             dataset = _open_dataset(cell, progress)
-            oracle = cell_oracle(cell, dataset)
-            self.key, self.loaded, self.loads = key, (dataset, oracle, reference(dataset, "test")), self.loads + 1
+            ref = load_reference(dataset, "test")
+            self.key, self.loaded = key, (dataset, cell_oracle(cell, dataset, reference=ref), ref)
+            self.loads += 1
         return self.loaded
 
 

@@ -5,15 +5,36 @@ from __future__ import annotations
 import sys
 from pathlib import Path
 
-from mitsnerf.cli.common import SCENES_HELP, with_user_dirs
+from mitsnerf.cli.common import SCENES_HELP, command_name, with_user_dirs
+from mitsnerf.outputs import DATA_ENV
+
+
+def next_steps(result, command: str) -> str:
+    """Where the benchmark's datasets are, and the commands a newcomer would run next on them: train one of
+    the benchmark's methods alone on its first dataset (at the cell's step budget), render that run, open the
+    report. ``command``: how to call mitsnerf (:func:`mitsnerf.cli.common.command_name`)."""
+    import shlex
+
+    datasets = dict.fromkeys((c.scene, c.dataset_dir) for c in result.cells)
+    lines = ["datasets (ground truth and oracles, reused by every later run):"]
+    lines += [f"  {scene}: {path}" for scene, path in datasets]
+    if result.cells:
+        cell = result.cells[0]
+        run = f"runs/{cell.label}"
+        lines += ["next:",
+                  f"  {command} train {shlex.quote(cell.dataset_dir)} --method {cell.method} "
+                  f"--steps {cell.train['steps']} --out {run}      # fit one method yourself",
+                  f"  {command} render {run} --orbit 36 --out renders/{cell.label}      # novel views, orbit.gif",
+                  f"  {command} --help      # every command; the report: {result.out_root / 'report.html'}"]
+    return "\n".join(lines)
 
 
 @with_user_dirs
 def run(args) -> int:
     from mitsnerf.bench.config import load_bench_config
-    from mitsnerf.bench.runner import BenchOptions, default_data_root, run_benchmark
+    from mitsnerf.bench.runner import BenchOptions, run_benchmark
     from mitsnerf.errors import UsageError
-    from mitsnerf.outputs import check_output_dir
+    from mitsnerf.outputs import check_output_dir, data_cache
     from mitsnerf.train.threads import refuse_nondeterministic
 
     refuse_nondeterministic(args.deterministic, "--deterministic")
@@ -23,7 +44,7 @@ def run(args) -> int:
         )
     options = BenchOptions(
         quick=args.quick,
-        data_root=Path(args.data) if args.data else default_data_root(),
+        data_root=Path(args.data) if args.data else data_cache()[0],
         results_root=Path(args.results),
         progress=not args.no_progress,
         executor=args.executor,
@@ -34,12 +55,14 @@ def run(args) -> int:
         verify_hashes=not args.no_verify,
     )
     check_output_dir(options.results_root, "--results")
-    check_output_dir(options.data_root, "--data" if args.data else "dataset cache ($MITSNERF_DATA or ./data)")
+    check_output_dir(options.data_root, "--data" if args.data else
+                     f"dataset cache (chosen by {data_cache()[1]}; --data or ${DATA_ENV} moves it)")
     config = load_bench_config(args.config)
     result = run_benchmark(config, options)
     print(result.markdown)
     print(f"\n{len(result.computed)} cells run, {len(result.skipped)} already done -> {result.out_root} "
           f"({', '.join(sorted(p for p in result.files if '/' not in p))})")
+    print(next_steps(result, command_name()))
     if result.failed:
         print(
             f"mitsnerf: {len(result.failed)} cells failed: "
@@ -60,7 +83,9 @@ def add_parser(sub) -> None:
                         "also $MITSNERF_BENCHMARKS)")
     p.add_argument("--scenes", action="append", metavar="DIR", help=SCENES_HELP)
     p.add_argument("--quick", action="store_true", help="the config's quick profile (tiny scenes, few steps)")
-    p.add_argument("--data", help="dataset cache root (default: $MITSNERF_DATA or ./data)")
+    p.add_argument("--data", metavar="DIR",
+                   help="where datasets and their oracles are cached (default: $MITSNERF_DATA, else "
+                        "$XDG_CACHE_HOME/mitsnerf, else ~/.cache/mitsnerf; `mitsnerf env` shows it)")
     p.add_argument("--results", default="results", help="results root (default: results)")
     p.add_argument("--no-progress", action="store_true",
                    help="no progress lines or bars on stderr (bars are off anyway when stderr is not a terminal)")

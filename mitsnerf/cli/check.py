@@ -14,6 +14,20 @@ def _mutation_line(label: str, r) -> None:
     print(f"  {label}: {r.name}: {r.status} ({r.seconds:.1f} s)", file=sys.stderr, flush=True)
 
 
+TABLE_FILE = "check.txt"
+"""The file ``--out DIR`` holds: the wide table, its notes and the count line."""
+
+
+def _show(args, text: str, wide_text: str) -> None:
+    """Print the table (``--wide``: the wide one) and write the wide one to ``--out``'s :data:`TABLE_FILE`."""
+    print(wide_text if args.wide else text, flush=True)
+    if args.out:
+        from mitsnerf.data.atomic import atomic_write_text
+
+        Path(args.out).mkdir(parents=True, exist_ok=True)
+        atomic_write_text(Path(args.out) / TABLE_FILE, wide_text + "\n")
+
+
 def run(args) -> int:
     from mitsnerf.outputs import check_output_dir
     from mitsnerf.verify.cases import QUALITIES
@@ -24,9 +38,9 @@ def run(args) -> int:
     alpha = QUALITIES[args.quality].alpha
     if args.mutations:
         report = run_mutations(args.quality, only=args.case, progress=None if args.no_progress else _mutation_line)
-        print(format_table(report.clean, alpha))
-        print()
-        print(format_mutations(report), flush=True)
+        matrix = format_mutations(report)
+        _show(args, f"{format_table(report.clean, alpha)}\n\n{matrix}",
+              f"{format_table(report.clean, alpha, wide=True)}\n\n{matrix}\n{count_line(report.clean)}")
         failed = [r.name for r in report.clean if r.passed is False]
         if failed:
             print(
@@ -39,7 +53,7 @@ def run(args) -> int:
         print(count_line(report.clean))  # last, alone on its line
         return 0 if report.passed else 1
     results = run_checks(args.quality, out=args.out, only=args.case, progress=None if args.no_progress else _case_line)
-    print(format_table(results, alpha), flush=True)
+    _show(args, format_table(results, alpha), f"{format_table(results, alpha, wide=True)}\n{count_line(results)}")
     failed = [r.name for r in results if r.passed is False]
     if failed:
         print(f"mitsnerf check: {len(failed)} case(s) failed: {', '.join(failed)}", file=sys.stderr, flush=True)
@@ -54,12 +68,18 @@ def add_parser(sub) -> None:
         description="Run the verification cases (mitsnerf.verify) and print a table; exit status 1 if any case fails.",
     )
     from mitsnerf.verify.cases import QUALITIES
+    from mitsnerf.verify.runner import COMPACT_WIDTH
 
     sizes = "; ".join(f"{q.name}: {q.width}x{q.width} images, Mitsuba references at {q.spp} spp times each case's "
                       f"factor, N = {q.n_samples} samples per ray" for q in QUALITIES.values())
     p.add_argument("--quality", choices=tuple(QUALITIES), default="quick",
-                   help=f"{sizes} (default quick: about a minute)")
-    p.add_argument("--out", help="directory for the images of failing cases (default: a new temporary directory)")
+                   help=f"{sizes} (default quick: a few minutes on 2 cores)")
+    p.add_argument("--out", metavar="DIR",
+                   help=f"write the wide table to DIR/{TABLE_FILE}, and the images of failing cases under DIR "
+                        "(default: no table file; failing cases' images in a new temporary directory)")
+    p.add_argument("--wide", action="store_true",
+                   help=f"print every column (the reference each case is compared with), each row on one line "
+                        f"(default: a compact table of about {COMPACT_WIDTH} columns)")
     p.add_argument("--case", action="append", metavar="NAME", help="run only this case (repeatable)")
     p.add_argument("--mutations", action="store_true",
                    help="also run every case under each built-in mutation (bugs planted in the package's functions) "

@@ -121,6 +121,26 @@ def check_numbers(checks) -> None:
             raise UsageError(flag, f"must be {what}, got {shown}")
 
 
+def command_name(argv0: str | None = None, executable: str | None = None) -> str:
+    """How to call mitsnerf again as this process was called, for the commands a command suggests: ``mitsnerf``
+    where that name on ``PATH`` is this program, else the path it was run by (``.venv/bin/mitsnerf`` after
+    ``make``, whose virtual environment is not activated), else ``PYTHON -m mitsnerf``.
+
+    >>> command_name("/nowhere/bin/mitsnerf"), command_name("-m", "/opt/py/bin/python3")
+    ('/nowhere/bin/mitsnerf', '/opt/py/bin/python3 -m mitsnerf')
+    """
+    import shlex
+    import shutil
+
+    argv0 = sys.argv[0] if argv0 is None else argv0
+    if os.path.basename(argv0) == "mitsnerf":
+        found = shutil.which("mitsnerf")
+        if found and os.path.exists(argv0) and os.path.samefile(found, argv0):
+            return "mitsnerf"
+        return shlex.quote(argv0)
+    return f"{shlex.quote(executable or sys.executable)} -m mitsnerf"
+
+
 NO_PROGRESS_HELP = "no progress bars (they are off anyway when stderr is not a terminal)"
 
 

@@ -44,9 +44,12 @@ def add_parser(sub) -> None:
         help="list the methods (built-in and plugins), one method's settings, or check a method's conformance",
         description="Without NAME: every registered method, where it came from (built-in, a 'mitsnerf.methods' "
                     "entry point, or the MITSNERF_METHODS variable: NAME=MODULE:CLASS, separated by ',' or ':') and "
-                    "the plugins that failed to load. With NAME: its settings (what --set takes). With --check NAME: "
-                    "train its tiny configuration through every promise the harness makes for a method.")
+                    "the plugins that failed to load; a plugin cannot take a built-in's name, and a name claimed "
+                    "twice is refused until one is renamed. With NAME: its settings (what --set takes). With --check "
+                    "NAME: train its tiny configuration (the method's `tiny` settings, not its defaults: a check of "
+                    "promises, not of quality) through every promise the harness makes for a method.")
     p.add_argument("name", nargs="?", metavar="NAME", help="a method: print its settings, ranges and defaults")
-    p.add_argument("--check", metavar="NAME", help="run the conformance suite on method NAME (exit 1 if it fails)")
+    p.add_argument("--check", metavar="NAME",
+                   help="run the conformance suite on method NAME at its tiny settings (exit 1 if it fails)")
     p.add_argument("--no-progress", action="store_true", help=NO_PROGRESS_HELP)
     p.set_defaults(func=run)

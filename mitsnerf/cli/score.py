@@ -14,16 +14,18 @@ def run(args) -> int:
     from mitsnerf.runs.external import renders_folder, score_renders
     from mitsnerf.train.evaluate import EvalConfig
 
-    renders = renders_folder(Path(args.renders))
+    renders = renders_folder(Path(args.renders))  # a run's test/
     out = Path(args.out) if args.out else renders / "scores.json"
     check_output_file(out, "--out")
-    options_config(EvalConfig, {"footprint": args.footprint}, "score")
+    if args.footprint is not None:
+        options_config(EvalConfig, {"footprint": args.footprint}, "score")
     dataset = open_dataset(args, args.dataset)
-    result = score_renders(dataset, renders, density=Path(args.density) if args.density else None, name=args.name,
-                           fmt=args.format, footprint=args.footprint, exr_alpha=args.exr_alpha)
+    result = score_renders(dataset, Path(args.renders), density=Path(args.density) if args.density else None,
+                           name=args.name, fmt=args.format, footprint=args.footprint, exr_alpha=args.exr_alpha)
     record = result.record(dataset, renders)
     scene = (dataset.manifest or {}).get("name") or Path(dataset.root).resolve().name
-    row = scene_rows([{"scene": scene, "method": f"{result.name} (external)", "seed": 0, "metrics": result.metrics}])
+    seed = result.run.seed if result.run is not None else 0
+    row = scene_rows([{"scene": scene, "method": result.label, "seed": seed, "metrics": result.metrics}])
     atomic_write_json(out, record)
     print(markdown_table(row, QUALITY))
     print(f"\n{len(result.files)} renders matched by {result.matched_by}; {result.oracle}; "
@@ -41,21 +43,26 @@ def add_parser(sub) -> None:
                                    "Images are matched to the test frames by file name (r_000.png ...) or, when no "
                                    "name is a frame's, by the frame number in each name; PNG alpha is composited "
                                    "over the dataset's background as straight alpha, EXR alpha as its header's "
-                                   "mitsnerf:alpha says (--exr-alpha to say otherwise). A run directory stands for "
-                                   "its test/ renders.")
+                                   "mitsnerf:alpha says (--exr-alpha to say otherwise). A run directory (mitsnerf "
+                                   "train --out, a benchmark cell's run) stands for its test/ renders and gives the "
+                                   "run's own figures: its footprint, its method's name and the density scores of "
+                                   "its metrics.json (--footprint, --name, --density override them); a run trained "
+                                   "on another dataset is refused.")
     p.add_argument("dataset", help="dataset directory (mitsnerf generate output, NeRF-synthetic or instant-ngp)")
     p.add_argument("renders", help="folder of the renders of the test views, or a run directory (its test/)")
     p.add_argument(
-        "--density", metavar="GRID", help="sigma_t on a grid over the dataset's box: .npy [z, y, x] or Mitsuba .vol"
+        "--density", metavar="GRID", help="sigma_t on a grid over the dataset's box: .npy [z, y, x] or Mitsuba .vol "
+                                          "(default for a run: its own density scores)"
     )
-    p.add_argument("--name", help="the row's name (default: the renders folder's name)")
+    p.add_argument("--name", help="the row's name (default: the renders folder's name; a run's method)")
     p.add_argument("--format", choices=("png", "exr"), help="read only these images (needed when both are there)")
     p.add_argument("--exr-alpha", choices=("premultiplied", "straight", "ignore"),
                    help="how an RGBA EXR's alpha composites over the dataset's background (default: as the file's "
                         "mitsnerf:alpha header says; premultiplied, OpenEXR's rule; ignore: the RGB as it is)")
     p.add_argument("--out", help="JSON record to write (default: RENDERS/scores.json)")
-    p.add_argument("--footprint", type=int, default=1, metavar="K",
-                   help="the tool's rays per pixel side (default 1: one through each pixel centre): which of the "
-                        "cached oracle's renders the renders are held against")
+    p.add_argument("--footprint", type=int, metavar="K",
+                   help="the tool's rays per pixel side (default 1: one through each pixel centre; a run: the "
+                        "footprint it rendered with): which of the cached oracle's renders the renders are held "
+                        "against")
     add_dataset_options(p)
     p.set_defaults(func=run)

@@ -75,18 +75,8 @@ def _check_resume_flags(args) -> None:
                                            "only --steps, --seconds and --checkpoint-every may change")
 
 
-def _check_outside_dataset(out: Path, dataset: Path) -> None:
-    """Refuse a run directory inside (or at) the dataset directory: its files would change a hashed dataset."""
-    from mitsnerf.errors import UsageError
-
-    ds = dataset.resolve()
-    if out.resolve().is_relative_to(ds):
-        raise UsageError("--out", f"{out} is inside the dataset {dataset}: a run there would change the dataset's "
-                                  "files; put the run outside it, e.g. --out runs/NAME")
-
-
 def run(args) -> int:
-    from mitsnerf.runs.directory import claim_run_dir
+    from mitsnerf.runs.directory import check_outside_dataset, claim_run_dir
     from mitsnerf.runs.fit import fit, resume_run
     from mitsnerf.train import TrainConfig
     from mitsnerf.train.threads import refuse_nondeterministic
@@ -100,7 +90,7 @@ def run(args) -> int:
         method, overrides, eval_config = _fresh_settings(args)
     out = Path(args.out)
     if args.dataset:
-        _check_outside_dataset(out, Path(args.dataset))
+        check_outside_dataset(out, Path(args.dataset))
     with claim_run_dir(out, resume=args.resume, force=args.force):
         if args.resume:
             run = resume_run(out, train_values, dataset=open_dataset(args, args.dataset) if args.dataset else None,

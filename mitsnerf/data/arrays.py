@@ -16,9 +16,12 @@ mitsnerf.errors.DatasetError: ...b.npz: not a readable checkpoint: not a numpy .
 
 from __future__ import annotations
 
+import errno
 import os
+import stat
 import zipfile
 from pathlib import Path
+from typing import IO
 
 import numpy as np
 
@@ -41,6 +44,51 @@ def _problem(path: Path, exc: BaseException, kind: str) -> str:
     if isinstance(exc, (zipfile.BadZipFile, EOFError)):
         return f"a damaged {kind} file (truncated?): {exc}"
     return f"a damaged {kind} file: {exc}"
+
+
+def file_problem(path: str | os.PathLike, what: str = "file") -> str | None:
+    """Why ``path`` cannot be opened as a regular file (no such file, a broken symlink, a symlink loop, a
+    directory, a device or pipe), in words a user can act on (``what`` the file should be); None when it can be.
+
+    >>> import tempfile
+    >>> d = Path(tempfile.mkdtemp())
+    >>> file_problem(d / "none.npy"), file_problem(d)
+    ('no such file', 'is a directory, not a file')
+    >>> os.symlink(d / "b", d / "a"); os.symlink(d / "a", d / "b"); file_problem(d / "a")
+    'a symlink loop (a link that leads back to itself)'
+    """
+    path = Path(path)
+    try:
+        mode = path.stat().st_mode
+    except OSError as exc:
+        if exc.errno == errno.ELOOP:
+            return "a symlink loop (a link that leads back to itself)"
+        if exc.errno in (errno.ENOENT, errno.ENOTDIR):
+            return (f"a broken symlink (to {os.readlink(path)}, which does not exist)" if path.is_symlink()
+                    else f"no such {what}")
+        return f"cannot be read: {exc.strerror or exc}"
+    if stat.S_ISDIR(mode):
+        return f"is a directory, not a {what}"
+    if not stat.S_ISREG(mode):
+        return "not a regular file (a device, pipe or socket)"
+    return None
+
+
+def read_npy_header(f: IO[bytes]) -> tuple[tuple[int, ...], np.dtype]:
+    """The shape and dtype an ``.npy`` stream's header declares, read without its data (``f`` at the
+    stream's start, left at the data's); a ValueError if it is no ``.npy`` header.
+
+    >>> import io
+    >>> buffer = io.BytesIO(); np.save(buffer, np.zeros((2, 3), np.float32)); _ = buffer.seek(0)
+    >>> read_npy_header(buffer)
+    ((2, 3), dtype('float32'))
+    """
+    version = np.lib.format.read_magic(f)
+    if version not in ((1, 0), (2, 0), (3, 0)):  # 3.0 differs from 2.0 only in the header's text encoding
+        raise ValueError(f"unknown .npy format version {version[0]}.{version[1]}")
+    read = np.lib.format.read_array_header_1_0 if version == (1, 0) else np.lib.format.read_array_header_2_0
+    shape, _, dtype = read(f)
+    return tuple(int(n) for n in shape), dtype
 
 
 def _check_file(path: Path, what: str) -> None:

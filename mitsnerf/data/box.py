@@ -25,7 +25,7 @@ from typing import Any
 
 import numpy as np
 
-from mitsnerf.errors import DatasetError
+from mitsnerf.errors import CLI, DatasetError, Words
 from mitsnerf.math.box import UNIT_BOX, Box
 
 NERF_SYNTHETIC_BOX = Box.cube(1.5)
@@ -71,11 +71,11 @@ def ngp_box(doc: Mapping[str, Any], where: Path | str | None = None) -> Box:
 
 
 def resolve_box(explicit: Box | None, transforms: Mapping[str, Any], transforms_path: Path,
-                manifest: Mapping[str, Any] | None, manifest_path: Path) -> ResolvedBox:
-    """The dataset's box by the module docstring's rules."""
+                manifest: Mapping[str, Any] | None, manifest_path: Path, words: Words = CLI) -> ResolvedBox:
+    """The dataset's box by the module docstring's rules (``words``: how the source of a given box is named)."""
     name = transforms_path.name
     if explicit is not None:
-        return ResolvedBox(explicit, "given explicitly (--box)")
+        return ResolvedBox(explicit, f"given explicitly ({words.name('box')})")
     if "aabb" in transforms:
         return ResolvedBox(_parse_box(transforms["aabb"], transforms_path, "aabb"), f"{name}: aabb")
     if manifest:
@@ -88,13 +88,15 @@ def resolve_box(explicit: Box | None, transforms: Mapping[str, Any], transforms_
     return ResolvedBox(NERF_SYNTHETIC_BOX, "default for NeRF-synthetic data: nerfstudio's blender box [-1.5, 1.5]^3")
 
 
-def check_cameras_outside(box: Box, origins: Sequence[np.ndarray], where: Path | str | None, source: str) -> None:
-    """Refuse a box that contains every camera: nothing would be seen from outside the medium."""
+def check_cameras_outside(box: Box, origins: Sequence[np.ndarray], where: Path | str | None, source: str,
+                          words: Words = CLI) -> None:
+    """Refuse a box that contains every camera: nothing would be seen from outside the medium (the advice in
+    ``words``, :class:`mitsnerf.errors.Words`)."""
     inside = box.contains(np.asarray(origins, dtype=np.float64).reshape(-1, 3))
     if len(inside) and bool(np.all(inside)):
         raise DatasetError(where, "frames[*].transform_matrix",
                            f"every camera lies inside the scene box {box.to_list()} ({source}); "
-                           "give a smaller box (--box or an 'aabb' key) or check the camera poses")
+                           f"give a smaller box ({words.name('box')}, or an 'aabb' key) or check the camera poses")
 
 
 #: What ``mitsnerf train`` says of near and far: no fixed pair (NeRF-synthetic readers use 2 and 6), each ray's own.

@@ -44,7 +44,7 @@ import numpy as np
 from mitsnerf.data.box import check_cameras_outside, resolve_box
 from mitsnerf.data.images import over, read_image
 from mitsnerf.data.transforms import read_json, read_transforms
-from mitsnerf.errors import DatasetError
+from mitsnerf.errors import CLI, DatasetError, Words
 from mitsnerf.math.box import Box
 from mitsnerf.math.camera import Camera
 from mitsnerf.math.color import srgb_to_linear
@@ -146,7 +146,8 @@ class Dataset:
     ``color_space``: how PNG values are read, ``"srgb"`` or ``"linear"``.
     ``png_background``: linear RGB that PNG alpha is composited over.
     ``box``: the scene box every field and score maps, and ``box_source`` where it came from
-    (:mod:`mitsnerf.data.box`).
+    (:mod:`mitsnerf.data.box`). ``words``: how its messages advise a setting (:class:`mitsnerf.errors.Words`:
+    the command line's ``--box``, or the Python API's words when the API opened it).
     """
 
     root: Path
@@ -157,6 +158,7 @@ class Dataset:
     pixel_center: float | None = None
     color_space: str = "srgb"
     png_background: tuple[float, float, float] = (1.0, 1.0, 1.0)
+    words: Words = field(default=CLI, compare=False, repr=False)
     _cache: dict = field(default_factory=dict, init=False, repr=False, compare=False)
 
     @property
@@ -236,7 +238,7 @@ class Dataset:
                 alpha[i] = a
         images.setflags(write=False)
         alpha.setflags(write=False)
-        check_cameras_outside(self.box, [c.origin for c in cameras], tpath, self.box_source)
+        check_cameras_outside(self.box, [c.origin for c in cameras], tpath, self.box_source, self.words)
         return Views(images, alpha if all_alpha else None, tuple(cameras), _view_names(file_paths),
                      float(meta["pixel_center"]))
 
@@ -298,6 +300,7 @@ def load_dataset(
     background: float | Sequence[float] | None = None,
     pixel_center: float | None = None,
     color_space: str | None = None,
+    words: Words = CLI,
 ) -> Dataset:
     """Open a dataset directory; images load lazily, per split, with :meth:`Dataset.views`.
 
@@ -307,6 +310,7 @@ def load_dataset(
     rendered. ``pixel_center``: overrides the transforms files (``None``: the rule
     of :func:`~mitsnerf.data.transforms.read_transforms`). ``color_space``: how PNG
     values are read: ``"srgb"`` (default, decoded to linear) or ``"linear"``.
+    ``words``: how its messages advise a setting (:class:`mitsnerf.errors.Words`).
     Raises :class:`DatasetError` if ``root`` is not a directory with at least one
     ``transforms_*.json`` or has a malformed ``manifest.json``.
     """
@@ -344,5 +348,5 @@ def load_dataset(
     top = read_json(tpath)
     if not isinstance(top, dict):
         raise DatasetError(tpath, None, f"must hold a JSON object, got {type(top).__name__}")
-    resolved = resolve_box(box, top, tpath, manifest, manifest_path)
-    return Dataset(root, manifest, bg_desc, resolved.box, resolved.source, pixel_center, space, png_bg)
+    resolved = resolve_box(box, top, tpath, manifest, manifest_path, words)
+    return Dataset(root, manifest, bg_desc, resolved.box, resolved.source, pixel_center, space, png_bg, words)

@@ -29,6 +29,7 @@ from __future__ import annotations
 import os
 import struct
 from collections.abc import Sequence
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -90,24 +91,25 @@ def write_vol(
             os.fsync(f.fileno())
 
 
-def read_vol(path: str | os.PathLike) -> tuple[np.ndarray, tuple[float, ...], tuple[float, ...]]:
-    """Read a float32 ``.vol`` file.
+@dataclass(frozen=True)
+class VolHeader:
+    """What a ``.vol`` file's header declares (module docstring): the grid's shape and box."""
 
-    Returns:
-        ``(data, bbox_min, bbox_max)``: data float32 of shape (zres, yres, xres, channels), the box
-        corners as tuples of 3 floats.
+    zres: int
+    yres: int
+    xres: int
+    channels: int
+    bbox_min: tuple[float, float, float]
+    bbox_max: tuple[float, float, float]
 
-    Raises:
-        DatasetError(path, field, message): the file is missing, truncated, too long, or its
-            header is wrong (field ``magic``, ``version``, ``encoding``, ``resolution``,
-            ``channels``, ``bbox`` or ``data``).
-    """
-    try:
-        raw = Path(path).read_bytes()
-    except FileNotFoundError:
-        raise DatasetError(path, None, "no such file") from None
-    except IsADirectoryError:
-        raise DatasetError(path, None, "is a directory, expected a .vol file") from None
+    @property
+    def nbytes(self) -> int:
+        """The bytes of data the header declares (float32 values)."""
+        return 4 * self.zres * self.yres * self.xres * self.channels
+
+
+def _parse_header(path: str | os.PathLike, raw: bytes) -> VolHeader:
+    """The header at the start of ``raw`` (a DatasetError naming the field that is wrong)."""
     if len(raw) < HEADER_SIZE:
         raise DatasetError(path, "header", f"truncated: {len(raw)} bytes, a .vol header has {HEADER_SIZE}")
     magic, version, encoding, xres, yres, zres, channels, *box = _HEADER.unpack_from(raw)
@@ -126,6 +128,43 @@ def read_vol(path: str | os.PathLike) -> tuple[np.ndarray, tuple[float, ...], tu
     lo, hi = tuple(float(c) for c in box[:3]), tuple(float(c) for c in box[3:])
     if not all(np.isfinite(box)):
         raise DatasetError(path, "bbox", f"must be finite, got {lo} to {hi}")
+    return VolHeader(zres, yres, xres, channels, lo, hi)  # type: ignore[arg-type]
+
+
+def read_vol_header(path: str | os.PathLike) -> VolHeader:
+    """The header of the ``.vol`` file at ``path``, read without its data (the checks of :func:`read_vol`
+    that need no data).
+
+    >>> import tempfile, os
+    >>> path = os.path.join(tempfile.mkdtemp(), "g.vol")
+    >>> write_vol(path, np.zeros((2, 3, 4, 3), np.float32))
+    >>> h = read_vol_header(path); (h.zres, h.yres, h.xres, h.channels, h.nbytes)
+    (2, 3, 4, 3, 288)
+    """
+    with open(path, "rb") as f:
+        return _parse_header(path, f.read(HEADER_SIZE))
+
+
+def read_vol(path: str | os.PathLike) -> tuple[np.ndarray, tuple[float, ...], tuple[float, ...]]:
+    """Read a float32 ``.vol`` file.
+
+    Returns:
+        ``(data, bbox_min, bbox_max)``: data float32 of shape (zres, yres, xres, channels), the box
+        corners as tuples of 3 floats.
+
+    Raises:
+        DatasetError(path, field, message): the file is missing, truncated, too long, or its
+            header is wrong (field ``magic``, ``version``, ``encoding``, ``resolution``,
+            ``channels``, ``bbox`` or ``data``).
+    """
+    try:
+        raw = Path(path).read_bytes()
+    except FileNotFoundError:
+        raise DatasetError(path, None, "no such file") from None
+    except IsADirectoryError:
+        raise DatasetError(path, None, "is a directory, expected a .vol file") from None
+    h = _parse_header(path, raw)
+    xres, yres, zres, channels = h.xres, h.yres, h.zres, h.channels
     count = xres * yres * zres * channels
     expected = HEADER_SIZE + 4 * count
     if len(raw) != expected:
@@ -135,4 +174,4 @@ def read_vol(path: str | os.PathLike) -> tuple[np.ndarray, tuple[float, ...], tu
             f"{what}: {len(raw)} bytes, {xres} x {yres} x {zres} x {channels} float32 values need {expected}",
         )
     data = np.frombuffer(raw, dtype="<f4", count=count, offset=HEADER_SIZE)
-    return data.reshape(zres, yres, xres, channels).astype(np.float32), lo, hi
+    return data.reshape(zres, yres, xres, channels).astype(np.float32), h.bbox_min, h.bbox_max

@@ -8,7 +8,9 @@ Filled from three sources (:mod:`mitsnerf.plugins`), each method declared once, 
 - ``MITSNERF_METHODS="name=module:Class,other=path/to/file.py:Class"``, for code that is not installed.
 
 What a method must be is :mod:`mitsnerf.methods.base`'s contract; a plugin that breaks it is refused
-with one line (:func:`methods` ``.problems``), and the other methods keep working.
+with one line (:func:`methods` ``.problems``), and the other methods keep working. What only a built
+model shows (its parameters) :func:`check_model` checks before training, with a
+:class:`~mitsnerf.errors.MethodError`.
 
 >>> sorted(methods())[:2]
 ['mitsuba-inverse', 'nerf']
@@ -27,6 +29,9 @@ from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import Any
 
+import drjit as dr
+
+from mitsnerf.errors import MethodError
 from mitsnerf.methods.base import MethodConfig, Model, RendersRays, TrainsOnViews
 from mitsnerf.plugins import Entry, Kind, PluginError, Registry, Source, load
 
@@ -107,6 +112,24 @@ def _methods(variable: str, path: tuple[str, ...]) -> Registry[Method]:
     loaded = load(KIND, {VARIABLE: variable})
     entries = {name: Entry(name, Method(name, e.value, e.source), e.source) for name, e in loaded.entries.items()}
     return Registry(loaded.what, entries, loaded.problems)
+
+
+def check_model(method: Method, model: Model) -> None:
+    """Raise :class:`~mitsnerf.errors.MethodError` naming ``method`` and its source unless ``model.parameters()``
+    is what the optimiser needs: a non-empty mapping (a ``drjit.nn`` module or a dict) of names to Dr.Jit
+    floating-point arrays or tensors."""
+    where = f"method {method.name!r} ({method.source.where})"
+    params = model.parameters()
+    if not isinstance(params, Mapping):
+        raise MethodError(where, "parameters()", f"returned a {type(params).__name__}, not a mapping of names to "
+                          "Dr.Jit arrays (a drjit.nn module or a dict)")
+    if not params:
+        raise MethodError(where, "parameters()", "returned nothing to train: a method optimises at least one Dr.Jit "
+                          "array (return a drjit.nn module or a dict of name -> array, and render from those values)")
+    for key, value in params.items():
+        if not (isinstance(key, str) and dr.is_array_v(value) and dr.is_float_v(value)):
+            raise MethodError(where, f"parameters()[{key!r}]", f"is a {type(value).__name__}, not a Dr.Jit "
+                              "floating-point array or tensor (what the optimiser can step)")
 
 
 def get_method(name: str) -> Method:

@@ -7,7 +7,7 @@ into place (:func:`mitsnerf.data.atomic.atomic_dir`) under a lock (one writer at
 ``oracle.json`` as its index::
 
     oracle.json        settings, key, timings, Monte Carlo error, scores summary, provenance
-    scores.json        {"footprint_1": metrics, "footprint_K": metrics}  (mitsnerf.scoring.score_views)
+    scores.json        {"footprint_1": metrics, "footprint_K": metrics}  (mitsnerf.scoring.views.score_views)
     lbar_mc.npy        Lbar_mc (R, R, R, 3) and its standard error lbar_mc_se.npy
     lbar_delta.npy     the delta lights' term (R_d, R_d, R_d, 3)
     test_k1.npy        the oracle's test views (V, H, W, 3) at footprint 1, test_kK.npy at K
@@ -32,12 +32,15 @@ import time
 from collections.abc import Callable
 from dataclasses import dataclass, replace
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from mitsnerf.config import check_fields, param, to_dict
 from mitsnerf.oracle.directional import DirectionalConfig
+
+if TYPE_CHECKING:
+    from mitsnerf.scoring.reference import Reference
 
 ORACLE_FORMAT = 1
 ORACLE_DIR = "oracle"
@@ -216,9 +219,10 @@ def error_split(oracle: np.ndarray, var: np.ndarray, ref, test_ref: np.ndarray |
     return out
 
 
-def compute_oracle(dataset, config: OracleConfig, footprint: int,
-                   log: Callable[[str], None] = lambda line: None) -> tuple[dict, dict, dict[str, np.ndarray]] | None:
-    """``(info, scores, arrays)`` of the oracle of ``dataset``'s test views (None for foreign data).
+def compute_oracle(dataset, config: OracleConfig, footprint: int, log: Callable[[str], None] = lambda line: None,
+                   reference: Reference | None = None) -> tuple[dict, dict, dict[str, np.ndarray]] | None:
+    """``(info, scores, arrays)`` of the oracle of ``dataset``'s test views (None for foreign data); ``reference``:
+    the test views' :class:`~mitsnerf.scoring.reference.Reference` if the caller has it (else loaded here).
 
     An isotropic medium's colour is ``J(x)`` (:mod:`mitsnerf.oracle.source`); an anisotropic one's depends on the
     view direction (:mod:`mitsnerf.oracle.directional`), and its ceiling is also scored at the lower orders."""
@@ -226,14 +230,16 @@ def compute_oracle(dataset, config: OracleConfig, footprint: int,
     from mitsnerf.oracle.field import render_field
     from mitsnerf.render.background import make_background
     from mitsnerf.scene.spec import is_isotropic
-    from mitsnerf.scoring import reference, score_views, true_density
+    from mitsnerf.scoring.density import true_density
+    from mitsnerf.scoring.reference import load_reference
+    from mitsnerf.scoring.views import score_views
 
     inputs = _grids(dataset)
     if inputs is None:
         return None
     spec, sigma_t, albedo = inputs
     config = resolved(config, spec)
-    ref = reference(dataset, "test")
+    ref = reference or load_reference(dataset, "test")
     spp = config.directional.spp or config.spp if config.directional is not None else config.spp
     log(f"oracle: the in-scattered light by volpath from inside the medium ({spp} directions per point) ...")
     est = (_isotropic if is_isotropic(spec.volume.phase) else _directional)(spec, sigma_t, albedo, dataset.box, config)
@@ -294,9 +300,10 @@ def load_oracle(path: Path) -> Oracle | None:
     return Oracle(path, info, scores) if info.get("format") == ORACLE_FORMAT else None
 
 
-def ensure_oracle(dataset, config: OracleConfig, footprint: int,
-                  log: Callable[[str], None] = lambda line: None) -> Oracle | None:
-    """The cached oracle of ``dataset``, computed and written first if missing (None for foreign data).
+def ensure_oracle(dataset, config: OracleConfig, footprint: int, log: Callable[[str], None] = lambda line: None,
+                  reference: Reference | None = None) -> Oracle | None:
+    """The cached oracle of ``dataset``, computed and written first if missing (None for foreign data);
+    ``reference``: its test views' :class:`~mitsnerf.scoring.reference.Reference`, if the caller has it.
 
     One writer at a time (a lock next to the directory); ``oracle.json`` is written last inside
     a temporary directory renamed into place, so an interrupted run leaves no complete-looking oracle.
@@ -317,7 +324,7 @@ def ensure_oracle(dataset, config: OracleConfig, footprint: int,
         if found is not None:
             return found
         clean_stale_temps(path.parent, min_age_s=0.0)
-        computed = compute_oracle(dataset, config, footprint, log)
+        computed = compute_oracle(dataset, config, footprint, log, reference)
         if computed is None:  # checked above: the dataset has its grids
             raise AssertionError(f"{dataset.root}: grids found, yet no oracle computed")
         info, scores, arrays = computed

@@ -85,7 +85,8 @@ def estimate(scene, lights: Sequence[Any], g: float, sigma_t: np.ndarray, box: B
     nothing in-scatters; ``lights``: the spec's)."""
     from mitsnerf.oracle.source import delta_irradiance, needed_voxels, radiance_sh
     from mitsnerf.scene.lights import delta_lights
-    from mitsnerf.scoring import mask_samples, true_density
+    from mitsnerf.scoring.density import true_density
+    from mitsnerf.scoring.medium import mask_samples
 
     t0 = time.perf_counter()
     k = (order + 1) ** 2

@@ -299,7 +299,8 @@ class SourceGrids:
 def estimate_grids(scene, lights, sigma_t: np.ndarray, box: Box, resolution: int, delta_resolution: int,
                    spp: int, seed: int = 0) -> SourceGrids:
     """:class:`SourceGrids` of a scene (``scene``: the Mitsuba scene with volpath at :func:`inner_max_depth`)."""
-    from mitsnerf.scoring import mask_samples, true_density
+    from mitsnerf.scoring.density import true_density
+    from mitsnerf.scoring.medium import mask_samples
 
     t0 = time.perf_counter()
     need = needed_voxels(sigma_t, resolution)

@@ -8,6 +8,8 @@ float atomics no thread count orders, as it comes: :func:`mitsnerf.train.threads
 ========================  ==================================================================================
 promise                   checked
 ========================  ==================================================================================
+builds, with parameters   the model of the tiny settings builds, and ``parameters()`` is a non-empty mapping
+to train                  of Dr.Jit float arrays (:func:`mitsnerf.methods.check_model`)
 trains and evaluates      a few steps train with a finite loss; every test view renders finite, of the view's
                           shape; the scores are finite; the run directory holds its files
 SIGTERM checkpoints       a real SIGTERM at a logged step stops training with the checkpoint of that step
@@ -19,6 +21,8 @@ other settings refused    resuming with another ``lr`` is refused, naming ``meth
 ========================  ==================================================================================
 
 A failure names the promise it broke and what was seen; a promise whose prerequisite failed is not run.
+The suite checks promises, not quality: it never trains the method's own (default) settings, and its report
+says so.
 """
 
 from __future__ import annotations
@@ -36,6 +40,7 @@ from typing import Any
 import numpy as np
 
 from mitsnerf.config import apply_overrides
+from mitsnerf.errors import MethodError, MitsnerfError
 from mitsnerf.train.threads import nondeterminism
 
 #: The tiny scene the suite trains on (spec data): a 16^3 cloud seen by 3 + 2 cameras of 8 x 8 pixels, a few spp.
@@ -54,6 +59,8 @@ TINY_SCENE: Mapping[str, Any] = {
 }
 #: Training steps of the suite's runs, and the step at which the interrupted one is stopped.
 STEPS, STOP_AT = 6, 3
+#: Rays per training step of the suite's runs.
+BATCH_RAYS = 64
 
 
 class Broken(AssertionError):
@@ -77,6 +84,8 @@ class Outcome:
 class ConformanceReport:
     method: str
     outcomes: tuple[Outcome, ...]
+    settings: Mapping[str, Any] = field(default_factory=dict)
+    """The method settings the suite trained: the method's ``tiny`` ones (and the caller's overrides)."""
 
     @property
     def passed(self) -> bool:
@@ -90,7 +99,32 @@ class ConformanceReport:
         word = {True: "ok", False: "FAILED", None: "not run"}
         lines = [f"{word[o.passed]:8s} {o.promise}" + (f": {o.detail}" if o.detail else "") for o in self.outcomes]
         verdict = "conforms" if self.passed else f"does not conform ({len(self.failures())} broken)"
-        return "\n".join([f"conformance of {self.method!r}:", *lines, f"{self.method}: {verdict}"])
+        head = f"conformance of {self.method!r}, trained only at its tiny settings, not its defaults (a check of " \
+               f"promises, not of quality):\n  {scope(self.settings)}"
+        return "\n".join([head, *lines, f"{self.method}: {verdict}"])
+
+
+def scope(settings: Mapping[str, Any]) -> str:
+    """What the suite trains, for its report's head: ``settings`` (the method's ``tiny`` ones), steps and scene.
+
+    >>> scope({"n_samples": 8, "network": {"width": 8}})
+    'tiny settings n_samples=8, network.width=8; 6 steps of 64 rays on a 16^3 cloud in 3 views of 8 x 8 pixels'
+    """
+    given = ", ".join(f"{k}={v!r}" for k, v in _flat(settings)) or "(none: the defaults)"
+    views = TINY_SCENE["cameras"]
+    return (f"tiny settings {given}; {STEPS} steps of {BATCH_RAYS} rays on a {TINY_SCENE['volume']['resolution']}^3 "
+            f"cloud in {views['n_train']} views of {views['width']} x {views['height']} pixels")
+
+
+def _flat(settings: Mapping[str, Any], prefix: str = "") -> list[tuple[str, Any]]:
+    """``(dotted key, value)`` of nested ``settings``."""
+    out: list[tuple[str, Any]] = []
+    for key, value in settings.items():
+        if isinstance(value, Mapping):
+            out += _flat(value, f"{prefix}{key}.")
+        else:
+            out.append((f"{prefix}{key}", value))
+    return out
 
 
 @dataclass
@@ -108,7 +142,7 @@ class _Context:
         from mitsnerf.train import TrainConfig
 
         return fit(self.dataset, self.method, dict(overrides or self.config),
-                   TrainConfig(steps=STEPS, batch_rays=64, log_every=1, seed=0),
+                   TrainConfig(steps=STEPS, batch_rays=BATCH_RAYS, log_every=1, seed=0),
                    None if out is None else self.work / out, progress=self.progress, resume=resume,
                    on_log=on_log, deterministic=nondeterminism() is None)
 
@@ -141,7 +175,7 @@ def _run_all(name: str, config: dict, work: Path, progress: bool) -> Conformance
             outcomes.append(Outcome(promise, None, f"needs {', '.join(blocked)}"))
             continue
         outcomes.append(_attempt(promise, check, ctx))
-    return ConformanceReport(name, tuple(outcomes))
+    return ConformanceReport(name, tuple(outcomes), config)
 
 
 def _attempt(promise: str, check: Callable[[_Context], str], ctx: _Context) -> Outcome:
@@ -151,6 +185,8 @@ def _attempt(promise: str, check: Callable[[_Context], str], ctx: _Context) -> O
         return Outcome(promise, False, str(exc))
     except Skipped as exc:
         return Outcome(promise, None, str(exc))
+    except MitsnerfError as exc:  # the harness's own sentence (a NaN loss, a contract broken): what a user would see
+        return Outcome(promise, False, f"{type(exc).__name__}: {exc}")
     except Exception as exc:  # the method's own code failed: the report names the promise and where it raised
         where = traceback.extract_tb(exc.__traceback__)[-1]
         return Outcome(promise, False, f"{type(exc).__name__}: {exc} (at {where.filename}:{where.lineno})")
@@ -161,6 +197,18 @@ def _finite(name: str, values) -> None:
     a = np.asarray(values, dtype=np.float64)
     if not np.all(np.isfinite(a)):
         raise Broken(f"{name} has {int(np.sum(~np.isfinite(a)))} non-finite values")
+
+
+def builds_with_parameters(ctx: _Context) -> str:
+    from mitsnerf.methods.base import num_parameters
+    from mitsnerf.runs.fit import build_model, scene_info
+
+    try:
+        model, _ = build_model(ctx.method, ctx.config, scene_info(ctx.dataset, ctx.dataset.views("train").images), 0)
+    except MethodError as exc:
+        raise Broken(str(exc)) from None
+    params = model.parameters()
+    return f"{len(params)} parameter arrays, {num_parameters(params)} values"
 
 
 def trains_and_evaluates(ctx: _Context) -> str:
@@ -314,8 +362,9 @@ def _arrays(params: Mapping[str, Any]) -> dict[str, np.ndarray]:
 
 #: ``(promise, check, promises it needs)``, in the order they run.
 PROMISES: tuple[tuple[str, Callable[[_Context], str], tuple[str, ...]], ...] = (
-    ("trains and evaluates", trains_and_evaluates, ()),
-    ("SIGTERM checkpoints the last completed step", sigterm_checkpoints, ()),
+    ("builds, with parameters to train", builds_with_parameters, ()),
+    ("trains and evaluates", trains_and_evaluates, ("builds, with parameters to train",)),
+    ("SIGTERM checkpoints the last completed step", sigterm_checkpoints, ("builds, with parameters to train",)),
     ("resume equals the run never stopped", resume_equals_the_run_never_stopped,
      ("trains and evaluates", "SIGTERM checkpoints the last completed step")),
     ("renders a saved run", renders_a_saved_run, ("trains and evaluates",)),

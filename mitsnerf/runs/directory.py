@@ -30,7 +30,7 @@ from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
 
-from mitsnerf.errors import OutputError
+from mitsnerf.errors import CLI, OutputError, Placeholder, UsageError, Words
 from mitsnerf.outputs import check_output_dir, exclusive_lock
 from mitsnerf.train.checkpoint import CHECKPOINT_FILE
 
@@ -71,33 +71,45 @@ def inspect_run_dir(path: str | os.PathLike) -> RunDirState:
     return RunDirState("foreign", shown)
 
 
-def check_run_dir(path: str | os.PathLike, *, resume: bool, force: bool, option: str = "--out") -> RunDirState:
-    """Refuse ``path`` for this run (an :class:`~mitsnerf.errors.OutputError`) per the module's table;
-    returns its state. (Writability and the lock: :func:`claim_run_dir`.)"""
-    path = Path(path)
+def check_run_dir(path: str | os.PathLike, *, resume: bool, force: bool, words: Words = CLI,
+                  option: str | None = None) -> RunDirState:
+    """Refuse ``path`` for this run (an :class:`~mitsnerf.errors.OutputError`) per the module's table, advising
+    the settings in ``words`` (:data:`~mitsnerf.errors.CLI`: ``--force``; :data:`~mitsnerf.errors.API`:
+    ``force=True``); returns its state. ``option`` names the output (default: ``words``' ``out``).
+    (Writability and the lock: :func:`claim_run_dir`.)"""
+    path, option = Path(path), option or words.name("out")
     state = inspect_run_dir(path)
     if state.kind == "foreign":
         raise OutputError(path, option, f"not a mitsnerf run directory (holds {state.detail}); "
                                         "pick a new or empty directory")
     if resume and state.kind == "new":
-        raise OutputError(path, option, f"no {CHECKPOINT_FILE} to resume from (train into it without --resume)")
+        raise OutputError(path, option, f"no {CHECKPOINT_FILE} to resume from (train into it without "
+                                        f"{words(resume=True)})")
     if not resume and not force and state.kind == "finished":
         what = f" ({state.detail})" if state.detail else ""
-        raise OutputError(path, option, f"holds a finished run{what}; pass --force to replace it, "
-                                        "or --resume --steps N to train it on")
+        raise OutputError(path, option, f"holds a finished run{what}; pass {words(force=True)} to replace it, "
+                                        f"or {words(resume=True, steps=Placeholder('N'))} to train it on")
     if not resume and not force and state.kind == "interrupted":
-        raise OutputError(path, option, f"holds an interrupted run ({CHECKPOINT_FILE}); pass --resume to "
-                                        "continue it or --force to start over")
+        raise OutputError(path, option, f"holds an interrupted run ({CHECKPOINT_FILE}); pass {words(resume=True)} "
+                                        f"to continue it or {words(force=True)} to start over")
     return state
 
 
-def check_renamable(path: Path, option: str = "--out") -> None:
+def check_renamable(path: Path, words: Words = CLI, option: str | None = None) -> None:
     """Refuse a run directory that cannot be renamed into place: ``.``, ``..``, ``""``, the current
     directory or one above it, or ``/`` (a run is built beside its directory and renamed onto it)."""
     here, full = Path.cwd().resolve(), path.resolve()
     if path.name in ("", ".", "..") or full == here or full in here.parents:
-        raise OutputError(None, option, f"{str(path)!r} is the current directory or one above it: a run is written "
-                                        "beside its directory and renamed into place; name a new one, e.g. --out run")
+        raise OutputError(None, option or words.name("out"),
+                          f"{str(path)!r} is the current directory or one above it: a run is written beside its "
+                          f"directory and renamed into place; name a new one, e.g. {words(out='run')}")
+
+
+def check_outside_dataset(out: Path, dataset: Path, words: Words = CLI) -> None:
+    """Refuse a run directory inside (or at) the dataset directory: its files would change a hashed dataset."""
+    if out.resolve().is_relative_to(dataset.resolve()):
+        raise UsageError(words.name("out"), f"{out} is inside the dataset {dataset}: a run there would change the "
+                                            f"dataset's files; put the run outside it, e.g. {words(out='runs/NAME')}")
 
 
 def lock_path(path: str | os.PathLike) -> Path:
@@ -120,14 +132,14 @@ def remove_run_files(path: Path) -> None:
 
 
 @contextlib.contextmanager
-def claim_run_dir(path: str | os.PathLike, *, resume: bool = False, force: bool = False,
-                  option: str = "--out") -> Iterator[RunDirState]:
+def claim_run_dir(path: str | os.PathLike, *, resume: bool = False, force: bool = False, words: Words = CLI,
+                  option: str | None = None) -> Iterator[RunDirState]:
     """Check that ``path`` can be written, take its lock (refused at once if another process holds
-    it), then check what it holds (:func:`check_run_dir`) and hold the lock for the block. Yields the
-    state. A run started over (``--force``) removes the old one's files only when training starts
-    (:func:`mitsnerf.runs.fit.fit`), so a refusal on the way (a bad dataset) loses nothing."""
-    path = Path(path)
-    check_renamable(path, option)
+    it), then check what it holds (:func:`check_run_dir`, its advice in ``words``) and hold the lock for the
+    block. Yields the state. A run started over (``--force``) removes the old one's files only when training
+    starts (:func:`mitsnerf.runs.fit.fit`), so a refusal on the way (a bad dataset) loses nothing."""
+    path, option = Path(path), option or words.name("out")
+    check_renamable(path, words, option)
     check_output_dir(path, option, replaced=True)
     with exclusive_lock(lock_path(path), wait=False, what=path):
-        yield check_run_dir(path, resume=resume, force=force, option=option)
+        yield check_run_dir(path, resume=resume, force=force, words=words, option=option)

@@ -14,9 +14,14 @@ agree, every pixel of alpha 0 black; else (its RGB holds a background already, o
 transparent) it is refused with a line naming ``--exr-alpha`` rather than guessed. Every image
 must have the test frame's size and finite values.
 
-**A run** (a folder with ``config.json`` and ``test/``) stands for its ``test/`` renders. Where
-one stem has both an ``.exr`` that says its alpha (mitsnerf's) and a ``.png`` (its sRGB preview),
-the EXR is scored.
+**A run** (a folder with ``config.json`` and ``test/``, :func:`read_run`) stands for its ``test/`` renders and
+is scored as its own evaluation scored them: at its footprint (``config.json``'s ``eval.footprint``), named
+after its method, with the density figures of its ``metrics.json`` (what its model's density scored, the
+figures the benchmark shows), unless ``footprint``, ``name`` or ``density`` say otherwise; its oracle is the
+cached one whose medium PSNR the run recorded, where there is one. A run trained on another dataset is
+refused (:func:`mitsnerf.runs.fit.check_same_dataset`: the same manifest hash, else the same path), before
+anything is read. Where one stem has both an ``.exr`` that says its alpha (mitsnerf's) and a ``.png`` (its sRGB
+preview), the EXR is scored.
 
 **Matching** (:func:`match_renders`), against the test frames' names (``r_000``, ...):
 
@@ -39,11 +44,11 @@ Mitsuba's ``gridvolume``.
 **Oracle** (:func:`read_oracle`): the dataset's cached emission-absorption oracle
 (``DATASET/oracle/<key>/``, :mod:`mitsnerf.oracle.cache`, computed by ``mitsnerf bench``), its
 scores at the renders' footprint (1: one ray through each pixel centre, what most tools render;
-``K``: the mean of ``K x K`` rays over the pixel). Of several cached oracles, the one with the
-default settings is taken. None cached: "no oracle".
+``K``: the mean of ``K x K`` rays over the pixel). Of several cached oracles, the one whose medium PSNR a
+run recorded, else the one with the default settings is taken. None cached: "no oracle".
 
 **Noise floor** (``noise_floor_*`` of the metrics, ``noise_floor_of`` says which): renders that are
-all PNG are held against the floor of their format, :func:`mitsnerf.scoring.png_noise_floor` (the
+all PNG are held against the floor of their format, :func:`mitsnerf.scoring.images.png_noise_floor` (the
 second ground-truth render quantised to 8-bit sRGB: the dataset's own ``test_ref`` scores exactly
 it as PNG), others against the manifest's.
 """
@@ -58,12 +63,15 @@ from typing import Any
 
 import numpy as np
 
-from mitsnerf import scoring
 from mitsnerf.data.dataset import Dataset
 from mitsnerf.data.images import ALPHA_ATTRIBUTE, over, read_exr_alpha, read_image
-from mitsnerf.errors import DatasetError, UsageError
+from mitsnerf.errors import CLI, DatasetError, UsageError, Words
 from mitsnerf.math.box import Box
 from mitsnerf.math.color import srgb_to_linear
+from mitsnerf.scoring.density import true_density
+from mitsnerf.scoring.images import png_noise_floor
+from mitsnerf.scoring.reference import Reference, load_reference
+from mitsnerf.scoring.views import density_figures, score_views
 
 FORMATS = ("png", "exr")
 #: How an EXR render's alpha is applied (module docstring).
@@ -71,12 +79,57 @@ EXR_ALPHA = ("premultiplied", "straight", "ignore")
 _NUMBER = re.compile(r"(\d+)(?!.*\d)")
 
 
+def is_run(folder: Path) -> bool:
+    """Whether ``folder`` is a run directory: it has ``config.json`` and ``test/``."""
+    return (Path(folder) / "config.json").is_file() and (Path(folder) / "test").is_dir()
+
+
 def renders_folder(folder: Path) -> Path:
-    """``folder``, or its ``test/`` when it is a run (it has ``config.json`` and ``test/``)."""
+    """``folder``, or its ``test/`` when it is a run (:func:`is_run`)."""
     folder = Path(folder)
-    if (folder / "config.json").is_file() and (folder / "test").is_dir():
-        return folder / "test"
-    return folder
+    return folder / "test" if is_run(folder) else folder
+
+
+@dataclass(frozen=True)
+class RunRenders:
+    """A run directory's test renders and what the run says of them (:func:`read_run`)."""
+
+    path: Path
+    config: dict
+    """``config.json``: method, settings, the dataset it trained on."""
+    metrics: dict
+    """``metrics.json`` (empty when missing)."""
+    footprint: int
+    """The rays per pixel side it rendered its test views with (``eval.footprint``)."""
+
+    @property
+    def method(self) -> str:
+        return str(self.config.get("method"))
+
+    @property
+    def seed(self) -> int:
+        return int((self.config.get("train") or {}).get("seed", 0))
+
+
+def read_run(folder: Path) -> RunRenders | None:
+    """The run in ``folder`` (None when it is not one, :func:`is_run`); a malformed ``config.json`` or
+    ``metrics.json`` is a DatasetError (a SpecError for a bad ``eval`` field) naming the file."""
+    from mitsnerf.config import from_dict
+    from mitsnerf.data.transforms import read_json
+    from mitsnerf.train.evaluate import EvalConfig
+
+    def json_object(path: Path) -> dict:
+        data = read_json(path) if path.is_file() else {}
+        if not isinstance(data, dict):
+            raise DatasetError(path, None, f"must be a JSON object, got {type(data).__name__}")
+        return data
+
+    folder = Path(folder)
+    if not is_run(folder):
+        return None
+    config = json_object(folder / "config.json")
+    eval_config = from_dict(EvalConfig, dict(config.get("eval") or {}), source=folder / "config.json", prefix="eval.")
+    return RunRenders(folder, config, json_object(folder / "metrics.json"), eval_config.footprint)
 
 
 def _preview_pair(a: Path, b: Path) -> Path | None:
@@ -87,7 +140,7 @@ def _preview_pair(a: Path, b: Path) -> Path | None:
     return None
 
 
-def image_files(folder: Path, fmt: str | None = None) -> dict[str, Path]:
+def image_files(folder: Path, fmt: str | None = None, words: Words = CLI) -> dict[str, Path]:
     """``{stem: path}`` of the ``.png``/``.exr`` files directly in ``folder`` (only ``fmt`` if given).
 
     Two files with the same stem are refused: which one is meant is not for mitsnerf to guess,
@@ -106,14 +159,16 @@ def image_files(folder: Path, fmt: str | None = None) -> dict[str, Path]:
             continue
         if path.stem in found:
             raise DatasetError(folder, None, f"both {found[path.stem].name} and {path.name}: "
-                                             "say which to score (--format png or --format exr)")
+                                             f"say which to score ({words(format='png')} or "
+                                             f"{words(format='exr')})")
         found[path.stem] = path
     if not found:
         raise DatasetError(folder, None, f"no {' or '.join('.' + k for k in kinds)} images")
     return found
 
 
-def match_renders(folder: Path, names: Sequence[str], fmt: str | None = None) -> tuple[list[Path], str]:
+def match_renders(folder: Path, names: Sequence[str], fmt: str | None = None,
+                  words: Words = CLI) -> tuple[list[Path], str]:
     """The render of each test frame ``names[i]`` and the rule that matched them, ``"name"`` or ``"order"``.
 
     >>> import tempfile; d = Path(tempfile.mkdtemp())
@@ -122,7 +177,7 @@ def match_renders(folder: Path, names: Sequence[str], fmt: str | None = None) ->
     ['frame_9.png', 'frame_10.png']
     """
     folder = Path(folder)
-    files = image_files(folder, fmt)
+    files = image_files(folder, fmt, words)
     if set(files) & set(names):
         missing = [n for n in names if n not in files]
         if missing:
@@ -149,7 +204,7 @@ def match_renders(folder: Path, names: Sequence[str], fmt: str | None = None) ->
     return [numbered[k] for k in sorted(numbered)], "order"
 
 
-def exr_alpha_of(path: Path, img: np.ndarray, override: str | None = None) -> str:
+def exr_alpha_of(path: Path, img: np.ndarray, override: str | None = None, words: Words = CLI) -> str:
     """How the alpha of the RGBA EXR ``img`` (read from ``path``) applies: ``override`` if given, else what
     the file says (``opacity`` is ``"ignore"``), else ``"premultiplied"`` where every pixel of alpha 0 is
     black; a :class:`~mitsnerf.errors.DatasetError` naming ``--exr-alpha`` otherwise (module docstring).
@@ -167,17 +222,19 @@ def exr_alpha_of(path: Path, img: np.ndarray, override: str | None = None) -> st
         return "premultiplied"
     why = "its RGB is not black where alpha is 0 (a background already?)" if clear.any() else "no pixel has alpha 0"
     raise DatasetError(path, "alpha", f"below 1, the file does not say what it means (no {ALPHA_ATTRIBUTE} in its "
-                                      f"header) and {why}: say it with --exr-alpha premultiplied, straight or ignore")
+                                      f"header) and {why}: say it with {words.name('exr_alpha')} premultiplied, "
+                                      "straight or ignore")
 
 
-def _to_linear(path: Path, img: np.ndarray, background: np.ndarray | None, exr_alpha: str | None = None) -> np.ndarray:
+def _to_linear(path: Path, img: np.ndarray, background: np.ndarray | None, exr_alpha: str | None = None,
+               words: Words = CLI) -> np.ndarray:
     """Linear RGB of one render (module docstring): EXR by :func:`exr_alpha_of`, PNG sRGB with straight
     alpha, each composited over ``background`` by its alpha when it has one."""
     exr = path.suffix.lower() == ".exr"
     rgb = img[..., :3] if exr else srgb_to_linear(img[..., :3])
     if img.shape[2] != 4 or background is None:  # no alpha, or alpha 1 everywhere
         return rgb
-    mode = exr_alpha_of(path, img, exr_alpha) if exr else "straight"
+    mode = exr_alpha_of(path, img, exr_alpha, words) if exr else "straight"
     if mode == "ignore":
         return rgb
     return over(rgb, img[..., 3:4], background, premultiplied=mode == "premultiplied")
@@ -186,13 +243,15 @@ def _to_linear(path: Path, img: np.ndarray, background: np.ndarray | None, exr_a
 def read_renders(dataset: Dataset, folder: Path, fmt: str | None = None, split: str = "test",
                  exr_alpha: str | None = None) -> tuple[np.ndarray, list[Path], str]:
     """The renders of ``split``'s views as linear RGB ``(V, H, W, 3)``, their files and the matching rule
-    (``exr_alpha``: None, each EXR as its file says)."""
+    (``exr_alpha``: None, each EXR as its file says). Messages advise settings in the dataset's words
+    (:attr:`mitsnerf.data.dataset.Dataset.words`)."""
+    words = dataset.words
     if exr_alpha is not None and exr_alpha not in EXR_ALPHA:
-        raise UsageError("--exr-alpha", f"must be one of {', '.join(EXR_ALPHA)}, got {exr_alpha!r}")
+        raise UsageError(words.name("exr_alpha"), f"must be one of {', '.join(EXR_ALPHA)}, got {exr_alpha!r}")
     from mitsnerf.render.background import make_background, pixel_background
 
     views = dataset.views(split)
-    paths, rule = match_renders(Path(folder), views.names, fmt)
+    paths, rule = match_renders(Path(folder), views.names, fmt, words)
     images = np.empty(views.images.shape, dtype=np.float32)
     background = None
     for i, (path, name) in enumerate(zip(paths, views.names)):
@@ -209,7 +268,7 @@ def read_renders(dataset: Dataset, folder: Path, fmt: str | None = None, split: 
         if background is None and img.shape[2] == 4 and (img[..., 3] < 1).any():
             bg = make_background(dataset.background, dataset.root)
             background = pixel_background(bg, views.cameras, views.pixel_center).astype(np.float32)
-        images[i] = _to_linear(path, img, None if background is None else background[i], exr_alpha)
+        images[i] = _to_linear(path, img, None if background is None else background[i], exr_alpha, words)
     return images, paths, rule
 
 
@@ -240,9 +299,10 @@ def read_density(path: Path, box: Box) -> np.ndarray:
     return np.ascontiguousarray(grid, dtype=np.float32)
 
 
-def read_oracle(dataset: Dataset, footprint: int = 1):
+def read_oracle(dataset: Dataset, footprint: int = 1, recorded: float | None = None):
     """``(oracle, source)``: the cached :class:`mitsnerf.oracle.cache.Oracle` of ``dataset`` with scores at
-    ``footprint`` (the default settings' first), and where it is; ``(None, "no oracle ...")`` without one."""
+    ``footprint`` (the one whose medium PSNR there is ``recorded``, what a run scored against, first; then the
+    default settings'), and where it is; ``(None, "no oracle ...")`` without one."""
     from mitsnerf.config import to_dict
     from mitsnerf.oracle.cache import ORACLE_DIR, OracleConfig, load_oracle
 
@@ -251,7 +311,8 @@ def read_oracle(dataset: Dataset, footprint: int = 1):
     if not found:
         return None, f"no oracle (none cached in {Path(dataset.root) / ORACLE_DIR} at footprint {footprint})"
     default = to_dict(OracleConfig())
-    oracle = next((o for o in found if o.info.get("config") == default), found[0])
+    same = [o for o in found if recorded is not None and o.metrics(footprint).get("psnr_test_medium") == recorded]
+    oracle = next(iter(same), next((o for o in found if o.info.get("config") == default), found[0]))
     return oracle, f"oracle {oracle.path} at footprint {footprint}"
 
 
@@ -260,10 +321,10 @@ EXR_FLOOR = "linear float: test_ref against test (the manifest's)"
 
 
 def _floor_of_format(
-    dataset: Dataset, ref: scoring.Reference, paths: Sequence[Path]
-) -> tuple[scoring.Reference, str | None]:
+    dataset: Dataset, ref: Reference, paths: Sequence[Path]
+) -> tuple[Reference, str | None]:
     """``ref`` with the noise floor of the renders' format, and what that floor is: renders that are all PNG
-    are held against :func:`mitsnerf.scoring.png_noise_floor` (8-bit quantisation costs dB no tool can win
+    are held against :func:`mitsnerf.scoring.images.png_noise_floor` (8-bit quantisation costs dB no tool can win
     back), others against the manifest's floor; ``(ref, None)`` without a floor."""
     import dataclasses
 
@@ -271,7 +332,7 @@ def _floor_of_format(
         return ref, None
     if ref.masks is None or "test_ref" not in dataset.splits or any(p.suffix.lower() != ".png" for p in paths):
         return ref, EXR_FLOOR
-    floor = scoring.png_noise_floor(ref.images, dataset.views("test_ref").images, ref.masks)
+    floor = png_noise_floor(ref.images, dataset.views("test_ref").images, ref.masks)
     return dataclasses.replace(ref, noise_floor=floor), PNG_FLOOR
 
 
@@ -289,43 +350,83 @@ class ExternalScore:
     renders: np.ndarray
     """(V, H, W, 3) linear, as scored."""
     slices: dict
-    reference: scoring.Reference
+    reference: Reference
     """What they were scored against (the test views, their medium masks)."""
     oracle_used: Any = None
     """The :class:`mitsnerf.oracle.cache.Oracle` whose scores are in ``metrics`` (None: no oracle)."""
+    footprint: int = 1
+    """The footprint they were held against the oracle at."""
+    run: RunRenders | None = None
+    """The run whose ``test/`` they are (None: a folder of renders)."""
 
     def record(self, dataset: Dataset, folder: Path) -> dict[str, Any]:
         """The JSON record ``mitsnerf score`` writes."""
         from mitsnerf import env
 
-        return {"name": self.name, "external": True, "dataset": str(dataset.root), "renders": str(folder),
-                "matched_by": self.matched_by, "files": self.files, "density": self.density, "oracle": self.oracle,
-                "metrics": self.metrics, "provenance": env.provenance()}
+        run = None if self.run is None else str(self.run.path)
+        return {"name": self.name, "external": run is None, "run": run, "dataset": str(dataset.root),
+                "renders": str(folder), "matched_by": self.matched_by, "files": self.files,
+                "density": self.density, "oracle": self.oracle, "metrics": self.metrics, "provenance": env.provenance()}
+
+    @property
+    def label(self) -> str:
+        """The row's method: a run's name as it is, other renders' marked ``NAME (external)``."""
+        return self.name if self.run is not None else f"{self.name} (external)"
+
+
+#: What a run scored against another dataset than it trained on is told to do instead.
+SCORE_ELSEWHERE = "score it against the dataset it trained on"
 
 
 def score_renders(dataset: Dataset, folder: Path, *, density: Path | None = None, name: str | None = None,
-                  fmt: str | None = None, footprint: int = 1, oracle=None,
-                  exr_alpha: str | None = None) -> ExternalScore:
+                  fmt: str | None = None, footprint: int | None = None, oracle=None, exr_alpha: str | None = None,
+                  reference: Reference | None = None) -> ExternalScore:
     """Score the renders in ``folder`` against ``dataset``'s test views: the metrics of a benchmark
-    cell (:func:`mitsnerf.scoring.score_views`), with the oracle's at ``footprint`` (``oracle``, else
-    :func:`read_oracle`'s) where there is one."""
+    cell (:func:`mitsnerf.scoring.views.score_views`), with the oracle's at ``footprint`` (``oracle``, else
+    :func:`read_oracle`'s) where there is one; ``reference``: the test views'
+    :class:`~mitsnerf.scoring.reference.Reference` if the caller has it. A run directory is scored as the run
+    (module docstring): ``footprint`` (None: the run's, else 1), ``name`` and ``density`` override it. Messages
+    name settings in the dataset's words (:attr:`mitsnerf.data.dataset.Dataset.words`: ``--format``, or
+    ``format`` from the Python API)."""
+    words = dataset.words
     if fmt is not None and fmt not in FORMATS:
-        raise UsageError("--format", f"must be one of {', '.join(FORMATS)}, got {fmt!r}")
-    if footprint < 1:
-        raise UsageError("--footprint", f"must be >= 1, got {footprint}")
+        raise UsageError(words.name("format"), f"must be one of {', '.join(FORMATS)}, got {fmt!r}")
+    if footprint is not None and footprint < 1:
+        raise UsageError(words.name("footprint"), f"must be >= 1, got {footprint}")
+    run = read_run(Path(folder))
+    if run is not None:
+        from mitsnerf.runs.fit import check_same_dataset
+
+        check_same_dataset(run.config, dataset, run.path, "renders", SCORE_ELSEWHERE, words)
+    k = footprint if footprint is not None else run.footprint if run is not None else 1
     folder = renders_folder(Path(folder))
     grid = read_density(density, dataset.box) if density is not None else None  # bad input before the work
     images, paths, rule = read_renders(dataset, folder, fmt, exr_alpha=exr_alpha)
-    if oracle is None or f"footprint_{footprint}" not in oracle.scores:
-        oracle, oracle_source = read_oracle(dataset, footprint)
+    if oracle is None or f"footprint_{k}" not in oracle.scores:
+        own = run.metrics.get("oracle_psnr_test_medium") if run is not None and k == run.footprint else None
+        oracle, oracle_source = read_oracle(dataset, k, own)
     else:
-        oracle_source = f"oracle {oracle.path} at footprint {footprint}"
-    ref, floor_of = _floor_of_format(dataset, scoring.reference(dataset, "test"), paths)
-    fn = None if grid is None else scoring.true_density(grid, dataset.box)
-    metrics, slices = scoring.score_views(images, ref, fn, oracle=None if oracle is None else oracle.metrics(footprint))
-    metrics["noise_floor_of"] = floor_of
+        oracle_source = f"oracle {oracle.path} at footprint {k}"
+    ref, floor_of = _floor_of_format(dataset, reference or load_reference(dataset, "test"), paths)
+    fn = None if grid is None else true_density(grid, dataset.box)
+    metrics, slices = score_views(images, ref, fn, oracle=None if oracle is None else oracle.metrics(k))
+    metrics["noise_floor_of"], metrics["footprint"] = floor_of, k
+    density_source = None if density is None else str(density)
     if fn is None and ref.sigma_t is not None:
-        metrics["density_note"] = "no density grid given (--density)"
+        density_source = _density_of_run(metrics, ref, run)
+    if run is not None and run.metrics:
+        metrics["psnr_train"] = run.metrics.get("psnr_train")  # of training views: only the run has it
     views = dataset.views("test")
-    return ExternalScore(name or folder.resolve().name, metrics, {n: str(p) for n, p in zip(views.names, paths)}, rule,
-                         None if density is None else str(density), oracle_source, images, slices, ref, oracle)
+    return ExternalScore(name or (run.method if run is not None else folder.resolve().name), metrics,
+                         {n: str(p) for n, p in zip(views.names, paths)}, rule, density_source, oracle_source, images,
+                         slices, ref, oracle, k, run)
+
+
+def _density_of_run(metrics: dict, ref: Reference, run: RunRenders | None) -> str | None:
+    """Renders scored without a density grid: a run's own density figures (its ``metrics.json``, what its model's
+    density scored) go into ``metrics`` and it says where they come from; else a note that none was given."""
+    if run is None or not run.metrics:
+        metrics["density_note"] = "no density grid given"  # data: the same whichever surface scored it
+        return None
+    metrics.update({key: run.metrics.get(key) for key in density_figures(None, ref)[0]})
+    return f"the run's own ({run.path / 'metrics.json'})"

@@ -22,21 +22,24 @@ from typing import Any
 
 import numpy as np
 
-from mitsnerf import env, scoring
+from mitsnerf import env
 from mitsnerf.config import from_dict, to_dict
 from mitsnerf.data.arrays import read_npz
 from mitsnerf.data.atomic import atomic_dir, atomic_write_json
 from mitsnerf.data.dataset import Dataset, load_dataset
 from mitsnerf.data.images import write_exr, write_png
 from mitsnerf.data.verify import verify_dataset
-from mitsnerf.errors import DatasetError, DiskFullError, OutputError, UsageError
+from mitsnerf.errors import CLI, DatasetError, DiskFullError, OutputError, Placeholder, UsageError, Words
 from mitsnerf.fields.protocols import DensityField
 from mitsnerf.math.box import Box
-from mitsnerf.methods import get_method, methods
+from mitsnerf.methods import check_model, get_method, methods
 from mitsnerf.methods.base import HasField, Model, ParameterShapeError, SceneInfo, num_parameters
 from mitsnerf.render.background import make_background
 from mitsnerf.render.camera import Rendered
 from mitsnerf.runs.directory import RUN_FILES, remove_run_files
+from mitsnerf.scoring.images import image_scores
+from mitsnerf.scoring.reference import Reference, load_reference
+from mitsnerf.scoring.views import score_views
 from mitsnerf.train import PixelData, TrainConfig, TrainResult, TrainState, make_optimizer, train
 from mitsnerf.train.checkpoint import CHECKPOINT_FILE, Checkpointer, load_checkpoint, restore_optimizer
 from mitsnerf.train.checkpointing import interrupted_message
@@ -52,7 +55,7 @@ class RunResult:
     (what ``config.json`` holds)."""
     train: TrainResult
     scores: dict
-    """:func:`mitsnerf.scoring.score_views` of the test views, plus ``psnr_train``."""
+    """:func:`mitsnerf.scoring.views.score_views` of the test views, plus ``psnr_train``."""
     renders: list[Rendered]
     slices: dict
     """Central slices of the true and learned density (for the report)."""
@@ -145,9 +148,17 @@ def _check_resumable(saved: Mapping[str, Any], current: Mapping[str, Any], where
                                                       f"only {', '.join(RESUMABLE_CHANGES)} may change on resume")
 
 
-def _check_same_dataset(saved: Mapping[str, Any], dataset: Dataset, run_dir: Path) -> None:
-    """Refuse to resume the run in ``run_dir`` (config ``saved``) on another dataset than it trained on:
-    the same manifest ``hash`` where both have one (a moved dataset is the same), else the same path."""
+#: What :func:`check_same_dataset` tells a resume on another dataset to do instead (``{dataset}``: how the surface
+#: called names the dataset argument).
+RESUME_ELSEWHERE = "resume it on its own dataset (leave {dataset} out), or train a new run elsewhere"
+
+
+def check_same_dataset(saved: Mapping[str, Any], dataset: Dataset, run_dir: Path, option: str = "resume",
+                       advice: str = RESUME_ELSEWHERE, words: Words = CLI) -> None:
+    """Refuse to use the run in ``run_dir`` (config ``saved``) with another dataset than it trained on (to resume
+    it, to score its renders): the same manifest ``hash`` where both have one (a moved dataset is the same),
+    else the same path. A :class:`~mitsnerf.errors.UsageError` of the setting ``option`` (in ``words``) naming
+    the run, both datasets and ``advice``."""
     was, was_hash = saved.get("dataset"), saved.get("dataset_hash")
     now, now_hash = str(Path(dataset.root).resolve()), (dataset.manifest or {}).get("hash")
     same = was_hash == now_hash if (was_hash and now_hash) else was == now
@@ -155,11 +166,8 @@ def _check_same_dataset(saved: Mapping[str, Any], dataset: Dataset, run_dir: Pat
         def tag(h: str | None) -> str:
             return f" (manifest hash {h[:12]})" if h else ""
 
-        raise UsageError(
-            "--resume",
-            f"the run in {run_dir} trained on {was}{tag(was_hash)}, not on {now}{tag(now_hash)}; "
-            "resume it on its own dataset (leave DATASET out), or train a new run elsewhere",
-        )
+        raise UsageError(words.name(option), f"the run in {run_dir} trained on {was}{tag(was_hash)}, not on {now}"
+                                             f"{tag(now_hash)}; {advice.format(dataset=words.name('dataset'))}")
 
 
 def run_method(config: Mapping[str, Any], where: Path) -> str:
@@ -184,8 +192,12 @@ def method_config(method: str, overrides: Mapping[str, Any] | None, source: Path
 
 def build_model(method: str, overrides: Mapping[str, Any] | None, info: SceneInfo, seed: int,
                 source: Path | None = None) -> tuple[Model, Any]:
+    """``(model, config)`` of ``method`` for the scene; a :class:`~mitsnerf.errors.MethodError` if the model has
+    nothing to train (:func:`mitsnerf.methods.check_model`), before anything is written."""
     config = method_config(method, overrides, source)
-    return get_method(method).model_type(config, info, seed), config
+    model = get_method(method).model_type(config, info, seed)
+    check_model(get_method(method), model)
+    return model, config
 
 
 def set_checked(model: Model, values: Mapping[str, Any], where: Path, method: str, run_dir: Path) -> None:
@@ -198,14 +210,14 @@ def set_checked(model: Model, values: Mapping[str, Any], where: Path, method: st
                            f"method {method!r}{_written_by(run_dir)}; retrain it") from None
 
 
-def _start(out_dir: Path | None, run_config: dict, model: Model, lr: float, resume: bool):
+def _start(out_dir: Path | None, run_config: dict, model: Model, lr: float, resume: bool, words: Words = CLI):
     """``(checkpointer, state)``: where checkpoints go, and the state to continue from (None: a fresh run)."""
     if out_dir is None:
         if resume:
             raise ValueError("resume: needs the run directory (out_dir) holding the checkpoint")
         return None, None
     path = Path(out_dir) / CHECKPOINT_FILE
-    checkpointer = Checkpointer(path, run_config)
+    checkpointer = Checkpointer(path, run_config, words)
     if not resume:
         remove_run_files(Path(out_dir))  # a fresh run: the old one's files go now, when training starts
         return checkpointer, None
@@ -229,13 +241,14 @@ def fit(
     progress: bool = True,
     resume: bool = False,
     on_log: Callable[[dict, Model], None] | None = None,
-    reference: scoring.Reference | None = None,
+    reference: Reference | None = None,
     oracle: dict | None = None,
     deterministic: bool = False,
+    words: Words = CLI,
 ) -> RunResult:
     """Train ``method`` on ``dataset``, then render and score every test view.
 
-    ``reference``: the test views' :class:`mitsnerf.scoring.Reference` if the caller has it
+    ``reference``: the test views' :class:`mitsnerf.scoring.reference.Reference` if the caller has it
     (else built here); ``oracle``: the oracle's test metrics at the same footprint, for the
     error budget. With ``out_dir``, checkpoints go to ``out_dir/checkpoint.npz`` (a fresh run
     first removes an old run's files there, :func:`mitsnerf.runs.directory.remove_run_files`); ``resume=True``
@@ -245,16 +258,17 @@ def fit(
     held-out curve, :class:`mitsnerf.bench.worker.CurveRecorder`); a resumed run calls it again on
     the checkpoint's last entry when that is the checkpoint's step (a signal may have stopped it
     there), so it must do nothing the second time for an entry it finished. ``deterministic``: train on one
-    thread (:mod:`mitsnerf.train.threads`), recorded in the run config so a resume does too.
+    thread (:mod:`mitsnerf.train.threads`), recorded in the run config so a resume does too. ``words``: how
+    the messages of an interrupted run say to continue (:class:`mitsnerf.errors.Words`).
     The caller holds the run directory (:func:`mitsnerf.runs.directory.claim_run_dir`).
     """
     refuse_nondeterministic(deterministic)  # before _start empties or reads the run directory
     train_views = dataset.views("train")
-    ref = reference or scoring.reference(dataset, "test")
+    ref = reference or load_reference(dataset, "test")
     model, config = build_model(method, method_overrides, scene_info(dataset, train_views.images), train_config.seed)
     run_config = {"method": method, "method_config": to_dict(config), "train": to_dict(train_config),
                   "eval": to_dict(eval_config), "deterministic": bool(deterministic), **dataset_config(dataset)}
-    checkpointer, state = _start(out_dir, run_config, model, config.lr, resume)
+    checkpointer, state = _start(out_dir, run_config, model, config.lr, resume, words)
     data = PixelData.from_views(train_views.images, train_views.cameras, train_views.pixel_center)
     if state is not None and on_log is not None and state.history and state.history[-1].get("step") == state.step:
         on_log(state.history[-1], model)  # a signal may have stopped the hook on the checkpoint's own entry
@@ -276,7 +290,7 @@ def fit(
     except KeyboardInterrupt as exc:  # trained and checkpointed: a resume only evaluates
         if checkpointer is None:
             raise
-        raise interrupted_message(exc, checkpointer.path, result.steps, " while evaluating") from None
+        raise interrupted_message(exc, checkpointer.path, result.steps, " while evaluating", words) from None
     except DiskFullError as exc:  # the run directory is as it was, with the final checkpoint: a resume only evaluates
         if checkpointer is None:
             raise
@@ -284,30 +298,28 @@ def fit(
     return run
 
 
-def score_model(model: Model, ref: scoring.Reference, eval_config: EvalConfig,
+def score_model(model: Model, ref: Reference, eval_config: EvalConfig,
                 oracle: dict | None = None) -> tuple[dict, list[Rendered], dict, float]:
     """Render ``ref``'s views with the footprint of ``eval_config`` and score them (the density too, where the
     model has a queryable one): ``(scores, renders, density slices, render seconds)``."""
     renders, seconds = render_views(model, ref.cameras, pixel_center=ref.pixel_center, footprint=eval_config.footprint)
     field = model.field() if isinstance(model, HasField) else None
     density = field.density if isinstance(field, DensityField) else None
-    scores, slices = scoring.score_views(stack_rgb(renders), ref, density, oracle=oracle,
-                                         density_resolution=eval_config.density_resolution,
-                                         od_samples=eval_config.od_samples)
+    scores, slices = score_views(stack_rgb(renders), ref, density, oracle=oracle,
+                                 density_resolution=eval_config.density_resolution,
+                                 od_samples=eval_config.od_samples)
     return scores, renders, slices, seconds
 
 
 def evaluate_run(model: Model, method: str, run_config: dict, result: TrainResult, dataset: Dataset,
-                 ref: scoring.Reference, eval_config: EvalConfig, oracle: dict | None) -> RunResult:
+                 ref: Reference, eval_config: EvalConfig, oracle: dict | None) -> RunResult:
     """Render the test views (and a few training views) with the run's footprint and score them."""
     k = eval_config.footprint
     scores, renders, slices, seconds = score_model(model, ref, eval_config, oracle)
     train_views = dataset.views("train")
     n = min(eval_config.train_eval_views, len(train_views.cameras))
     train_renders, _ = render_views(model, train_views.cameras[:n], pixel_center=train_views.pixel_center, footprint=k)
-    scores["psnr_train"] = scoring.image_scores(stack_rgb(train_renders), train_views.images[:n], with_ssim=False)[
-        "psnr_test"
-    ]
+    scores["psnr_train"] = image_scores(stack_rgb(train_renders), train_views.images[:n], with_ssim=False)["psnr_test"]
     return RunResult(method, run_config, result, scores, renders, slices, num_parameters(model.parameters()),
                      seconds, model)
 
@@ -375,35 +387,36 @@ def _carry_over(old: Path, new: Path) -> None:
 
 
 def resume_run(run_dir: Path, train_overrides: Mapping[str, Any] | None = None, *, progress: bool = True,
-               dataset: Dataset | None = None, verify_hashes: bool = True) -> RunResult:
+               dataset: Dataset | None = None, verify_hashes: bool = True, words: Words = CLI) -> RunResult:
     """Continue the run in ``run_dir`` from its checkpoint (``mitsnerf train --resume``).
 
     Everything comes from the checkpoint's config (method, settings, dataset, box, one thread or
     not); ``train_overrides`` may change only :data:`RESUMABLE_CHANGES`, e.g. ``{"steps": 2000}``
     to train longer (the learning-rate schedule then stretches to the new length). The dataset
     the checkpoint names is verified (:func:`mitsnerf.data.verify.verify_dataset`) when opened
-    here. A finished run (``metrics.json``) resumes only with more steps.
+    here. A finished run (``metrics.json``) resumes only with more steps. ``words``: the settings its messages
+    advise (:class:`mitsnerf.errors.Words`).
     """
     run_dir = Path(run_dir)
     path = run_dir / CHECKPOINT_FILE
     ckpt = load_checkpoint(path)
     refuse_nondeterministic(bool(ckpt.config.get("deterministic")), str(path),
-                            "the run was trained with --deterministic, which this backend cannot continue "
-                            "(resume it with MITSNERF_VARIANT=llvm_ad_rgb): ")
+                            f"the run was trained with {words(deterministic=True)}, which this backend cannot "
+                            "continue (resume it with MITSNERF_VARIANT=llvm_ad_rgb): ")
     train_config = from_dict(TrainConfig, {**(ckpt.config.get("train") or {}), **dict(train_overrides or {})})
     if ckpt.step >= train_config.steps and (run_dir / "metrics.json").is_file():
         raise OutputError(run_dir, None, f"the run finished at step {ckpt.step} (metrics.json); nothing to resume: "
-                                         f"pass --steps N (N > {ckpt.step}) to train it on")
+                                         f"pass {words(steps=Placeholder('N'))} (N > {ckpt.step}) to train it on")
     eval_config = from_dict(EvalConfig, ckpt.config.get("eval") or {})
     method = run_method(ckpt.config, path)
     method_config(method, ckpt.config.get("method_config"), path)  # its settings checked before the data loads
     if dataset is None:
         dataset = open_dataset(ckpt.config, path)
-        verify_dataset(dataset, hashes=verify_hashes)
-    _check_same_dataset(ckpt.config, dataset, run_dir)
+        verify_dataset(dataset, hashes=verify_hashes, words=words)
+    check_same_dataset(ckpt.config, dataset, run_dir, words=words)
     return fit(dataset, method, ckpt.config.get("method_config"), train_config, run_dir,
                eval_config=eval_config, progress=progress, resume=True,
-               deterministic=bool(ckpt.config.get("deterministic")))
+               deterministic=bool(ckpt.config.get("deterministic")), words=words)
 
 
 def _written_by(run_dir: Path) -> str:

@@ -5,8 +5,10 @@ field that caused it, and nothing of the dataset is left on disk.
   ``volume.sigma_t_scale`` is bounded (:data:`mitsnerf.scene.spec.SIGMA_T_SCALE_MAX`), so its product
   with a density in ``[0, 1]`` cannot overflow: what is wrong in a grid comes from the family,
   ``volume.params``.
-- The rendered views (:func:`check_views`): finite and non-negative radiance. With the grids
-  checked, what is left to overflow in volpath is the light: the brightest light's table is named.
+- The rendered views (:func:`check_views`): finite and non-negative radiance, up to float32 rounding at
+  the view's scale (:func:`mitsnerf.data.verify.roundoff_tolerance`: a pixel that is 0 exactly, such as the
+  background through a medium of transmittance 1e-14, may come out 1e-15 below; generation writes it as 0).
+  With the grids checked, what is left to overflow in volpath is the light: the brightest light's table is named.
 
 The problems are found by :func:`mitsnerf.data.verify.grid_problem` and
 :func:`~mitsnerf.data.verify.image_problem`, the checks a dataset gets again when it is opened.

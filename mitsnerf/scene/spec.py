@@ -6,10 +6,10 @@ lights, a camera rig and the render settings; see ``docs/conventions.md`` ("Scen
 the file format. Every problem with a spec raises :class:`mitsnerf.errors.SpecError` naming the
 file and the dotted field::
 
-    >>> parse_scene({"name": "x"}, "inline.toml")
+    >>> parse_scene({"name": "x", "volume": {"family": "cloud"}}, "inline.toml")
     Traceback (most recent call last):
     ...
-    mitsnerf.errors.SpecError: inline.toml: volume: missing field (a table)
+    mitsnerf.errors.SpecError: inline.toml: volume.resolution: missing field (an integer in [8, 512])
 
 The world is Z-up (``UP``): the hemisphere rig and the sky use it.
 
@@ -39,6 +39,7 @@ from types import MappingProxyType
 from typing import Any, ClassVar
 
 from mitsnerf.config import (
+    apply_overrides,
     from_dict,
     named_files,
     param,
@@ -71,6 +72,20 @@ def _freeze(obj: Any) -> Any:
     if isinstance(obj, (list, tuple)):
         return tuple(_freeze(v) for v in obj)
     return obj
+
+
+def absolute_path(path: Path) -> Path:
+    """``path`` absolute, its directory's symlinks and ``..`` resolved and its own name kept: a link to a grid
+    stays the link, so a broken link or a symlink loop is reported as itself when the file is opened.
+
+    >>> absolute_path(Path("/a/../b.npy"))
+    PosixPath('/b.npy')
+    """
+    full = Path(os.path.abspath(path))
+    try:
+        return full.parent.resolve() / full.name
+    except (OSError, RuntimeError):  # a loop among the directories: opening the file names it
+        return full
 
 
 def _not_all_zero(name: str, v: tuple[float, float, float] | None) -> None:
@@ -194,22 +209,38 @@ class VolumeSpec:
         return {f"params.{f}": Path(self.params[f]) for f in self.file_fields if self.params.get(f)}
 
     def with_files_under(self, base: Path) -> VolumeSpec:
-        """A copy whose relative input-file paths are resolved against ``base`` (absolute, normalised)."""
-        moved = {f: str((base / self.params[f]).resolve()) for f in self.file_fields
+        """A copy whose relative input-file paths are resolved against ``base`` (absolute, normalised:
+        :func:`absolute_path`)."""
+        moved = {f: str(absolute_path(base / self.params[f])) for f in self.file_fields
                  if self.params.get(f) and not Path(self.params[f]).is_absolute()}
         return dataclasses.replace(self, params={**self.params, **moved}) if moved else self
+
+    def check_inputs(self) -> None:
+        """Every input file is a file, then the family's checks of them that need not read them whole (a
+        header's shape: :attr:`mitsnerf.volumes.base.Family.check`); a SpecError naming the file."""
+        from mitsnerf import volumes
+
+        self._check_files()
+        family = volumes.families()[self.family]
+        if family.check is not None:
+            family.check(volumes.make_params(self.family, self.params))
+
+    def _check_files(self) -> None:
+        """A SpecError naming the first input file that is no file (missing, a directory, a loop) and its field."""
+        from mitsnerf.data.arrays import file_problem
+
+        for field, path in self.input_files().items():
+            problem = file_problem(path, "grid file")
+            if problem is not None:
+                raise SpecError(path, None, f"{problem} (volume.{field})")
 
     def input_digests(self) -> dict[str, str]:
         """``params.FIELD -> sha256`` of every input file's content (what a dataset's key covers
         instead of the path); a SpecError naming a file that cannot be read."""
         from mitsnerf.data.cache import sha256_file
 
-        out = {}
-        for field, path in self.input_files().items():
-            if not path.is_file():
-                raise SpecError(path, None, f"no such grid file (volume.{field})")
-            out[field] = sha256_file(path)
-        return out
+        self._check_files()
+        return {field: sha256_file(path) for field, path in self.input_files().items()}
 
     def __hash__(self) -> int:  # params is a read-only mapping, which Python does not hash
         return hash(json.dumps(to_dict(self), sort_keys=True))
@@ -396,8 +427,7 @@ class SceneSpec:
 
     def __post_init__(self) -> None:
         # input files are relative to the spec file's directory (a spec without a file: the working directory)
-        here = Path(self.source).parent if self.source and Path(self.source).is_file() else Path.cwd()
-        object.__setattr__(self, "volume", self.volume.with_files_under(here))
+        object.__setattr__(self, "volume", self.volume.with_files_under(_directory_of(self.source)))
         if not _NAME_RE.match(self.name):
             raise ValueError(
                 f"name: must be letters, digits, '_', '-' or '.', starting with a letter or digit; got {self.name!r}")
@@ -453,9 +483,95 @@ class SceneSpec:
         return hashlib.sha256(text.encode("utf-8")).hexdigest()
 
 
+#: The key of a spec that starts from another: a library scene's name or a spec file's path.
+EXTENDS = "extends"
+#: How a spec that extends another is merged into it (the README and the errors of such a spec say it).
+MERGE_RULE = ("a table merges into the base's key by key, a list or a value replaces the base's whole; a table whose "
+              "type changes (volume.phase) is replaced whole, and so is volume.params when volume.family changes")
+#: The tables every spec needs, which ``extends`` can supply.
+_REQUIRED = ("name", "volume", "lights", "cameras", "render")
+
+
 def parse_scene(data: Mapping[str, Any], source: str | os.PathLike | None = None) -> SceneSpec:
-    """Validate plain data (a parsed TOML document) into a :class:`SceneSpec`."""
-    return from_dict(SceneSpec, data, source=source if source is not None else "<spec>")
+    """Validate plain data (a parsed TOML document) into a :class:`SceneSpec`; with ``extends``, over the spec it
+    names (:func:`merge_specs`; a path relative to ``source``'s directory, else the working directory)."""
+    where = source if source is not None else "<spec>"
+    return _parse(data, where, _chain_start(where))
+
+
+def merge_specs(base: Mapping[str, Any], over: Mapping[str, Any]) -> dict[str, Any]:
+    """``over`` (what a spec says) merged into ``base`` (the spec it extends), as :data:`MERGE_RULE` says.
+
+    >>> merge_specs({"cameras": {"width": 64, "fov": 40}, "lights": [1, 2]}, {"cameras": {"width": 16}, "lights": [3]})
+    {'cameras': {'width': 16, 'fov': 40}, 'lights': [3]}
+    >>> merge_specs({"volume": {"family": "cloud", "resolution": 64, "params": {"octaves": 4}}},
+    ...             {"volume": {"family": "grid", "params": {"path": "g.npy"}}})
+    {'volume': {'family': 'grid', 'resolution': 64, 'params': {'path': 'g.npy'}}}
+    >>> merge_specs({"phase": {"type": "hg", "g": 0.85}}, {"phase": {"type": "isotropic"}})
+    {'phase': {'type': 'isotropic'}}
+    """
+    out = dict(base)
+    for key, value in over.items():
+        old = out.get(key)
+        if (isinstance(value, Mapping) and isinstance(old, Mapping)
+                and value.get("type", old.get("type")) == old.get("type")):
+            if value.get("family", old.get("family")) != old.get("family"):
+                old = {k: v for k, v in old.items() if k != "params"}
+            out[key] = merge_specs(old, value)
+        else:
+            out[key] = value
+    return out
+
+
+def _directory_of(source: Any) -> Path:
+    """Where the paths a spec names are relative to: its file's directory, else (no file) the working directory."""
+    path = Path(os.fspath(source)) if isinstance(source, (str, os.PathLike)) else None
+    return path.parent if path is not None and path.is_file() else Path.cwd()
+
+
+def _chain_start(source: Any) -> tuple[str, ...]:
+    """The specs being read when ``source`` is: itself, if it is a file."""
+    path = Path(os.fspath(source)) if isinstance(source, (str, os.PathLike)) else None
+    return (str(absolute_path(path)),) if path is not None and path.is_file() else ()
+
+
+def _parse(data: Mapping[str, Any], source: Any, chain: tuple[str, ...]) -> SceneSpec:
+    """:func:`parse_scene`, ``chain`` the spec files being read (each extending the next): a cycle is refused."""
+    if EXTENDS not in data:
+        try:
+            return from_dict(SceneSpec, data, source=source)
+        except SpecError as exc:
+            if exc.field in _REQUIRED and exc.message.startswith("missing field"):
+                raise SpecError(exc.where, exc.field, f"{exc.message}; or start from a library scene "
+                                                      f'(extends = "cloud") and give only what differs') from None
+            raise
+    ref = data[EXTENDS]
+    base_path = _base_path(ref, source)
+    key = str(absolute_path(base_path))
+    if key in chain:
+        raise SpecError(source, EXTENDS, f"a cycle: {' -> '.join((*chain, key))}")
+    base = _parse(read_toml(base_path, "a spec file"), base_path, (*chain, key))
+    merged = merge_specs(base.to_dict(), {k: v for k, v in data.items() if k != EXTENDS})
+    try:
+        return from_dict(SceneSpec, merged, source=source)
+    except SpecError as exc:
+        raise SpecError(exc.where, exc.field, f"{exc.message}; this spec extends {ref!r}: {MERGE_RULE}") from None
+
+
+def _base_path(ref: Any, source: Any) -> Path:
+    """The spec file ``extends = ref`` names: a library scene's (or ``--scenes`` DIR's), or a path relative to the
+    extending spec's directory."""
+    if not isinstance(ref, str) or not ref:
+        raise SpecError(source, EXTENDS, f"must be a library scene's name or a spec file's path, got {ref!r}")
+    if is_spec_path(ref):
+        path = Path(ref) if Path(ref).is_absolute() else _directory_of(source) / ref
+        if not path.exists():
+            raise SpecError(source, EXTENDS, f"no such spec file {str(path)!r}")
+        return path
+    found = named_files(scene_dirs())
+    if ref not in found:
+        raise SpecError(source, EXTENDS, f"unknown scene {ref!r} (known: {', '.join(found)})")
+    return found[ref]
 
 
 # --------------------------------------------------------------------------- the library
@@ -482,6 +598,15 @@ def load_scene(name_or_path: str | os.PathLike) -> SceneSpec:
     return parse_scene(read_toml(path, "a spec file"), path)
 
 
+def open_scene(name_or_path: str | os.PathLike, overrides: Mapping[str, Any] | None = None) -> SceneSpec:
+    """What ``mitsnerf generate SCENE --set KEY=VALUE`` renders: a library scene or a spec file
+    (:func:`load_scene`) with ``overrides`` applied, or a grid file's scene (:func:`grid_scene`) built with them."""
+    if is_grid_path(name_or_path):
+        return grid_scene(name_or_path, overrides=overrides)
+    spec = load_scene(name_or_path)
+    return spec.with_overrides(overrides) if overrides else spec
+
+
 def is_grid_path(name_or_path: str | os.PathLike) -> bool:
     """Whether ``name_or_path`` names a grid file (``.npy``, ``.npz``, ``.vol``) rather than a spec.
 
@@ -493,22 +618,39 @@ def is_grid_path(name_or_path: str | os.PathLike) -> bool:
     return Path(os.fspath(name_or_path)).suffix.lower() in SUFFIXES
 
 
-def grid_scene(path: str | os.PathLike, template: str = "cloud") -> SceneSpec:
+def grid_scene(path: str | os.PathLike, template: str = "cloud",
+               overrides: Mapping[str, Any] | None = None) -> SceneSpec:
     """The library's ``template`` scene with its medium replaced by the grid in ``path``: family ``grid``
-    (values a density, the template's ``sigma_t_scale``), at the grid's own resolution (its longest
-    axis, kept in [8, 512]), named after the file. What ``mitsnerf generate FILE.npy`` renders; ``--set``
-    changes the rest (``volume.sigma_t_scale``, ``volume.params.values``, ``volume.resolution``)."""
+    (values a density, the template's ``sigma_t_scale``), named after the file, with ``overrides`` (dotted
+    fields, as ``--set``) applied, and, unless they set ``volume.resolution``, at the grid's own resolution (its
+    longest axis, kept in [8, 512], of the array ``volume.params.array`` names). What ``mitsnerf generate
+    FILE.npy`` renders. The file's header is checked here (:func:`mitsnerf.volumes.grid.grid_header`)."""
     from mitsnerf.volumes import MAX_RESOLUTION, MIN_RESOLUTION
-    from mitsnerf.volumes.grid import grid_shape
+    from mitsnerf.volumes.grid import check_shape, grid_header
 
-    path = Path(path).resolve()
-    longest = max(grid_shape(path))
+    path = absolute_path(Path(path))
     data = load_scene(template).to_dict()
     name = re.sub(r"[^A-Za-z0-9_.-]", "_", path.stem).lstrip("_.-") or "grid"
     data.update(name=name, description=f"the grid in {path.name}")
-    data["volume"] = {"family": "grid", "resolution": min(max(longest, MIN_RESOLUTION), MAX_RESOLUTION),
-                      "sigma_t_scale": data["volume"]["sigma_t_scale"], "params": {"path": str(path)}}
-    return parse_scene(data, path)
+    data["volume"] = {"family": "grid", "sigma_t_scale": data["volume"]["sigma_t_scale"],
+                      "params": {"path": str(path)}}
+    where = f"{path} (with overrides)" if overrides else str(path)
+    data = apply_overrides(data, overrides or {}, where)
+    volume = data.get("volume")
+    own = not isinstance(volume, dict) or "resolution" in volume or volume.get("family") != "grid"
+    if isinstance(volume, dict) and not own:
+        volume["resolution"] = MIN_RESOLUTION  # for now: the grid's own once its path and array are known
+    try:
+        spec = parse_scene(data, path)
+    except SpecError as exc:  # an override's problem: said as with_overrides says it
+        raise SpecError(where if exc.where == str(path) else exc.where, exc.field, exc.message) from None
+    if own:
+        return spec
+    params = spec.volume.params
+    shape, _ = grid_header(params["path"], params["array"])
+    check_shape(shape, params["path"], 1, "density")
+    resolution = min(max(max(shape[:3]), MIN_RESOLUTION), MAX_RESOLUTION)
+    return dataclasses.replace(spec, volume=dataclasses.replace(spec.volume, resolution=resolution))
 
 
 def is_spec_path(name_or_path: str | os.PathLike) -> bool:

@@ -60,7 +60,7 @@ import numpy as np
 
 from mitsnerf.data.arrays import read_npz
 from mitsnerf.data.atomic import atomic_write_bytes
-from mitsnerf.errors import DatasetError, DiskFullError
+from mitsnerf.errors import CLI, DatasetError, DiskFullError, Words
 
 CHECKPOINT_FILE = "checkpoint.npz"
 FORMAT_VERSION = 2
@@ -286,12 +286,15 @@ class Checkpointer:
     """Writes a run's checkpoint where the trainer says (:func:`mitsnerf.train.train`: every
     ``checkpoint_every`` steps, at the end, when interrupted).
 
-    ``config`` is stored with each checkpoint (what ``train --resume`` rebuilds the run from).
+    ``config`` is stored with each checkpoint (what ``train --resume`` rebuilds the run from); ``words``: how
+    its messages say to continue (:data:`~mitsnerf.errors.CLI`: ``mitsnerf train --resume --out RUN``,
+    :data:`~mitsnerf.errors.API`: ``api.fit(resume=True, out='RUN')``).
     """
 
-    def __init__(self, path: str | os.PathLike, config: Mapping[str, Any] | None = None) -> None:
+    def __init__(self, path: str | os.PathLike, config: Mapping[str, Any] | None = None, words: Words = CLI) -> None:
         self.path = Path(path)
         self.config = dict(config or {})
+        self.words = words
         self.last_step: int | None = None
 
     def save(self, state) -> None:
@@ -312,7 +315,7 @@ class Checkpointer:
             return "no checkpoint was written; free space and train again"
         which = f"step {self.last_step}" if self.last_step is not None else "from before this session"
         return (f"the last checkpoint, {which}, is kept; free space, then continue with "
-                f"mitsnerf train --resume --out {self.path.parent}")
+                f"{self.words.command('train', resume=True, out=self.path.parent)}")
 
     def describe(self) -> str:
         """``"last good checkpoint: PATH (step k)"`` for messages, or what exists on disk."""

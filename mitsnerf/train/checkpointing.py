@@ -25,7 +25,7 @@ from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
 
-from mitsnerf.errors import Interrupted
+from mitsnerf.errors import CLI, Interrupted, Words
 
 STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)
 #: The frames of an import in progress: a stop raised there can leave a C extension half initialised (matplotlib's
@@ -106,11 +106,13 @@ def signal_number(exc: KeyboardInterrupt) -> int:
     return exc.signum if isinstance(exc, Interrupted) else int(signal.SIGINT)
 
 
-def interrupted_message(exc: KeyboardInterrupt, checkpoint: Path, step: int, while_: str = "") -> Interrupted:
-    """The :class:`Interrupted` of ``exc`` saying which checkpoint is saved and how to continue."""
+def interrupted_message(exc: KeyboardInterrupt, checkpoint: Path, step: int, while_: str = "",
+                        words: Words = CLI) -> Interrupted:
+    """The :class:`Interrupted` of ``exc`` saying which checkpoint is saved and how to continue (in ``words``)."""
     signum = signal_number(exc)
+    again = words.command("train", resume=True, out=checkpoint.parent)
     return Interrupted(signum, f"stopped by {signal.Signals(signum).name}{while_}; checkpoint of step {step} saved to "
-                               f"{checkpoint}; continue with mitsnerf train --resume --out {checkpoint.parent}")
+                               f"{checkpoint}; continue with {again}")
 
 
 class CheckpointPolicy:
@@ -132,4 +134,4 @@ class CheckpointPolicy:
         name = signal.Signals(signum).name
         if self.checkpointer is None:
             return Interrupted(signum, f"stopped by {name}; no run directory, nothing saved")
-        return interrupted_message(exc, self.checkpointer.path, save())
+        return interrupted_message(exc, self.checkpointer.path, save(), words=self.checkpointer.words)

@@ -20,7 +20,7 @@ from typing import Any
 import drjit as dr
 import drjit.opt  # noqa: F401  (makes dr.opt available)
 
-from mitsnerf.errors import TrainingError, signal_cause
+from mitsnerf.errors import MethodError, TrainingError, signal_cause
 from mitsnerf.methods.base import Model
 from mitsnerf.train.checkpointing import CheckpointPolicy, stop_signals
 from mitsnerf.train.clock import Clock
@@ -71,6 +71,15 @@ def make_optimizer(model: Model, base_lr: float):
     return opt
 
 
+def check_differentiable(model: Model, loss, step: int) -> None:
+    """Raise :class:`~mitsnerf.errors.MethodError` naming ``model``'s class if its step's ``loss`` depends on none
+    of its parameters (a method that renders from copies of them: there is no gradient to step)."""
+    if not dr.grad_enabled(loss):
+        raise MethodError(f"{type(model).__module__}.{type(model).__qualname__}", f"step {step}",
+                          "the loss depends on none of parameters(), so there is nothing to step: render from the "
+                          "values that set_parameters() receives (the optimiser's), not from copies of them")
+
+
 class _Loop:
     def __init__(self, model: Model, data: PixelData, config: TrainConfig, base_lr: float, state: TrainState,
                  policy: CheckpointPolicy, on_log: Callable[[dict], None] | None) -> None:
@@ -101,11 +110,13 @@ class _Loop:
         if scales:
             opt.set_learning_rate(scales)
         out = step_loss(model, self.data, config, step, step_rng(config.seed, step))
+        check_differentiable(model, out.loss, step)
         dr.backward(out.loss)
         loss = float(out.loss[0])
         if not math.isfinite(loss):
-            raise TrainingError(None, f"step {step}", f"loss became {loss}; stopped, parameters of step {step - 1} "
-                                                      f"kept; {self.policy.where()}")
+            kept = "the initial parameters kept (before the first step)" if step == 0 else \
+                f"parameters of step {step - 1} kept"
+            raise TrainingError(None, f"step {step}", f"loss became {loss}; stopped, {kept}; {self.policy.where()}")
         apply_step(model, opt, step)
         self.step, self.rays, self.loss, self.lr = step + 1, self.rays + out.rays, loss, lr
         self.monitor.add(loss)

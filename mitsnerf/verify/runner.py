@@ -367,23 +367,70 @@ def terms(notes: Iterable[str]) -> list[str]:
     return [line for pattern, line in TERMS if re.search(pattern, text)]
 
 
-def format_table(results: list[CaseResult], alpha: float | None = None) -> str:
-    """A fixed-width ASCII table: case, checks, reference, measured error, max |z|, rejections, result, time."""
-    header = ("case", "checks", "reference", "measured error", "max|z|", "rejected", "result", "time")
-    rows = [header] + [
+COMPACT_WIDTH = 100
+"""Columns of the table ``mitsnerf check`` prints by default (``--wide``: every column, each row on one line)."""
+
+
+def _wide_rows(results: list[CaseResult]) -> list[tuple[str, ...]]:
+    """The header and one row per case, every column (the ``--wide`` table and the ``--out`` file)."""
+    header: tuple[str, ...] = ("case", "checks", "reference", "measured error", "max|z|", "rejected", "result", "time")
+    rows: list[tuple[str, ...]] = [header]
+    return rows + [
         (r.name, r.checks, r.reference, r.error, "-" if r.max_abs_z is None else f"{r.max_abs_z:.2f}", r.rejected,
          r.status, f"{r.seconds:.1f} s")
         for r in results
     ]
-    widths = [max(len(row[i]) for row in rows) for i in range(len(header))]
+
+
+def _aligned(rows: list[tuple[str, ...]]) -> list[str]:
+    """Rows as fixed-width lines, a rule of dashes under the header."""
+    widths = [max(len(row[i]) for row in rows) for i in range(len(rows[0]))]
     lines = ["  ".join(cell.ljust(w) for cell, w in zip(row, widths)).rstrip() for row in rows]
     lines.insert(1, "  ".join("-" * w for w in widths))
+    return lines
+
+
+def _compact_lines(results: list[CaseResult], width: int) -> list[str]:
+    """The table in about ``width`` columns: no reference column, the measured error last and wrapped under
+    itself (its continuation lines indented to that column).
+
+    >>> r = CaseResult("box", "integrator", "volpath", "rel. mean 9.1e-05 (<= 0.01), mean z -1.17", 3.02, "0/3462",
+    ...                True, 67.6)
+    >>> print("\\n".join(_compact_lines([r], 60)))
+    case  checks      result  max|z|  rejected  time    measured error
+    ----  ----------  ------  ------  --------  ------  ------------------------
+    box   integrator  pass    3.02    0/3462    67.6 s  rel. mean 9.1e-05 (<=
+                                                        0.01), mean z -1.17
+    """
+    import textwrap
+
+    wide = _wide_rows(results)
+    order = (0, 1, 6, 4, 5, 7)  # case, checks, result, max|z|, rejected, time; then the measured error
+    rows = [tuple(row[i] for i in order) for row in wide]
+    widths = [max(len(row[i]) for row in rows) for i in range(len(order))]
+    indent = sum(widths) + 2 * len(widths)
+    room = max(width - indent, 24)
+    lines = ["  ".join(h.ljust(w) for h, w in zip(rows[0], widths)) + "  measured error",
+             "  ".join("-" * w for w in widths) + "  " + "-" * min(room, max(len(r[3]) for r in wide))]
+    for row, full in zip(rows[1:], wide[1:]):
+        error = textwrap.wrap(full[3], room) or [""]
+        lines.append("  ".join(c.ljust(w) for c, w in zip(row, widths)) + "  " + error[0])
+        lines += [" " * indent + part for part in error[1:]]
+    return lines
+
+
+def format_table(results: list[CaseResult], alpha: float | None = None, *, wide: bool = False,
+                 width: int = COMPACT_WIDTH) -> str:
+    """The table, then the notes, the alpha line and the words of the notes, one line each. The table is compact
+    by default (about ``width`` columns: case, checks, result, max |z|, rejections, time, the measured error
+    wrapped under itself); ``wide``: every column (the reference too), each row on one line."""
+    lines = _aligned(_wide_rows(results)) if wide else _compact_lines(results, width)
     notes = [f"{r.name}: {r.note}" for r in results if r.note]
     notes += [f"{r.name}: {r.detail}" for r in results if r.detail and r.passed is not True]
     if alpha is not None and any(r.rejected != "-" for r in results):
         notes.append(f"rejected: the case's statistical tests (pixels and channel means) that found a difference; "
                      f"a correct integrator gets one with probability at most {alpha:g} per case (columns: README.md, "
-                     f"'Reading mitsnerf check')")
+                     f"'Reading mitsnerf check'{'' if wide else '; the reference column: --wide'})")
     words = terms(notes)
     return "\n".join(lines + ([""] + notes if notes else []) + (["", "Words in the notes:"] + words if words else []))
 

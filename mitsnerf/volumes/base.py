@@ -81,6 +81,9 @@ class Family:
         files: the names of ``params_type``'s fields that are paths of files ``generate`` reads (empty
             values allowed): a spec resolves relative ones against its own directory, and a dataset's
             key covers each file's sha256 rather than its path.
+        check: ``(params) -> None``, optional: the checks of the files ``generate`` reads that need not read
+            them whole (a header's shape, a path that is no file), raising a
+            :class:`~mitsnerf.errors.SpecError` naming the file; run before anything is written.
     """
 
     name: str
@@ -88,6 +91,7 @@ class Family:
     generate: Callable[[Any, int, int], VolumeGrids]
     description: str
     files: tuple[str, ...] = ()
+    check: Callable[[Any], None] | None = None
 
 
 def voxel_centres(resolution: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:

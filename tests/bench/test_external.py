@@ -156,3 +156,45 @@ def test_a_timings_file_fills_the_budget_and_cost_columns(tiny_bench, tmp_path):
     timings.unlink()
     with pytest.raises(SpecError, match=r"ext.toml: external.0.timings.tcloud: .*timings.json: timings file not found"):
         run_benchmark(parse_bench_config(raw, tmp_path / "ext.toml"), options("ext-cost"))
+
+
+def test_score_of_a_cells_run_gives_the_cells_own_figures(tiny_bench, tmp_path, capsys):
+    """``mitsnerf score DATASET CELL/run`` prints and writes what the benchmark does for that cell: the same
+    renders held against the same oracle at the run's footprint (3, not the folder default 1), the row named
+    after the run's method, and the density scores of its model (which the renders alone cannot give)."""
+    from mitsnerf.cli import main
+
+    config, options = tiny_bench
+    opts = options("ext")
+    plain = _with_external(config, [], tmp_path)
+    result = run_benchmark(plain, dataclasses.replace(opts, report=False))
+    (cell,) = plan_cells(plain, opts)
+    record = next(r for r in result.records if r["key"] == cell.key)
+    assert main(["score", record["dataset"], str(cell.path / "run"), "--out", str(tmp_path / "s.json")]) == 0
+    out = capsys.readouterr().out
+    scored, bench = json.loads((tmp_path / "s.json").read_text())["metrics"], record["metrics"]
+    assert bench["footprint"] == 3 and bench["density_rel_l1"] is not None and bench["oracle_psnr_test_medium"]
+    for key in ("footprint", "psnr_test", "psnr_test_medium", "oracle_psnr_test_medium", "gap_to_oracle",
+                "noise_floor_psnr_medium", "density_rel_l1", "density_rel_mass", "tau_rel_l1", "transmittance_mae",
+                "psnr_train"):
+        assert scored[key] == bench[key], key
+    assert f"| tcloud | {cell.method} | 1 |" in out and "(external)" not in out
+
+
+def test_a_scene_loads_its_reference_once_and_its_oracle_is_scored_against_it(tiny_bench, tmp_path, monkeypatch):
+    """A cell whose dataset has no oracle cached yet computes it against the reference the cell is scored
+    against: the scene's test views are loaded as a reference once, not once more inside the oracle."""
+    import mitsnerf.scoring.reference as reference
+    from mitsnerf.generate import generate_dataset
+    from mitsnerf.scene.spec import parse_scene
+
+    config, options = tiny_bench
+    (cell,) = plan_cells(_with_external(config, [], tmp_path),
+                         dataclasses.replace(options("once"), data_root=tmp_path / "data"))
+    generate_dataset(parse_scene(dict(cell.spec), "tcloud"), Path(cell.data_root), progress=False)
+    loads = []
+    real = reference.load_reference
+    monkeypatch.setattr(reference, "load_reference", lambda *a, **k: loads.append(a) or real(*a, **k))
+    _, oracle, ref = worker.SceneLoads().scene(cell, progress=False)
+    assert oracle is not None and len(loads) == 1
+    assert oracle.metrics(3)["noise_floor_psnr_medium"] == ref.noise_floor["psnr_medium"]

@@ -154,3 +154,19 @@ def test_the_sequential_sweep_loads_each_scene_once(interrupted_then_resumed):
     once for the two (worker.SceneLoads), not once per cell."""
     cells, _, _, second, _, opened = interrupted_then_resumed
     assert [c.scene for c in cells if c.key in second] == ["tblobs", "tblobs"] and opened == ["tblobs"]
+
+
+def test_a_quick_run_says_on_every_table_that_it_is_a_smoke_test(tiny_bench, interrupted_then_resumed):
+    """The printed tables, table.md and report.html of a quick run start with what it is (and the tiny config's
+    sizes); a full run's do not."""
+    from dataclasses import replace
+
+    from mitsnerf.bench.runner import BenchResult, write_outputs
+
+    config, options = tiny_bench
+    cells, result = interrupted_then_resumed[0], interrupted_then_resumed[4]
+    assert not result.markdown.startswith("Quick profile")
+    quick = write_outputs(config, replace(options("seq"), quick=True), cells, BenchResult(result.out_root, cells, [], []))
+    banner = "Quick profile (16x16 views, 2 test views at 16 spp, 12 steps): a smoke test"
+    assert quick.markdown.startswith(banner)
+    assert banner in quick.files["table.md"].read_text() and banner in quick.files["report.html"].read_text()

@@ -5,6 +5,7 @@ composited a second time."""
 from __future__ import annotations
 
 import json
+import shutil
 
 import pytest
 
@@ -55,3 +56,58 @@ def test_render_split_test_scores_as_the_run(world, tmp_path, capsys):
     assert sorted(p.name for p in out.glob("*.exr")) == ["r_000.exr", "r_001.exr"]
     assert (out / "depth" / "r_001.exr").is_file() and (out / "opacity" / "r_001.png").is_file()
     _same_as_run(_scores(capsys, world.dataset, out, "--out", tmp_path / "s.json"), world.run)
+
+
+def test_a_run_gives_its_own_figures_unless_told_otherwise(world, tmp_path, capsys):
+    """A run directory is scored as the run scored itself: at its footprint (3), in a row named after its
+    method, with its model's density scores and train PSNR from metrics.json; --footprint, --density and
+    --name override them."""
+    own = json.loads((world.run / "metrics.json").read_text())
+    assert main(["score", str(world.dataset), str(world.run), "--out", str(tmp_path / "s.json")]) == 0
+    out = capsys.readouterr().out
+    scored = json.loads((tmp_path / "s.json").read_text())
+    assert own["footprint"] == 3 and own["density_rel_l1"] is not None
+    assert scored["run"] == str(world.run) and scored["external"] is False
+    assert "| tiny | nerf | 1 |" in out and "(external)" not in out and "density: the run's own" in out
+    same = [k for k in own if k in scored["metrics"]]
+    assert {"footprint", "psnr_test_medium", "density_rel_l1", "tau_rel_l1", "psnr_train"} <= set(same)
+    for key in same:
+        assert scored["metrics"][key] == own[key], key
+    grid = world.dataset / "volume" / "sigma_t.npy"
+    assert main(["score", str(world.dataset), str(world.run), "--footprint", "1", "--density", str(grid),
+                 "--name", "mine", "--out", str(tmp_path / "t.json")]) == 0
+    out = capsys.readouterr().out
+    told = json.loads((tmp_path / "t.json").read_text())["metrics"]
+    assert told["footprint"] == 1 and told["density_rel_l1"] == pytest.approx(0.0, abs=1e-6)
+    assert "| tiny | mine | 1 |" in out
+
+
+@pytest.fixture(scope="module")
+def other(world, tmp_path_factory):
+    """Another tiny dataset with the same cameras: the world's spec with another cloud (volume seed 2)."""
+    root = tmp_path_factory.mktemp("other")
+    spec = root / "tiny.toml"
+    spec.write_text(world.spec.read_text().replace("seed = 1", "seed = 2", 1))
+    assert main(["generate", str(spec), "--out", str(root / "data")]) == 0
+    (dataset,) = [p for p in (root / "data").iterdir() if p.name.startswith("tiny-")]
+    return dataset
+
+
+def test_a_run_of_another_dataset_is_refused(world, other, tmp_path, capsys):
+    """Same cameras, another medium: one line naming the run and both datasets, exit 2, nothing written (the
+    API: a UsageError); the run's own dataset moved elsewhere (the same manifest hash) is still its own."""
+    from mitsnerf import api
+    from mitsnerf.errors import UsageError
+
+    capsys.readouterr()
+    for out in ([], ["--out", str(tmp_path / "s.json")]):
+        status = main(["score", str(other), str(world.run), *out])
+        err = capsys.readouterr().err
+        assert status == 2 and err.count("\n") == 1, err
+        assert f"the run in {world.run} trained on {world.dataset.resolve()}" in err and str(other.resolve()) in err
+    assert not (tmp_path / "s.json").exists() and not (world.run / "test" / "scores.json").exists()
+    with pytest.raises(UsageError, match=f"^renders: the run in {world.run} trained on"):
+        api.score(other, world.run)
+    moved = tmp_path / "moved"
+    shutil.copytree(world.dataset, moved)
+    assert main(["score", str(moved), str(world.run), "--out", str(tmp_path / "m.json")]) == 0

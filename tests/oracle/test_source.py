@@ -10,7 +10,7 @@ import pytest
 from mitsnerf.math.box import UNIT_BOX, march_transmittance
 from mitsnerf.oracle.source import delta_radiance, mean_radiance, needed_voxels
 from mitsnerf.scene.spec import DirectionalLight, PointLight
-from mitsnerf.scoring import true_density
+from mitsnerf.scoring.density import true_density
 from mitsnerf.verify import mitsuba_refs as M
 
 

@@ -28,3 +28,12 @@ def not_a_class():
 class NoConfig(NGPModel):
     description = "a model whose config is not a MethodConfig"
     config_type = dict  # type: ignore[assignment]
+
+
+class EmptyNGP(NGPModel):
+    """A plugin bug: nothing to train (parameters() is empty)."""
+
+    description = "ngp whose parameters() is empty"
+
+    def parameters(self):
+        return {}

@@ -8,7 +8,6 @@ import mitsuba as mi
 import numpy as np
 import pytest
 
-from mitsnerf import scoring
 from mitsnerf.fields.grid import GridField
 from mitsnerf.math.box import UNIT_BOX, Box
 from mitsnerf.math.camera import Camera, look_at
@@ -17,6 +16,8 @@ from mitsnerf.render.background import ConstantBackground
 from mitsnerf.render.march import march_rays
 from mitsnerf.render.volume import render_rays
 from mitsnerf.scene.transmittance import pixel_transmittance
+from mitsnerf.scoring.density import density_scores, optical_depth_scores, true_density
+from mitsnerf.scoring.medium import medium_masks
 
 BOX = Box((-0.7, -0.5, -0.4), (0.6, 0.5, 0.6))
 BG = ConstantBackground((0.2, 0.3, 0.4))
@@ -53,8 +54,8 @@ def test_every_renderer_composites_each_channel_with_its_own_extinction(blob_gri
 def test_the_exact_transmittance_is_per_channel_and_t_is_their_mean(blob_grid):
     sigma, _, cams, _ = _setup(blob_grid)
     r = sigma.shape[0]
-    out = pixel_transmittance(scoring.true_density(sigma, BOX), r, BOX, cams, footprint=2, background=BG, channels=3)
-    singles = [pixel_transmittance(scoring.true_density(np.ascontiguousarray(sigma[..., k]), BOX), r, BOX, cams,
+    out = pixel_transmittance(true_density(sigma, BOX), r, BOX, cams, footprint=2, background=BG, channels=3)
+    singles = [pixel_transmittance(true_density(np.ascontiguousarray(sigma[..., k]), BOX), r, BOX, cams,
                                    footprint=2, background=BG) for k in range(3)]
     np.testing.assert_allclose(out.t, np.mean([s.t for s in singles], axis=0), rtol=1e-5, atol=1e-7)
     for k in range(3):
@@ -64,17 +65,17 @@ def test_the_exact_transmittance_is_per_channel_and_t_is_their_mean(blob_grid):
 
 def test_a_grey_density_is_scored_against_every_channel(blob_grid):
     sigma, _, cams, _ = _setup(blob_grid)
-    exact, slices = scoring.density_scores(scoring.true_density(sigma, UNIT_BOX), sigma, UNIT_BOX)
+    exact, slices = density_scores(true_density(sigma, UNIT_BOX), sigma, UNIT_BOX)
     assert slices["true_z"].ndim == 2 and slices["learned_z"].ndim == 2  # one image per slice: the channels' mean
     assert exact["density_rel_l1"] < 1e-7 and abs(exact["density_rel_mass"]) < 1e-7  # float32 lookups
     green = np.ascontiguousarray(sigma[..., 1])
-    grey = scoring.density_scores(scoring.true_density(green, UNIT_BOX), sigma, UNIT_BOX)[0]
+    grey = density_scores(true_density(green, UNIT_BOX), sigma, UNIT_BOX)[0]
     # |1 - 0.5| + |1 - 1| + |1 - 3| over 0.5 + 1 + 3, and the mass 3 over 4.5
     assert abs(grey["density_rel_l1"] - 2.5 / 4.5) < 1e-6
     assert abs(grey["density_rel_mass"] - (3.0 / 4.5 - 1.0)) < 1e-6
-    tau = scoring.optical_depth_scores(scoring.true_density(green, UNIT_BOX), sigma, UNIT_BOX, cams)
+    tau = optical_depth_scores(true_density(green, UNIT_BOX), sigma, UNIT_BOX, cams)
     assert abs(tau["tau_rel_l1"] - 2.5 / 4.5) < 1e-5
-    masks = scoring.medium_masks(sigma, UNIT_BOX, cams)
+    masks = medium_masks(sigma, UNIT_BOX, cams)
     assert masks.shape == (2, 8, 10) and masks.any()
 
 

@@ -11,15 +11,16 @@ import numpy as np
 import pytest
 
 from mitsnerf import generate as gen
-from mitsnerf import scoring
 from mitsnerf.data.dataset import load_dataset
 from mitsnerf.data.images import over, read_exr, read_png
-from mitsnerf.runs.external import score_renders
 from mitsnerf.math.color import srgb_to_linear
 from mitsnerf.math.rays import camera_rays_numpy
 from mitsnerf.render.background import ConstantBackground, make_background, pixel_background
+from mitsnerf.runs.external import score_renders
 from mitsnerf.scene.spec import nerf_synthetic_overrides, parse_scene
 from mitsnerf.scene.to_mitsuba import background_description, scene_box, volume_grids
+from mitsnerf.scoring.images import image_scores
+from mitsnerf.scoring.medium import near_far_coverage
 
 from .conftest import TINY
 
@@ -132,7 +133,7 @@ def test_world_scale_keeps_the_images(tmp_path):
                                  tmp_path, progress=False)
     a, b = _stack(one, "test"), _stack(three, "test")
     floor = json.loads((one / "manifest.json").read_text())["noise_floor"]["psnr"]
-    assert scoring.image_scores(b[..., :3], a[..., :3], with_ssim=False)["psnr_test"] > floor + 3
+    assert image_scores(b[..., :3], a[..., :3], with_ssim=False)["psnr_test"] > floor + 3
     m3 = json.loads((three / "manifest.json").read_text())
     assert m3["box"] == [[-1.5] * 3, [1.5] * 3]
     assert load_dataset(three).box.to_list() == m3["box"]
@@ -148,8 +149,8 @@ def test_nerf_synthetic_scale_fits_fixed_near_far(tiny_dict):
 
     spec = parse_scene(tiny_dict, "t")
     for s, least, most in ((spec.with_overrides(nerf_synthetic_overrides()), 1.0, 1.0), (spec, 0.0, 0.99)):
-        coverage = scoring.near_far_coverage(volume_grids(s)[0], scene_box(s), camera_rig(s.cameras, "test"),
-                                             *gen.NERF_SYNTHETIC_NEAR_FAR)
+        coverage = near_far_coverage(volume_grids(s)[0], scene_box(s), camera_rig(s.cameras, "test"),
+                                     *gen.NERF_SYNTHETIC_NEAR_FAR)
         assert least - 1e-12 <= coverage <= most
 
 

@@ -23,14 +23,16 @@ import numpy as np
 import pytest
 
 from mitsnerf import generate as gen
-from mitsnerf import scoring
 from mitsnerf.data.images import read_exr
+from mitsnerf.errors import SpecError
 from mitsnerf.scene import render as scene_render
 from mitsnerf.scene import transmittance as tr
 from mitsnerf.scene.render import medium_alone_integrator, render_split
 from mitsnerf.scene.rigs import camera_rig
 from mitsnerf.scene.spec import parse_scene
 from mitsnerf.scene.to_mitsuba import load_sensor, scene_box, scene_dict, volume_grids
+from mitsnerf.scoring.agreement import transmittance_agreement, view_agreement
+from mitsnerf.scoring.density import true_density
 
 from .conftest import TINY
 
@@ -120,7 +122,7 @@ def _seen(path, split="test"):
     spec = parse_scene(m["spec"], "m")
     sigma_t, box = np.load(path / "volume" / "sigma_t.npy"), scene_box(spec)
     background = make_background(m["background"], path) if spec.environment is not None else None
-    return tr.pixel_transmittance(scoring.true_density(sigma_t, box), sigma_t.shape[0], box,
+    return tr.pixel_transmittance(true_density(sigma_t, box), sigma_t.shape[0], box,
                                   camera_rig(spec.cameras, "test" if split != "train" else "train"),
                                   footprint=m["render"]["footprint"][split], background=background)
 
@@ -129,7 +131,7 @@ def _seen(path, split="test"):
 def test_composed_images_agree_with_direct_renders(datasets, kind):
     path = datasets[kind]
     composed = _stack(path, "test"), _stack(path, "test_ref")
-    check = scoring.view_agreement(*composed, *direct(kind))
+    check = view_agreement(*composed, *direct(kind))
     assert check["passed"] and len(check["views"]) == 2, check
     # as noisy as a direct render; M plus the exact background term alone would be noisier (the medium is
     # brighter than half the background: Var(direct) - Var(M + T B) = p (1 - p) B (B - 2 mu) < 0)
@@ -145,7 +147,7 @@ def test_composed_images_agree_with_direct_renders(datasets, kind):
         assert float(np.mean((exact_only[0] - exact_only[1]) ** 2)) > 1.2 * noise[0]
         # the check has power: the environment seen through the medium 3% too bright is rejected
         bright = [np.concatenate([c[..., :3] + 0.03 * v.through, c[..., 3:]], axis=-1) for c, v in zip(composed, seen)]
-        assert not scoring.view_agreement(*bright, *direct(kind))["passed"]
+        assert not view_agreement(*bright, *direct(kind))["passed"]
 
 
 def test_full_alpha_is_one_under_an_environment_else_the_medium_alpha(datasets):
@@ -162,12 +164,12 @@ def test_medium_alpha_agrees_with_the_exact_transmittance(datasets):
     sigma_t = np.load(path / "volume" / "sigma_t.npy")
     cams = camera_rig(spec.cameras, "test")
     box = scene_box(spec)
-    t_mean = tr.pixel_transmittance(scoring.true_density(sigma_t, box), sigma_t.shape[0], box, cams).t
+    t_mean = tr.pixel_transmittance(true_density(sigma_t, box), sigma_t.shape[0], box, cams).t
     alpha = _stack(path / gen.MEDIUM_DIR, "test")[..., 3]
-    check = scoring.transmittance_agreement(alpha, t_mean, 256)
+    check = transmittance_agreement(alpha, t_mean, 256)
     recorded = _manifest(path)["medium"]["transmittance_check"]["splits"]["test"]
     assert check["passed"] and check["views"][0]["z"] == pytest.approx(recorded["views"][0]["z"])
-    assert not scoring.transmittance_agreement(alpha * 0.97, t_mean, 256)["passed"]  # it has power
+    assert not transmittance_agreement(alpha * 0.97, t_mean, 256)["passed"]  # it has power
 
 
 def _half_voxel_off(real, density, resolution, box, o, d, **kwargs):
@@ -216,7 +218,7 @@ def test_lights_that_do_not_allow_one_pass_get_two(tmp_path, monkeypatch):
     seeds = [json.loads((root / "transforms_test.json").read_text())["render_seeds"]
              for root in (path, path / gen.MEDIUM_DIR)]
     assert not set(seeds[0]) & set(seeds[1])  # two independent passes
-    check = scoring.view_agreement(_stack(path, "test"), _stack(path, "test_ref"), *direct("sky"))
+    check = view_agreement(_stack(path, "test"), _stack(path, "test_ref"), *direct("sky"))
     assert check["passed"], check
 
 
@@ -253,7 +255,7 @@ def _channel(images: np.ndarray, k: int) -> np.ndarray:
 
 
 def _agree_per_channel(x, x_ref, y, y_ref) -> list[dict]:
-    return [scoring.view_agreement(*(_channel(v, k) for v in (x, x_ref, y, y_ref))) for k in range(3)]
+    return [view_agreement(*(_channel(v, k) for v in (x, x_ref, y, y_ref))) for k in range(3)]
 
 
 def test_a_chromatic_medium_is_composed_per_channel_and_agrees_with_direct_renders(tmp_path):
@@ -278,8 +280,31 @@ def test_a_chromatic_medium_is_composed_per_channel_and_agrees_with_direct_rende
     # the check has power: the grey rule (every channel through the channels' mean extinction) is rejected
     sigma_t = np.load(path / "volume" / "sigma_t.npy")
     box, bg = scene_box(spec), np.asarray(spec.lights[0].radiance)
-    t_grey = tr.pixel_transmittance(scoring.true_density(sigma_t.mean(-1), box), 16, box, cams, footprint=8).t
-    t_k = np.stack([tr.pixel_transmittance(scoring.true_density(sigma_t[..., k], box), 16, box, cams, footprint=8).t
+    t_grey = tr.pixel_transmittance(true_density(sigma_t.mean(-1), box), 16, box, cams, footprint=8).t
+    t_k = np.stack([tr.pixel_transmittance(true_density(sigma_t[..., k], box), 16, box, cams, footprint=8).t
                     for k in range(3)], axis=-1)
     grey = [np.concatenate([c[..., :3] + (t_grey[..., None] - t_k) * bg, c[..., 3:]], axis=-1) for c in composed]
     assert not all(c["passed"] for c in _agree_per_channel(*grey, *direct_renders))
+
+
+def test_round_off_below_zero_is_no_negative_radiance_but_a_real_negative_is():
+    """A 1x1x1 grid fills the box: a pixel whose every sample collided (alpha 1, M 0) sees the constant sky of
+    0.6 through T = 3.3e-7, and is 0 exactly; float32 pixel means leave it 8e-15 below. That is float32
+    rounding at the view's scale (its peak 0.6): passed and written as 0. A value below 0 by more stays refused."""
+    from mitsnerf.data import verify
+    from mitsnerf.scene.ground_truth import check_views
+
+    sky = float(np.float32(0.6))
+    medium = [np.array([[[5.7263066e-23] * 3 + [1.0], [0.0, 0.0, 0.0, 0.0]]], np.float32)]
+    seen = tr.PixelTransmittance(np.array([[[3.306799101210345e-07, 1.0]]]),
+                                 np.array([[[[1.984079460726207e-07] * 3, [sky] * 3]]]), np.full((1, 1, 2, 3), sky))
+    image = scene_render.compose(medium, seen, has_environment=True)[0]
+    assert -1e-14 < image[0, 0, :3].min() < 0 and image[0, 1, :3].min() == np.float32(sky)  # the case itself
+    spec = parse_scene(TINY, "t.toml")
+    check_views(spec, "test", [image])
+    assert verify.without_roundoff(image)[0, 0, :3].tolist() == [0.0, 0.0, 0.0]
+    for wrong in (-1e-5, -1e-3):  # a negative medium radiance, not rounding at a peak of 0.6
+        bad = scene_render.compose([np.array([[[wrong, 0, 0, 1.0], [0, 0, 0, 0]]], np.float32)], seen, True)[0]
+        assert verify.without_roundoff(bad)[0, 0, 0] < 0
+        with pytest.raises(SpecError, match="1 negative radiance value"):
+            check_views(spec, "test", [bad])

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import copy
 
+import numpy as np
 import pytest
 
 from mitsnerf.errors import SpecError
@@ -288,3 +289,83 @@ def test_scenes_and_generate_all_name_a_broken_spec(tmp_path, monkeypatch, capsy
     assert main(["generate", "--all", "--out", str(tmp_path / "data")]) == 2  # checked before anything renders
     assert str(tmp_path / "broken.toml") in capsys.readouterr().err
     assert not (tmp_path / "data").exists()
+
+
+# --------------------------------------------------------------------------- extends: a spec that starts from another
+
+
+def _write(path, text: str):
+    path.write_text(text)
+    return path
+
+
+def test_extends_changes_only_what_the_spec_names(tmp_path):
+    """Tables merge key by key; a list (``[[lights]]``) replaces the base's whole."""
+    from dataclasses import replace
+
+    cloud = load_scene("cloud")
+    mine = load_scene(_write(tmp_path / "mine.toml", 'extends = "cloud"\nname = "mine"\n[cameras]\nwidth = 16\n'
+                                                     '[volume.params]\nalbedo = [0.5, 0.5, 0.5]\n'
+                                                     '[[lights]]\ntype = "constant"\nradiance = [1, 1, 1]\n'))
+    assert mine.name == "mine" and mine.description == cloud.description
+    assert mine.cameras == replace(cloud.cameras, width=16)
+    assert mine.lights == (ConstantLight(radiance=(1.0, 1.0, 1.0)),)
+    assert mine.render == cloud.render and mine.world == cloud.world
+    assert dict(mine.volume.params) == {**cloud.volume.params, "albedo": (0.5, 0.5, 0.5)}
+    written_out = cloud.to_dict()
+    written_out.update(name="mine", lights=[{"type": "constant", "radiance": [1, 1, 1]}])
+    written_out["cameras"]["width"] = 16
+    written_out["volume"]["params"]["albedo"] = [0.5, 0.5, 0.5]
+    assert mine.content_hash() == parse_scene(written_out).content_hash()  # as if written out in full
+
+
+def test_extends_starts_a_table_afresh_when_its_kind_changes(tmp_path):
+    """A changed ``type`` (the phase, a light) or ``volume.family`` does not inherit the old kind's keys."""
+    iso = load_scene(_write(tmp_path / "iso.toml", 'extends = "cloud_hg85"\nname = "iso"\n'
+                                                   '[volume.phase]\ntype = "isotropic"\n'))
+    assert iso.volume.phase == load_scene("cloud").volume.phase
+    np.save(tmp_path / "g.npy", np.ones((8, 8, 8), np.float32))
+    grid = load_scene(_write(tmp_path / "grid.toml", 'extends = "cloud"\nname = "g"\n[volume]\nfamily = "grid"\n'
+                                                     'params = { path = "g.npy" }\n'))
+    assert grid.volume.family == "grid" and grid.volume.params["path"] == str(tmp_path / "g.npy")
+    assert grid.volume.sigma_t_scale == load_scene("cloud").volume.sigma_t_scale  # the rest of the table merges
+
+
+def test_extends_a_spec_file_relative_to_the_extending_one(tmp_path):
+    (tmp_path / "base").mkdir()
+    _write(tmp_path / "base" / "wide.toml", 'extends = "cloud"\nname = "wide"\n[cameras]\nfov = 60.0\n')
+    spec = load_scene(_write(tmp_path / "mine.toml", 'extends = "base/wide.toml"\nname = "mine"\n'
+                                                     '[cameras]\nwidth = 16\n'))
+    assert (spec.name, spec.cameras.fov, spec.cameras.width) == ("mine", 60.0, 16)
+    assert spec.source == str(tmp_path / "mine.toml")
+
+
+@pytest.mark.parametrize(("text", "field", "says"), [
+    ('extends = "nope"\n', "extends", "unknown scene 'nope'"),
+    ("extends = 3\n", "extends", "must be a library scene's name or a spec file's path, got 3"),
+    ('extends = "a.toml"\n', "extends", "a cycle: "),
+    ('extends = "cloud"\n[[lights]]\ntype = "constant"\n', "lights.0.radiance",
+     "missing field (3 numbers >= 0); this spec extends 'cloud': a table merges into the base's key by key, "
+     "a list or a value replaces the base's whole"),
+], ids=["unknown", "not-a-string", "cycle", "list-replaced"])
+def test_extends_errors_name_the_field_and_say_how_specs_merge(tmp_path, text, field, says):
+    a = _write(tmp_path / "a.toml", text)
+    with pytest.raises(SpecError) as e:
+        load_scene(a)
+    assert (e.value.where, e.value.field) == (str(a), field) and says in e.value.message
+    assert "\n" not in str(e.value)
+
+
+def test_a_spec_missing_a_table_is_told_it_can_extend_a_library_scene(tmp_path):
+    with pytest.raises(SpecError) as e:
+        load_scene(_write(tmp_path / "bare.toml", 'name = "bare"\n[cameras]\nwidth = 8\n'))
+    assert e.value.field == "volume" and 'extends = "cloud"' in e.value.message
+
+
+def test_an_extends_cycle_through_two_files_names_the_one_that_closes_it(tmp_path):
+    a = _write(tmp_path / "a.toml", 'extends = "b.toml"\n')
+    b = _write(tmp_path / "b.toml", 'extends = "a.toml"\n')
+    with pytest.raises(SpecError) as e:
+        load_scene(a)
+    assert (e.value.where, e.value.field) == (str(b), "extends")
+    assert e.value.message == f"a cycle: {a} -> {b} -> {a}"

@@ -5,12 +5,12 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from mitsnerf import scoring
 from mitsnerf.math.box import UNIT_BOX, Box
 from mitsnerf.math.camera import Camera, look_at
 from mitsnerf.math.rays import camera_rays_numpy, footprint_offsets, to_array3f
 from mitsnerf.render.background import ConstantBackground
 from mitsnerf.scene.transmittance import TAU_STOP, optical_depths, pixel_transmittance
+from mitsnerf.scoring.density import ray_optical_depths, true_density
 
 
 def _rays(n: int, seed: int = 0, box: Box = UNIT_BOX) -> tuple[np.ndarray, np.ndarray]:
@@ -27,7 +27,7 @@ def _rays(n: int, seed: int = 0, box: Box = UNIT_BOX) -> tuple[np.ndarray, np.nd
 def _tau(grid: np.ndarray, box: Box, o: np.ndarray, d: np.ndarray) -> np.ndarray:
     import mitsuba as mi
 
-    fn = scoring.true_density(grid, box)
+    fn = true_density(grid, box)
     return np.asarray(optical_depths(fn, grid.shape[0], box, to_array3f(mi.Array3f, o), to_array3f(mi.Array3f, d)),
                       np.float64)
 
@@ -44,10 +44,10 @@ def test_a_homogeneous_grid_gives_sigma_times_the_chord():
 def test_axis_aligned_rays_and_rays_through_voxel_centres():
     """Direction components of 0 (no plane crossed on that axis) and rays lying in the planes the walk steps on."""
     grid = np.random.default_rng(1).uniform(0, 4, size=(8, 8, 8)).astype(np.float32)
-    fn_ref = scoring.true_density(grid, UNIT_BOX)
+    fn_ref = true_density(grid, UNIT_BOX)
     o = np.array([[-1.0, 0.0625, 0.3], [0.2, -1.0, -0.1875], [0.0625, 0.0625, 2.0], [-1.0, -1.0, -1.0]])
     d = np.array([[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, -1.0], [1.0, 1.0, 1.0]]) / np.array([[1], [1], [1], [3**0.5]])
-    ref = scoring.ray_optical_depths(fn_ref, o, d, UNIT_BOX, 20000)
+    ref = ray_optical_depths(fn_ref, o, d, UNIT_BOX, 20000)
     assert np.allclose(_tau(grid, UNIT_BOX, o, d), ref, rtol=2e-5)
 
 
@@ -57,8 +57,8 @@ def test_a_random_grid_matches_a_fine_midpoint_rule_and_the_rule_converges_to_it
     grid = np.random.default_rng(2).uniform(0, 30, size=(12, 12, 12)).astype(np.float32)
     o, d = _rays(500, seed=3)
     exact = _tau(grid, UNIT_BOX, o, d)
-    fn = scoring.true_density(grid, UNIT_BOX)
-    errors = [np.abs(scoring.ray_optical_depths(fn, o, d, UNIT_BOX, n) - exact).max() for n in (250, 1000)]
+    fn = true_density(grid, UNIT_BOX)
+    errors = [np.abs(ray_optical_depths(fn, o, d, UNIT_BOX, n) - exact).max() for n in (250, 1000)]
     assert errors[1] < errors[0] / 8 and errors[1] < 2e-3 * exact.max()
 
 
@@ -72,7 +72,7 @@ def test_a_ray_stops_once_it_is_opaque():
 def test_pixel_means_with_one_ray_are_the_centre_rays_and_a_constant_background_factors_out():
     grid = np.random.default_rng(4).uniform(0, 20, size=(8, 8, 8)).astype(np.float32)
     cams = [Camera.from_fov(look_at(p, (0, 0, 0), (0, 0, 1)), 6, 5, 40.0) for p in ((2.0, 0.5, 0.3), (-0.4, 1.9, 0.8))]
-    fn = scoring.true_density(grid, UNIT_BOX)
+    fn = true_density(grid, UNIT_BOX)
     one = pixel_transmittance(fn, 8, UNIT_BOX, cams, footprint=1)
     o, d = camera_rays_numpy(cams)
     assert one.through is None and np.allclose(one.t.ravel(), np.exp(-_tau(grid, UNIT_BOX, o, d)), rtol=1e-4)
@@ -90,6 +90,6 @@ def test_pixel_means_with_one_ray_are_the_centre_rays_and_a_constant_background_
 def test_chunks_do_not_change_the_result(chunk):
     grid = np.random.default_rng(5).uniform(0, 10, size=(8, 8, 8)).astype(np.float32)
     cams = [Camera.from_fov(look_at((0.3, -2.0, 0.4), (0, 0, 0), (0, 0, 1)), 7, 7, 50.0)]
-    fn = scoring.true_density(grid, UNIT_BOX)
+    fn = true_density(grid, UNIT_BOX)
     ref = pixel_transmittance(fn, 8, UNIT_BOX, cams, footprint=2)
     assert np.array_equal(pixel_transmittance(fn, 8, UNIT_BOX, cams, footprint=2, chunk=chunk).t, ref.t)

@@ -14,10 +14,11 @@ def test_run_checks_runs_the_named_cases_and_the_table_has_a_row_each():
     results = run_checks("quick", only=["closed_form", "grad_color"])
     assert [r.name for r in results] == ["closed_form", "grad_color"]
     assert all(r.passed for r in results)
-    table = format_table(results)
-    header, rule, *rows = table.splitlines()
+    header, rule, *rows = format_table(results, wide=True).splitlines()
     assert header.split()[:4] == ["case", "checks", "reference", "measured"] and set(rule) <= {"-", " "}
     assert len(rows) == 2 and all(" pass " in row for row in rows)
+    header = format_table(results).splitlines()[0]
+    assert header.split() == ["case", "checks", "result", "max|z|", "rejected", "time", "measured", "error"]
 
 
 def test_unknown_case_and_quality_are_errors_that_list_the_choices():
@@ -105,3 +106,43 @@ def test_the_words_of_the_notes_are_explained_under_them():
     table = format_table(rows, alpha=0.001).split("Words in the notes:\n")[1].splitlines()
     assert [line.split(":")[0] for line in table] == ["seed's rule", "z", "N", "jitter"]
     assert "Words in the notes" not in format_table(rows[:0] + [CaseResult("c", "f", "r", "e", None, "-", True, 0.1)])
+
+
+# Rows as wide as the thorough run's in benchmarks/README.md: a 70-character reference, a 110-character error.
+WIDE_ROWS = [
+    CaseResult("exit_single_scatter", "integrator", "volpath 16384 spp, max_depth 2 " + "x" * 40,
+               "rel. mean 4.2e-04 (<= 0.02), mean z -0.75; " + "a measured figure, " * 4, 4.30, "0/1731", True, 1224.2,
+               note="seed's rule against volpath as it is (its first-order exit bias, not a test): relative +2.5e-03, "
+                    "channel-mean z +5.6, at N = 64 and N = 128 in the exit-heavy medium"),
+    CaseResult("closed_form", "training path", "closed forms; orders over N = 8..64",
+               "max rel 1.4e-06 (<= 2e-05); orders 2.07 (2), 0.98 (1), midpoint 2.00 (2)", None, "-", True, 0.0),
+]
+
+
+def test_the_default_table_fits_100_columns_and_wide_keeps_each_row_on_one_line():
+    """The rows were 255 characters wide: every terminal wrapped them into noise."""
+    compact = format_table(WIDE_ROWS, alpha=0.001).split("\n\n")[0]  # the table; the notes follow, one line each
+    assert max(map(len, compact.splitlines())) <= 100
+    assert "volpath 16384 spp" not in compact  # the reference is the wide table's
+    assert "a measured figure, a measured figure" in " ".join(compact.split())  # the error is all there, wrapped
+    wide = format_table(WIDE_ROWS, alpha=0.001, wide=True).splitlines()
+    assert len(wide[2]) > 200 and wide[2].startswith("exit_single_scatter") and "volpath 16384 spp" in wide[2]
+
+
+def test_cli_check_prints_the_compact_table_and_writes_the_wide_one_under_out(tmp_path, capsys):
+    assert cli.main(["check", "--case", "closed_form", "--no-progress", "--out", str(tmp_path)]) == 0
+    printed = capsys.readouterr().out
+    assert "reference" not in printed.splitlines()[0] and max(map(len, printed.split("\n\n")[0].splitlines())) <= 100
+    written = (tmp_path / "check.txt").read_text().splitlines()
+    assert written[0].split()[:3] == ["case", "checks", "reference"] and written[-1] == "1 passed, 0 failed"
+    assert "closed forms; orders over N = 8..64" in written[2]
+    assert cli.main(["check", "--case", "closed_form", "--no-progress", "--wide"]) == 0
+    assert capsys.readouterr().out.splitlines()[0].split()[:3] == ["case", "checks", "reference"]
+
+
+def test_check_help_does_not_promise_a_minute(capsys):
+    """It said "about a minute"; the quick suite takes minutes on a 2-core machine."""
+    with pytest.raises(SystemExit):
+        cli.main(["check", "--help"])
+    text = " ".join(capsys.readouterr().out.split())
+    assert "about a minute" not in text and "a few minutes on 2 cores" in text and "--wide" in text

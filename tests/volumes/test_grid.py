@@ -174,7 +174,7 @@ def test_a_bad_grid_is_one_line_naming_the_file(tmp_path, name, value, problem):
 
 def test_npz_and_albedo_problems_name_the_file(files, tmp_path):
     a, d = files
-    with pytest.raises(SpecError, match=r"t.npz: holds 2 arrays \(arrays: rho, other\); name one"):
+    with pytest.raises(SpecError, match=r"t.npz: holds 2 arrays \(rho, other\); name one: --set volume.params.array=NAME"):
         generate_volume("grid", 8, 0, {"path": str(d / "t.npz")})
     np.save(tmp_path / "bright.npy", np.full(a.shape + (3,), 1.5, np.float32))
     with pytest.raises(SpecError, match=r"bright.npy: the albedo grid has .* outside \[0, 1\]"):
