@@ -194,6 +194,8 @@ class MitsubaInverseModel(ViewModel):
     name = "mitsuba-inverse"
     config_type = MitsubaInverseConfig
     description = "sigma_t/albedo grids through Mitsuba's prbvolpath, coarse to fine"
+    knows = ("lights", "phase function")
+    rung = "full transport"
     tiny = MappingProxyType({"resolutions": [4, 8], "upsample_at": [3], "spp": 2, "eval_spp": 4})
 
     def __init__(self, config: MitsubaInverseConfig, scene: SceneInfo, seed: int = 0) -> None:

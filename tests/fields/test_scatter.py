@@ -12,6 +12,7 @@ import mitsuba as mi
 import numpy as np
 import pytest
 
+from mitsnerf.fields.media import GridMedium, GridMediumConfig
 from mitsnerf.fields.scatter import ScatterField, ScatterFieldConfig, legendre, remainder_basis
 from mitsnerf.math.box import UNIT_BOX
 from mitsnerf.scene.spec import DirectionalLight, PointLight
@@ -28,10 +29,17 @@ def _raw_density(r: int = R) -> np.ndarray:
     return (1.2 - 3.0 * (x * x + 0.6 * y * y + z * z) + 0.5 * np.sin(3 * x + 2 * y)).astype(np.float32)[..., None]
 
 
-def _field(config: ScatterFieldConfig, lights, g: float = 0.0, rest=None) -> ScatterField:
-    rest = dr.zeros(mi.TensorXf, (2, 2, 2, 3 * config.n_remainder(len(lights)))) if rest is None else rest
+def _field(config: ScatterFieldConfig, lights, g: float = 0.0) -> ScatterField:
+    """A grid medium (raw density :func:`_raw_density`, an albedo ramp, no remainder) lit by ``lights``."""
+    rest = dr.zeros(mi.TensorXf, (2, 2, 2, 3 * config.n_remainder(len(lights))))
     albedo = np.stack(np.meshgrid(*(np.linspace(-1.0, 1.5, R),) * 3, indexing="ij"), axis=-1).astype(np.float32)
-    return ScatterField(config, mi.TensorXf(_raw_density()), mi.TensorXf(albedo), rest, UNIT_BOX, lights, g)
+    medium = GridMedium(GridMediumConfig(), mi.TensorXf(_raw_density()), mi.TensorXf(albedo), rest, UNIT_BOX)
+    return ScatterField(config, medium, UNIT_BOX, lights, g)
+
+
+def _config(shadow_resolution: int) -> ScatterFieldConfig:
+    return ScatterFieldConfig(remainder_degree=0, zonal_degree=0, shadow_resolution=shadow_resolution,
+                              shadow_samples=256)
 
 
 def _trilinear(grid: np.ndarray, p: np.ndarray) -> np.ndarray:
@@ -92,7 +100,7 @@ def _host(v) -> np.ndarray:
 
 def _check_transmittance(shadow_resolution: int, atol: float) -> None:
     x, _ = _points()
-    field = _field(ScatterFieldConfig(shadow_resolution=shadow_resolution, shadow_samples=256), [SUN, LAMP])
+    field = _field(_config(shadow_resolution), [SUN, LAMP])
     T = field.with_shadows().transmittance(mi.Array3f(*x.T.astype(np.float32)))
     for light, got in zip((SUN, LAMP), T):
         np.testing.assert_allclose(_host(got), _exact_T(x, light), atol=atol, err_msg=light.type)
@@ -107,7 +115,7 @@ def test_shadow_transmittance_is_the_exact_transmittance_of_its_density():
 
 def _check_colour(g: float) -> None:
     x, d = _points(seed=2)
-    field = _field(ScatterFieldConfig(shadow_resolution=0, shadow_samples=256), [SUN, LAMP], g).with_shadows()
+    field = _field(_config(0), [SUN, LAMP], g).with_shadows()
     xs, ds = mi.Array3f(*x.T.astype(np.float32)), mi.Array3f(*d.T.astype(np.float32))
     rgb, _ = field(xs, ds)
     albedo = 1.0 / (1.0 + np.exp(-_trilinear(np.stack(np.meshgrid(*(np.linspace(-1.0, 1.5, R),) * 3,
@@ -170,3 +178,23 @@ def test_legendre_polynomials_are_orthogonal():
     p = legendre(t, 6)
     gram = np.array([[np.trapezoid(a * b, t) for b in p] for a in p])
     np.testing.assert_allclose(gram, np.diag([2.0 / (2 * n + 1) for n in range(7)]), atol=1e-6)
+
+
+@pytest.mark.parametrize("shadow_gradient", [True, False])
+def test_a_loss_on_the_colour_reaches_the_density_along_the_shadow_rays(shadow_gradient):
+    """The single scattering at points in front of a slab of the grid, lit through it: the colour there depends on
+    the slab's density only through the transmittance to the light, which the cache keeps in the AD graph (or not,
+    with ``shadow_gradient = false``)."""
+    config = ScatterFieldConfig(remainder_degree=0, zonal_degree=0, shadow_resolution=16, shadow_samples=32,
+                                shadow_gradient=shadow_gradient)
+    field = _field(config, [DirectionalLight(direction=(0.0, 0.0, -1.0), irradiance=(1.0, 1.0, 1.0))])
+    sigma = field.medium.params["sigma_raw"]
+    dr.enable_grad(sigma)
+    field = field.with_medium(field.medium.with_params({"sigma_raw": sigma})).with_shadows()
+    x = mi.Array3f(0.1, -0.2, -0.4)            # under the lumpy medium: the sun comes down through it
+    loss = dr.sum(field.single_scatter(x, mi.Array3f(0.0, 0.0, -1.0)).x)
+    dr.backward(loss, flags=dr.ADFlag.Default | dr.ADFlag.AllowNoGrad)
+    g = np.abs(np.asarray(dr.grad(sigma)).reshape(R, R, R))   # [z, y, x]
+    assert (g.sum() > 0) == shadow_gradient
+    if shadow_gradient:  # the sun comes straight down: only the column above (x, y) = (0.1, -0.2) is on its rays
+        assert g[:, :, :5].sum() == 0 and g[:, :, 9:].sum() == 0 and g[:, 6:, :].sum() == 0
