@@ -22,9 +22,10 @@ around its direction for ``L_f < l <= zonal_degree``: forward-scattered light ga
 direction, which the zonal terms describe with one coefficient per order instead of ``2 l + 1``. With
 ``g = 0`` only order 0 survives: ``Rem`` is a colour per point and ``c = a (S + Rem)`` is the oracle's ``J``.
 
-The transmittance to each light is a cache: ``T_l`` at the centres of an ``R_t^3`` grid (``shadow_resolution``)
-by the midpoint rule with ``shadow_samples`` samples (:func:`mitsnerf.math.box.march_transmittance`) through the
-medium's shadow density, looked up trilinearly. :meth:`ScatterField.with_shadows` computes it from the current
+The transmittance to each light is a cache: the optical depth ``tau_l`` to it at the centres of an ``R_t^3`` grid
+(``shadow_resolution``) by the midpoint rule with ``shadow_samples`` samples
+(:func:`mitsnerf.math.box.march_optical_depth`) through the medium's shadow density, looked up trilinearly, ``T_l =
+exp(-tau_l)``. :meth:`ScatterField.with_shadows` computes it from the current
 medium; when the medium's gradients are enabled the cache keeps its AD graph, so a loss on the colours reaches
 the density along the shadow rays too. ``shadow_resolution = 0`` marches from every sample instead (exact up to
 the march's own quadrature; for checks).
@@ -41,7 +42,7 @@ import drjit as dr
 
 from mitsnerf.config import check_fields, param
 from mitsnerf.fields.media import cell_centres, grid_of, texture
-from mitsnerf.math.box import Box, march_transmittance
+from mitsnerf.math.box import Box, march_optical_depth
 from mitsnerf.math.phase import hg, scattering_cosine
 from mitsnerf.scene.lights import light_terms
 
@@ -195,26 +196,30 @@ class ScatterField:
         r = cfg.shadow_resolution
         TensorXf = mi.TensorXf
         x = cell_centres(self.box, r, mi.Array3f)
-        textures = tuple(texture(grid_of(T, r, TensorXf)) for T in self._march(density, x))
+        textures = tuple(texture(grid_of(tau, r, TensorXf)) for tau in self._march(density, x))
         return ScatterField(cfg, self.medium, self.box, self.lights, self.g, Shadows(textures, density))
 
     def _march(self, density, x) -> list:
-        """``T_l(x)`` for every delta light, marched through ``density`` (Float, or Array3f per colour)."""
-        return [march_transmittance(density, x, w, self.config.shadow_samples, self.box, s_max)
+        """``tau_l(x)``, the optical depth to every delta light, marched through ``density`` (Float, or Array3f
+        per colour)."""
+        return [march_optical_depth(density, x, w, self.config.shadow_samples, self.box, s_max)
                 for w, _, s_max in light_terms(self.lights, x)]
 
     def transmittance(self, x) -> list:
-        """``T_l(x)`` for every delta light (Float (M,), or Array3f per colour): the cache's lookup, or a march."""
+        """``T_l(x) = exp(-tau_l(x))`` for every delta light (Float (M,), or Array3f per colour): the cache's
+        optical depth looked up trilinearly (the optical depth, not ``T``: along a light's direction it is linear in
+        a uniform medium, so the lookup is exact there, where interpolating the convex ``exp(-tau)`` would be
+        too bright between cells), or marched at ``x``."""
         if self.shadows is None:
             raise RuntimeError("scatter field: call with_shadows() before evaluating it (the transmittance to "
                                "the lights is computed from the current density)")
         if self.shadows.textures is None:
-            return self._march(self.shadows.density, x)
+            return [dr.exp(-tau) for tau in self._march(self.shadows.density, x)]
         p = self.box.to_unit(x)
         out = []
         for tex in self.shadows.textures:
             values = tex.eval(p)
-            out.append(values[0] if len(values) == 1 else type(x)(*values))
+            out.append(dr.exp(-(values[0] if len(values) == 1 else type(x)(*values))))
         return out
 
     # -- the colour ------------------------------------------------------------------------------------------
