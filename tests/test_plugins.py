@@ -298,6 +298,7 @@ def test_the_readmes_method_skeleton_conforms(tmp_path, monkeypatch, capsys):
     section = readme.split("**Write your own method.**", 1)[1]
     code = re.findall(r"```python\n(.*?)```", section, flags=re.S)[0]
     (tmp_path / "fog_method.py").write_text(code)
+    monkeypatch.delitem(sys.modules, "fog_method", raising=False)  # this folder's, not another test's
     monkeypatch.setenv("MITSNERF_METHODS", f"fog={tmp_path / 'fog_method.py'}:FogModel")
     mitsnerf.methods._methods.cache_clear()
     assert main(["methods", "--check", "fog", "--no-progress"]) == 0

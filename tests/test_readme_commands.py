@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import re
 import shlex
+import sys
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -221,6 +222,8 @@ def test_every_readme_command_runs(tmp_path, monkeypatch, capsys):
     """In the README's order, each in this test's own directory; the dataset and run placeholders are the ones the
     commands before made. (Which are parsed only, and why: :data:`PARSED_ONLY`.)"""
     monkeypatch.chdir(tmp_path)
+    # one process, many tests: a fog_method another test imported from its own folder is not this one's
+    monkeypatch.delitem(sys.modules, "fog_method", raising=False)
     np.save(tmp_path / "smoke.npy", np.pad(np.ones((6, 6, 6), np.float32), 1))  # `generate smoke.npy`'s grid
     (tmp_path / "smoke.toml").write_text(_grid_spec_block())  # `generate smoke.toml`: the README's spec
     (tmp_path / "first.toml").write_text(TINY_BENCH)
