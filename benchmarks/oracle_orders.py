@@ -70,8 +70,8 @@ def rescore(dataset, oracle, window: str, orders, footprint: int) -> dict:
 
     from mitsnerf.oracle.cache import _grids
     from mitsnerf.oracle.field import DirectionalOracleField, render_field
-    from mitsnerf.oracle.source import delta_lights
     from mitsnerf.render.background import make_background
+    from mitsnerf.scene.lights import delta_lights
     from mitsnerf.scoring.reference import load_reference
     from mitsnerf.scoring.views import score_views
 

@@ -21,6 +21,8 @@ import re
 from collections.abc import Iterable, Sequence
 from typing import Any
 
+from mitsnerf.oracle.rungs import PERFECT_DB
+
 Column = tuple[str, str, int]
 """(key, header, decimals)."""
 
@@ -32,6 +34,10 @@ QUALITY: tuple[Column, ...] = KEYS + (
     ("noise_floor_psnr_medium", "ref agreement medium", 2),
     ("oracle_psnr_test_medium", "oracle medium", 2),
     ("gap_to_oracle", "gap to oracle", 2),
+    ("given", "given", 0),
+    ("rung", "rung", 0),
+    ("ceiling_psnr_test_medium", "its ceiling", 2),
+    ("gap_to_ceiling", "gap to its ceiling", 2),
     ("psnr_test_srgb", "PSNR sRGB", 2),
     ("psnr_test_medium_srgb", "PSNR sRGB medium", 2),
     ("ssim_test", "SSIM lin", 4),
@@ -61,10 +67,12 @@ COST: tuple[Column, ...] = KEYS + (
 COMPACT: tuple[Column, ...] = (
     ("scene", "scene", 0),
     ("method", "method", 0),
+    ("given", "given", 0),
     ("budget", "budget", 0),
     ("train_seconds", "train s", 1),
     ("psnr_test_medium", "PSNR medium", 2),
     ("gap_to_oracle", "gap to oracle", 2),
+    ("gap_to_ceiling", "gap to its ceiling", 2),
     ("ssim_test", "SSIM", 4),
     ("density_rel_l1", "sigma rel L1", 3),
 )
@@ -78,9 +86,7 @@ BEST: dict[str, str] = {
     "tau_rel_l1": "min",
     "transmittance_mae": "min", "rays_per_s": "max", "samples_per_s": "max", "peak_rss_mb": "min",
 }  # and "min" for every "seconds to X dB" column, whatever the config's targets (:func:`best_values`)
-PERFECT_DB = 10 * math.log10(2)
-"""How far above the reference agreement a perfect (noise-free) model scores: its error is one reference
-render's noise, where two renders' difference holds two (half the MSE: +3.01 dB)."""
+
 MEANINGS: dict[str, str] = {
     "scene": "the scene's name; mean of N: the mean over N scenes",
     "method": "oracle (ceiling): the true sigma_t, in-scattered radiance J by volpath (per direction if anisotropic), "
@@ -95,6 +101,14 @@ MEANINGS: dict[str, str] = {
     "ref agreement medium": "the same on medium pixels",
     "oracle medium": "the oracle row's PSNR medium on this scene",
     "gap to oracle": "oracle medium PSNR minus the row's (dB; 0: as good as the ceiling)",
+    "given": "what the method was given: the images (and their cameras) alone, or also the lights and the phase "
+             "function (read from the dataset's spec): compare rows that were given the same",
+    "rung": "the physics its renders can represent: emission-absorption, single scattering (the delta lights' "
+            "single scattering through its own medium), full transport",
+    "its ceiling": "the ceiling of the row's rung, medium pixels: the oracle (emission-absorption); the oracle with "
+                   "the remainder on the method's basis (single scattering); the references' agreement + 3.01 dB "
+                   "(full transport)",
+    "gap to its ceiling": "its ceiling minus the row's medium PSNR (dB)",
     "PSNR sRGB": "PSNR of the clipped values sRGB-encoded, whole image",
     "PSNR sRGB medium": "the same on medium pixels",
     "SSIM lin": "SSIM of the test views, linear radiance clipped to [0, 1]",

@@ -223,22 +223,20 @@ def optical_depth(density: Callable[[Any], Any], o, d, box: Box, n: int):
     return dr.block_sum(density(x), n) * h
 
 
-def march_transmittance(density: Callable[[Any], Any], x, w, m: int, box: Box, s_max=None):
-    """``T = exp(-int_0^{s_f} sigma(x + s w) ds)`` from points ``x`` inside the box along ``w``.
+def march_optical_depth(density: Callable[[Any], Any], x, w, m: int, box: Box, s_max=None):
+    """``tau = int_0^{s_f} sigma(x + s w) ds`` from points ``x`` inside the box along ``w``.
 
     ``s_f`` is where the ray leaves the box, or ``min(s_f, s_max)`` with ``s_max`` (Float (M,),
     e.g. the distance to a point light inside the box). Midpoint rule with ``m`` equal intervals
     (second order, unlike the render quadrature's last half interval): ``s_k = (k + 1/2) s_f / m``,
-    ``T = exp(-(s_f / m) sum_k sigma(x + s_k w))``. ``x`` Array3f (M,), ``w`` Array3f (M,) or (1,)
-    unit; ``density`` maps Array3f -> Float (or Array3f per colour: ``T`` per channel). Returns Float (M,).
+    ``tau = (s_f / m) sum_k sigma(x + s_k w)``. ``x`` Array3f (M,), ``w`` Array3f (M,) or (1,)
+    unit; ``density`` maps Array3f -> Float (or Array3f per colour: ``tau`` per channel). Returns Float (M,).
 
     >>> import mitsuba as mi
     >>> from mitsnerf.env import set_variant; _ = set_variant("llvm_ad_rgb")
     >>> slab = lambda p: 2.0 + 0.0 * p.x                      # sigma_t = 2, path 0.5 to the face
-    >>> march_transmittance(slab, mi.Array3f(0, 0, 0), mi.Array3f(0, 0, 1), 4, UNIT_BOX)  # exp(-1)
-    [0.367879]
-    >>> march_transmittance(slab, mi.Array3f(0, 0, 0), mi.Array3f(0, 0, 1), 4, UNIT_BOX, mi.Float(0.25))
-    [0.606531]
+    >>> march_optical_depth(slab, mi.Array3f(0, 0, 0), mi.Array3f(0, 0, 1), 4, UNIT_BOX)
+    [1]
     """
     Array3f = type(x)
     Float = type(x.x)
@@ -253,5 +251,19 @@ def march_transmittance(density: Callable[[Any], Any], x, w, m: int, box: Box, s
     k = Float(idx - ray * m)
     s_f_k = dr.gather(Float, s_f, ray)
     p = dr.gather(Array3f, x, ray) + (k + 0.5) / m * s_f_k * dr.gather(Array3f, w, ray)
-    tau = dr.block_sum(density(p), m) * (s_f / m)
-    return dr.exp(-tau)
+    return dr.block_sum(density(p), m) * (s_f / m)
+
+
+def march_transmittance(density: Callable[[Any], Any], x, w, m: int, box: Box, s_max=None):
+    """``T = exp(-tau)`` of :func:`march_optical_depth`: the transmittance from points ``x`` inside the box along
+    ``w`` to where the ray leaves it (or to ``s_max``); Float (M,) (or per colour).
+
+    >>> import mitsuba as mi
+    >>> from mitsnerf.env import set_variant; _ = set_variant("llvm_ad_rgb")
+    >>> slab = lambda p: 2.0 + 0.0 * p.x                      # sigma_t = 2, path 0.5 to the face
+    >>> march_transmittance(slab, mi.Array3f(0, 0, 0), mi.Array3f(0, 0, 1), 4, UNIT_BOX)  # exp(-1)
+    [0.367879]
+    >>> march_transmittance(slab, mi.Array3f(0, 0, 0), mi.Array3f(0, 0, 1), 4, UNIT_BOX, mi.Float(0.25))
+    [0.606531]
+    """
+    return dr.exp(-march_optical_depth(density, x, w, m, box, s_max))

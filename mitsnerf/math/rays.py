@@ -17,6 +17,7 @@ Rays are stored flat: view-major, then row-major (``index = (v H + row) W + col`
 
 from __future__ import annotations
 
+import math
 import sys
 from collections.abc import Sequence
 from dataclasses import dataclass
@@ -153,3 +154,19 @@ class PixelRays:
         r = [dr.gather(self.Float, a, view) for a in self._rot]
         d = self.Array3f(r[0] * x + r[1] * y - r[2], r[3] * x + r[4] * y - r[5], r[6] * x + r[7] * y - r[8])
         return dr.gather(self.Array3f, self._origin, view), dr.normalize(d)
+
+
+def fibonacci_directions(m: int) -> np.ndarray:
+    """``m`` unit vectors (m, 3) spread evenly over the sphere (Fibonacci lattice).
+
+    >>> d = fibonacci_directions(16)
+    >>> d.shape, bool(np.allclose(np.linalg.norm(d, axis=1), 1)), bool(abs(d.mean(axis=0)).max() < 0.05)
+    ((16, 3), True, True)
+    """
+    if m < 1:
+        raise ValueError(f"directions: must be >= 1, got {m}")
+    k = np.arange(m) + 0.5
+    z = 1.0 - 2.0 * k / m
+    phi = math.pi * (3.0 - math.sqrt(5.0)) * k
+    r = np.sqrt(np.maximum(1.0 - z * z, 0.0))
+    return np.stack([r * np.cos(phi), r * np.sin(phi), z], axis=-1)

@@ -64,6 +64,17 @@ class Method:
         return self.model_type.tiny
 
 
+def _check_rung(what: str, obj: type[Model]) -> None:
+    """``rung`` one of :data:`mitsnerf.oracle.rungs.RUNGS`, ``knows`` a tuple of words."""
+    from mitsnerf.oracle.rungs import RUNGS
+
+    if obj.rung not in RUNGS:
+        raise PluginError(f"{what}.rung must be one of {', '.join(RUNGS)}, got {obj.rung!r}")
+    if not isinstance(obj.knows, tuple) or not all(isinstance(k, str) and k.strip() for k in obj.knows):
+        raise PluginError(f"{what}.knows must be a tuple of words (what it is given besides the images), "
+                          f"got {obj.knows!r}")
+
+
 def check_method(name: str, obj: Any) -> type[Model]:
     """``obj`` if it is a method's model class that keeps :mod:`mitsnerf.methods.base`'s contract, else a
     :class:`~mitsnerf.plugins.PluginError` saying which part it breaks."""
@@ -78,6 +89,7 @@ def check_method(name: str, obj: Any) -> type[Model]:
     _check_config_type(what, getattr(obj, "config_type", None))
     if not isinstance(getattr(obj, "description", None), str) or not obj.description.strip():
         raise PluginError(f"{what}.description must be a one-line string")
+    _check_rung(what, obj)
     try:
         inspect.signature(obj).bind(None, None, 0)
     except TypeError:

@@ -160,6 +160,18 @@ class Model(ABC):
     """One line saying what the method is, for ``mitsnerf methods``."""
     tiny: ClassVar[Mapping[str, Any]] = MappingProxyType({})
     """Overrides of ``config_type`` making the smallest configuration (the conformance suite's)."""
+    knows: ClassVar[tuple[str, ...]] = ()
+    """What the method is given besides the training images and their cameras (the tables' ``given`` column):
+    e.g. ``("lights", "phase function")`` for a method that reads them from the dataset's spec."""
+    rung: ClassVar[str] = "emission-absorption"
+    """The physics its renders can represent, which decides the ceiling its row is held against
+    (:data:`mitsnerf.oracle.rungs.RUNGS`): ``emission-absorption`` (the oracle), ``single scattering`` (the oracle
+    with the remainder on the method's basis: :meth:`rung_basis`), ``full transport`` (the references' agreement
+    + 3.01 dB)."""
+
+    def rung_basis(self) -> tuple[int, int]:
+        """A single-scattering method's remainder basis ``(L_f, L_z)`` (:mod:`mitsnerf.oracle.rungs`)."""
+        raise NotImplementedError(f"{type(self).__name__} is not on the single-scattering rung")
 
     def __init__(self, config: Any, scene: SceneInfo, seed: int = 0) -> None:
         """The model for one scene, initialised from ``seed`` alone; ``config`` is a ``config_type``."""
@@ -230,6 +242,20 @@ class ViewModel(Model):
 def num_parameters(params: Mapping[str, Any]) -> int:
     """Total number of scalar parameters."""
     return int(sum(dr.prod(v.shape) if hasattr(v, "shape") and v.shape else dr.width(v) for v in params.values()))
+
+
+def scene_spec(scene: SceneInfo, method: str, why: str):
+    """The dataset's scene spec (:class:`mitsnerf.scene.spec.SceneSpec`, parsed from its manifest) for a method
+    that needs what only it holds (``why``: e.g. "its spec gives the lights"); a dataset without one (foreign
+    data: NeRF-synthetic, instant-ngp) is a :class:`mitsnerf.errors.DatasetError` in one line naming the method."""
+    from mitsnerf.errors import DatasetError
+    from mitsnerf.scene.spec import parse_scene
+
+    spec_data = (scene.manifest or {}).get("spec")
+    if not spec_data:
+        raise DatasetError(None, "manifest.json: spec", f"{method} needs a dataset made by 'mitsnerf generate' "
+                                                        f"({why})")
+    return parse_scene(spec_data, "manifest.json: spec")
 
 
 def cover_radiance(field_config, scene: SceneInfo):

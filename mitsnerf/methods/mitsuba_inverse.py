@@ -66,9 +66,8 @@ import mitsuba as mi
 import numpy as np
 
 from mitsnerf.config import check_fields, param
-from mitsnerf.errors import DatasetError
 from mitsnerf.fields.grid import GridField
-from mitsnerf.methods.base import MethodConfig, SceneInfo, StepLoss, ViewModel
+from mitsnerf.methods.base import MethodConfig, SceneInfo, StepLoss, ViewModel, scene_spec
 from mitsnerf.render.camera import Rendered, render_view
 from mitsnerf.render.volume import render_rays
 
@@ -195,23 +194,16 @@ class MitsubaInverseModel(ViewModel):
     name = "mitsuba-inverse"
     config_type = MitsubaInverseConfig
     description = "sigma_t/albedo grids through Mitsuba's prbvolpath, coarse to fine"
+    knows = ("lights", "phase function")
+    rung = "full transport"
     tiny = MappingProxyType({"resolutions": [4, 8], "upsample_at": [3], "spp": 2, "eval_spp": 4})
 
     def __init__(self, config: MitsubaInverseConfig, scene: SceneInfo, seed: int = 0) -> None:
-        from mitsnerf.scene.spec import parse_scene
         from mitsnerf.scene.to_mitsuba import scene_dict
 
-        spec_data = (scene.manifest or {}).get("spec")
-        if not spec_data:
-            raise DatasetError(
-                None,
-                "manifest.json: spec",
-                "mitsuba-inverse needs a dataset made by 'mitsnerf generate' "
-                "(its spec gives the lights and the medium's placement)",
-            )
+        self.spec = scene_spec(scene, self.name, "its spec gives the lights and the medium's placement")
         self.config = config
         self.box = scene.box
-        self.spec = parse_scene(spec_data, "manifest.json: spec")
         self.max_depth = config.max_depth or self.spec.render.max_depth
         r = config.resolutions[0]
         sigma_t = np.full((r, r, r), config.init_sigma_t, dtype=np.float32)

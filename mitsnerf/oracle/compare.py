@@ -27,15 +27,9 @@ import numpy as np
 from mitsnerf.math.box import Box
 from mitsnerf.math.composite import is_chromatic, weights
 from mitsnerf.math.rays import host
-from mitsnerf.oracle.source import (
-    delta_irradiance,
-    delta_lights,
-    delta_radiance,
-    mean_radiance,
-    phase_weighted_radiance,
-    toward_light,
-)
+from mitsnerf.oracle.source import delta_irradiance, delta_radiance, mean_radiance, phase_weighted_radiance
 from mitsnerf.render.volume import render_rays, sample_rays
+from mitsnerf.scene.lights import delta_lights, toward_light
 
 ROUNDING = 1e-5
 """Relative rounding allowed between two float32 renders (added to the standard error)."""

@@ -83,7 +83,8 @@ def estimate(scene, lights: Sequence[Any], g: float, sigma_t: np.ndarray, box: B
              delta_resolution: int, spp: int, order: int, seed: int = 0, replicas: int = 1) -> DirectionalGrids:
     """:class:`DirectionalGrids` of a scene (``scene``: the Mitsuba scene with volpath at the inner depth, None when
     nothing in-scatters; ``lights``: the spec's)."""
-    from mitsnerf.oracle.source import delta_irradiance, delta_lights, needed_voxels, radiance_sh
+    from mitsnerf.oracle.source import delta_irradiance, needed_voxels, radiance_sh
+    from mitsnerf.scene.lights import delta_lights
     from mitsnerf.scoring.density import true_density
     from mitsnerf.scoring.medium import mask_samples
 

@@ -38,6 +38,7 @@ import numpy as np
 
 from mitsnerf.math.box import Box, march_transmittance
 from mitsnerf.math.rays import to_array3f
+from mitsnerf.scene.lights import delta_lights, light_terms
 
 FOUR_PI = 4.0 * math.pi
 SAMPLES_PER_PASS = 1 << 20
@@ -168,24 +169,6 @@ def radiance_sh(scene, points: np.ndarray, spp: int, order: int, seed: int = 0, 
     return RadianceSH(mean, se, errors)
 
 
-def _light_terms(lights: Sequence[Any], x) -> list[tuple[Any, Any, Any]]:
-    """``(w to the light (Array3f), irradiance before attenuation (Array3f), s_max or None)`` per delta light."""
-    import drjit as dr
-    import mitsuba as mi
-
-    from mitsnerf.scene.spec import DirectionalLight, PointLight
-
-    out = []
-    for light in lights:
-        if isinstance(light, DirectionalLight):
-            out.append((-dr.normalize(mi.Array3f(*light.direction)), mi.Array3f(*light.irradiance), None))
-        elif isinstance(light, PointLight):
-            to_light = mi.Array3f(*light.position) - x
-            r2 = dr.squared_norm(to_light)
-            out.append((to_light * dr.rsqrt(r2), mi.Array3f(*light.intensity) / r2, dr.sqrt(r2)))
-    return out
-
-
 def sh_basis(w: np.ndarray, order: int) -> np.ndarray:
     """Orthonormal real spherical harmonics (Dr.Jit's ``sh_eval``) of unit directions ``w`` (..., 3):
     float64 (..., (order + 1)^2), coefficient ``l (l + 1) + m``.
@@ -229,27 +212,6 @@ def phase_weighted_radiance(scene, points: np.ndarray, d: np.ndarray, spp: int, 
     return mean, se
 
 
-def delta_lights(lights: Sequence[Any]) -> list[Any]:
-    """The spec's delta lights (directional and point), in order: the lights whose unscattered light the
-    oracle adds exactly (a direction sampled by volpath never meets them)."""
-    from mitsnerf.scene.spec import DirectionalLight, PointLight
-
-    return [light for light in lights if isinstance(light, (DirectionalLight, PointLight))]
-
-
-def toward_light(light: Any, x: np.ndarray) -> np.ndarray:
-    """Unit direction from points ``x`` (M, 3) to a delta light (a directional light: ``-direction``;
-    a point light: towards its position), float64 (M, 3): the ``w`` its light arrives from."""
-    from mitsnerf.scene.spec import DirectionalLight
-
-    x = np.asarray(x, dtype=np.float64).reshape(-1, 3)
-    if isinstance(light, DirectionalLight):
-        w = -np.asarray(light.direction, np.float64) / np.linalg.norm(light.direction)
-        return np.broadcast_to(w, x.shape)
-    v = np.asarray(light.position, np.float64) - x
-    return v / np.linalg.norm(v, axis=-1, keepdims=True)
-
-
 def delta_irradiance(lights: Sequence[Any], density, points: np.ndarray, box: Box, m: int,
                      chunk: int = 1 << 16) -> np.ndarray:
     """``E_l T_l`` at ``points`` (M, 3) for each delta light ``l`` of :func:`delta_lights`: float64 (M, n, 3),
@@ -264,7 +226,7 @@ def delta_irradiance(lights: Sequence[Any], density, points: np.ndarray, box: Bo
     with dr.suspend_grad():
         for start in range(0, len(points), chunk):
             x = to_array3f(mi.Array3f, points[start:start + chunk])
-            for j, (w, irradiance, s_max) in enumerate(_light_terms(found, x)):
+            for j, (w, irradiance, s_max) in enumerate(light_terms(found, x)):
                 e = irradiance * march_transmittance(density, x, w, m, box, s_max)
                 out[start:start + chunk, j] = np.stack([np.asarray(c, dtype=np.float64) for c in e], axis=-1)
     return out

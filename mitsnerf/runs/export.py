@@ -55,7 +55,6 @@ and ``hi``; below the unit box ``[-0.5, 0.5]^3`` of mitsnerf's own scenes)::
 
 from __future__ import annotations
 
-import math
 from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
@@ -67,28 +66,13 @@ from mitsnerf.data.atomic import atomic_files, atomic_write_bytes, atomic_write_
 from mitsnerf.data.vol import write_vol
 from mitsnerf.errors import DatasetError
 from mitsnerf.math.box import Box
+from mitsnerf.math.rays import fibonacci_directions
 from mitsnerf.methods.base import HasField
 
 DEFAULT_DIRECTIONS = 16
 #: The largest grid resolution ``R`` exported: ``R^3`` voxels, each 8 float32 values in the files and
 #: about 60 bytes of memory while sampling (1024: 32 GiB of files, 64 GiB of memory).
 MAX_RESOLUTION = 1024
-
-
-def fibonacci_directions(m: int) -> np.ndarray:
-    """``m`` unit vectors (m, 3) spread evenly over the sphere (Fibonacci lattice).
-
-    >>> d = fibonacci_directions(16)
-    >>> d.shape, bool(np.allclose(np.linalg.norm(d, axis=1), 1)), bool(abs(d.mean(axis=0)).max() < 0.05)
-    ((16, 3), True, True)
-    """
-    if m < 1:
-        raise ValueError(f"directions: must be >= 1, got {m}")
-    k = np.arange(m) + 0.5
-    z = 1.0 - 2.0 * k / m
-    phi = math.pi * (3.0 - math.sqrt(5.0)) * k
-    r = np.sqrt(np.maximum(1.0 - z * z, 0.0))
-    return np.stack([r * np.cos(phi), r * np.sin(phi), z], axis=-1)
 
 
 def sample_field(

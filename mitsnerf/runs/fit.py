@@ -67,6 +67,8 @@ class RunResult:
         """Everything ``metrics.json`` records: scores, budget, timings."""
         return {
             "method": self.method,
+            "given": ", ".join(("images",) + tuple(self.model.knows)),
+            "rung": self.model.rung,
             "footprint": self.config["eval"]["footprint"],
             "budget": from_dict(TrainConfig, self.config["train"]).budget,
             "steps": self.train.steps,

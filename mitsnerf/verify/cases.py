@@ -90,12 +90,13 @@ QUALITIES = {
 
 MEDIA = ("front_heavy", "exit_heavy", "homogeneous")
 
-SOURCES = ("zero", "single_scatter", "in_scattered")
+SOURCES = ("zero", "single_scatter", "in_scattered", "scatter_field")
 """The integrator's colour ``c(x, d)`` of a volpath scenario: ``"zero"`` (absorption only),
-``"single_scatter"`` (``albedo p E T_light`` of a directional light) or ``"in_scattered"`` (the
+``"single_scatter"`` (``albedo p E T_light`` of a directional light), ``"in_scattered"`` (the
 multiple-scattering source ``J = albedo (1/4pi) int L dw`` estimated by volpath at the integrator's
-own samples: the emission-absorption oracle, :class:`mitsnerf.oracle.compare.PointSource`). Each
-has a builder in :data:`mitsnerf.verify.sources.SOURCE_BUILDERS`."""
+own samples: the emission-absorption oracle, :class:`mitsnerf.oracle.compare.PointSource`) or
+``"scatter_field"`` (the ``scatter`` method's field holding the true medium: single scattering through its
+own shadow cache and phase function). Each has a builder in :data:`mitsnerf.verify.sources.SOURCE_BUILDERS`."""
 
 
 @dataclass(frozen=True)
@@ -143,9 +144,9 @@ class VolpathScenario:
             raise ValueError(f"{self.name}: environment must be constant, envmap or black, got {self.environment!r}")
         if self.source not in SOURCES:
             raise ValueError(f"{self.name}: source must be one of {', '.join(SOURCES)}, got {self.source!r}")
-        if self.source in ("single_scatter", "in_scattered") and self.sun_direction is None:
+        if self.source in ("single_scatter", "in_scattered", "scatter_field") and self.sun_direction is None:
             raise ValueError(f"{self.name}: single scattering needs a sun_direction")
-        if self.phase_g != 0.0 and self.source not in ("zero", "in_scattered"):
+        if self.phase_g != 0.0 and self.source not in ("zero", "in_scattered", "scatter_field"):
             raise ValueError(f"{self.name}: an anisotropic medium needs the in_scattered source (or none)")
         if not self.quadratures or set(self.quadratures) - {"seed", "midpoint"}:
             raise ValueError(f"{self.name}: quadratures must be a non-empty subset of seed, midpoint")
@@ -364,6 +365,37 @@ SCENARIOS: tuple[VolpathScenario, ...] = (
         spp_factor=4.0,
         max_rel_error=0.02,
         detects=("T_off_by_one",),
+    ),
+    VolpathScenario(
+        "scatter_single",
+        "the scatter method's field on the true medium: front-heavy, directional light, volpath max_depth 2",
+        "front_heavy",
+        sigma_t_max=8.0,
+        albedo="procedural",
+        environment="black",
+        source="scatter_field",
+        sun_direction=SUN,
+        sun_irradiance=(3.0, 2.5, 2.0),
+        max_depth=2,
+        spp_factor=4.0,
+        max_rel_error=0.02,
+        detects=("phase_factor_missing",),  # the sun's reversal: symmetric here for an isotropic medium, see below
+    ),
+    VolpathScenario(
+        "scatter_single_g85",
+        "the same with Henyey-Greenstein g = 0.85: the phase function of the sun's light",
+        "front_heavy",
+        sigma_t_max=8.0,
+        albedo="procedural",
+        environment="black",
+        source="scatter_field",
+        sun_direction=SUN,
+        sun_irradiance=(3.0, 2.5, 2.0),
+        max_depth=2,
+        spp_factor=4.0,
+        max_rel_error=0.02,
+        phase_g=0.85,
+        detects=("light_direction_flipped", "phase_factor_missing", "hg_sign", "cosine_reversed"),
     ),
     MULTIPLE_SCATTER,
     replace(MULTIPLE_SCATTER, name="forward_scatter_g50", phase_g=0.5, detects=("hg_sign", "cosine_reversed"),

@@ -209,6 +209,17 @@ MUTATION_LIST: tuple[Mutation, ...] = (
         "zip(_xyz(w), _xyz(d))", "zip(_xyz(w), _xyz(-d))",
     ),
     Mutation(
+        "light_direction_flipped", "a directional light arriving from the way it travels (the sun behind the medium)",
+        "mitsnerf.scene.lights", "light_terms",
+        "(-dr.normalize(Array3f(*light.direction))", "(dr.normalize(Array3f(*light.direction))",
+    ),
+    Mutation(
+        "phase_factor_missing", "the single-scattering field's phase function left out (each light's irradiance "
+        "scattered with weight 1)",
+        "mitsnerf.fields.scatter", "ScatterField.single_scatter",
+        "E * T * hg(scattering_cosine(w, d), self.g)", "E * T",
+    ),
+    Mutation(
         "extinction_first_channel", "a chromatic grid's red extinction taken for every colour channel",
         "mitsnerf.fields.grid", "extinction",
         "Array3f(channels[0], channels[1], channels[2])", "Array3f(channels[0], channels[0], channels[0])",

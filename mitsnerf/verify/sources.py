@@ -126,9 +126,33 @@ def in_scattered_source(scenario, sigma_t, albedo, scene, quality):
                        spp=quality.j_spp, m_light=64, seed=quality.seed + 17, g=scenario.phase_g)
 
 
+def scatter_field_source(scenario, sigma_t, albedo, scene, quality):
+    """The ``scatter`` method's field (:class:`mitsnerf.fields.scatter.ScatterField`) holding the true medium: a
+    grid medium (:class:`mitsnerf.fields.media.GridMedium`) of the scenario's ``sigma_t`` and albedo (activations
+    ``relu`` and ``clamp``, so its lookups are Mitsuba's trilinear ones), the scenario's sun as its one delta
+    light, its phase function, a remainder of 0; the transmittance to the sun from its default cache (32^3 cells,
+    32 samples). Its colour is then ``albedo p(w . d) E T_light``: single scattering (volpath ``max_depth`` 2,
+    black environment)."""
+    import mitsuba as mi
+
+    from mitsnerf.fields.media import GridMedium, GridMediumConfig
+    from mitsnerf.fields.scatter import ScatterField, ScatterFieldConfig
+    from mitsnerf.scene.spec import DirectionalLight
+
+    albedo_grid = albedo if np.ndim(albedo) else np.full(sigma_t.shape[:3] + (3,), float(albedo), np.float32)
+    sun = DirectionalLight(direction=scenario.sun_direction, irradiance=scenario.sun_irradiance)
+    sigma = sigma_t[..., None] if sigma_t.ndim == 3 else sigma_t
+    grids = [mi.TensorXf(np.ascontiguousarray(g, dtype=np.float32)) for g in (sigma, albedo_grid)]
+    medium = GridMedium(GridMediumConfig(sigma_scale=1.0, density_activation="relu", albedo_activation="clamp"),
+                        grids[0], grids[1], dr.zeros(mi.TensorXf, (1, 1, 1, 3)), UNIT_BOX)
+    config = ScatterFieldConfig(remainder_degree=0, zonal_degree=0)
+    return ScatterField(config, medium, UNIT_BOX, [sun], scenario.phase_g).with_shadows()
+
+
 SOURCE_BUILDERS: dict[str, Callable[..., Any]] = {
     "zero": absorption_source,
     "single_scatter": single_scatter_source,
     "in_scattered": in_scattered_source,
+    "scatter_field": scatter_field_source,
 }
 """Source name (:data:`mitsnerf.verify.cases.SOURCES`) -> ``builder(scenario, sigma_t, albedo, scene, quality)``."""

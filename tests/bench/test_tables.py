@@ -94,7 +94,8 @@ def test_the_printed_table_is_compact_and_says_what_a_perfect_model_scores():
     ceiling = oracle_row("a", {"psnr_test_medium": 41.5}, {})
     text = compact_report(with_oracle_rows(rows, [ceiling]), average_rows(rows))
     header = next(line for line in text.splitlines() if line.startswith("| scene"))
-    assert header == "| scene | method | budget | train s | PSNR medium | gap to oracle | SSIM | sigma rel L1 |"
+    assert header == ("| scene | method | given | budget | train s | PSNR medium | gap to oracle | gap to its ceiling | "
+                      "SSIM | sigma rel L1 |")
     assert f"a: two reference renders agree to 40.00 dB (medium pixels): a perfect model would score about " \
            f"{40 + PERFECT_DB:.2f} dB; the oracle scores 41.50 dB." in text
     assert PERFECT_DB == pytest.approx(3.0103, abs=1e-4)

@@ -1,0 +1,62 @@
+"""The ``scatter`` method: it reads the lights and the phase function from the dataset's spec (and refuses data
+without one), sizes its medium from them, and trains."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from mitsnerf.errors import DatasetError
+from mitsnerf.methods.base import SceneInfo
+from mitsnerf.methods.scatter import ScatterMethodConfig, ScatterModel
+from mitsnerf.train import TrainConfig, train
+
+from ..conftest import tiny_scene
+
+SMALL = {"hash": {"n_levels": 2, "log2_hashmap_size": 10, "base_resolution": 8, "max_resolution": 16, "hidden": 16,
+                  "color_hidden": 16},
+         "field": {"shadow_resolution": 8, "shadow_samples": 8, "shadow_density_resolution": 8}, "n_samples": 32}
+
+
+def _config(**changes) -> ScatterMethodConfig:
+    from mitsnerf.config import from_dict
+
+    return from_dict(ScatterMethodConfig, {**SMALL, **changes})
+
+
+def _with_spec(info: SceneInfo, overrides: dict | None = None) -> SceneInfo:
+    from dataclasses import replace
+
+    return replace(info, manifest={"spec": tiny_scene(overrides)})
+
+
+def test_data_without_a_spec_is_refused_in_one_line(tiny_views):
+    _, info = tiny_views(n_views=2, size=4)
+    with pytest.raises(DatasetError, match=r"scatter needs a dataset made by 'mitsnerf generate' \(its spec gives "
+                                           r"the lights and the phase function\)$"):
+        ScatterModel(_config(), info)
+
+
+@pytest.mark.parametrize(("overrides", "channels", "basis", "k"), [
+    ({}, 1, (0, 0), 1),                                                     # isotropic, grey
+    ({"volume.sigma_t_scale": [20.0, 30.0, 45.0]}, 3, (0, 0), 1),          # chromatic: a density per colour
+    ({"volume.phase": {"type": "hg", "g": 0.85}}, 1, (1, 8), 4 + 7),       # anisotropic: SH 1 + zonal 2..8
+])
+def test_the_medium_is_sized_from_the_spec(tiny_views, overrides, channels, basis, k):
+    _, info = tiny_views(n_views=2, size=4)
+    model = ScatterModel(_config(), _with_spec(info, overrides))
+    assert model.base_field.medium.density_channels == channels
+    assert model.rung_basis() == basis and model.base_field.medium.n_rest == 3 * k
+    assert model.knows == ("lights", "phase function") and model.rung == "single scattering"
+
+
+@pytest.mark.parametrize("medium", ["hash", "grid"])
+def test_training_lowers_the_loss(tiny_views, medium):
+    data, info = tiny_views(n_views=4, size=10)
+    extra = {"resolution": 8, "initial_resolution": 8, "upsample_steps": [], "rest_resolution": 4} if medium == "grid" \
+        else {}
+    model = ScatterModel(_config(medium=medium, **extra), _with_spec(info))
+    lr = 2e-2 if medium == "hash" else 0.3
+    result, _ = train(model, data, TrainConfig(steps=40, batch_rays=256, log_every=10), lr, progress=False)
+    losses = [h["loss"] for h in result.history]
+    assert np.mean(losses[-2:]) < 0.6 * losses[0], losses
