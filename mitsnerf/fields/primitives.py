@@ -37,7 +37,16 @@ from mitsnerf.config import check_fields, param
 from mitsnerf.fields.sh import MAX_DEGREE, num_coefficients, sh_basis
 from mitsnerf.math.activations import sigmoid
 from mitsnerf.math.box import Box
-from mitsnerf.math.gaussian import inverse_frame, kernel_value
+from mitsnerf.math.gaussian import (
+    ELLIPSOID_RADIUS,
+    ellipsoid_value,
+    full_integral,
+    inverse_frame,
+    kernel_value,
+    ray_profile,
+    segment_integral,
+    segment_length,
+)
 
 #: The parameters of a kernel and their columns (0: set by the config, :meth:`PrimitiveFieldConfig.columns`).
 PARAMETER_COLUMNS = {"mean": 3, "log_scale": 3, "rotation": 4, "density": 0, "sh": 0}
@@ -49,6 +58,9 @@ GEOMETRY = 12
 class PrimitiveFieldConfig:
     """What each kernel holds and how the kernels are found."""
 
+    kernel: str = param("gaussian", choices=("gaussian", "ellipsoid"))
+    """Each kernel's shape: ``gaussian`` (truncated at ``cutoff``) or ``ellipsoid``, EVER's constant density inside
+    the ellipsoid of the same covariance (semi-axes ``sqrt(5) s``)."""
     sh_degree: int = param(1, lo=0, hi=MAX_DEGREE)
     """Highest SH band L of each kernel's colour (K = (L + 1)^2 coefficients per channel)."""
     density_channels: int = param(1, choices=(1, 3))
@@ -56,7 +68,7 @@ class PrimitiveFieldConfig:
     c_max: float = param(1.0, lo=0.0, lo_open=True)
     """Largest colour (radiance)."""
     cutoff: float = param(3.0, lo=1.0, hi=6.0)
-    """Mahalanobis radius where each kernel is truncated (3: at 1.1% of its peak)."""
+    """Mahalanobis radius where each Gaussian kernel is truncated (3: at 1.1% of its peak)."""
     cells: int = param(32, lo=1, hi=256)
     """Cells per axis of the grid that lists the kernels overlapping each cell."""
 
@@ -71,6 +83,11 @@ class PrimitiveFieldConfig:
         15
         """
         return 3 + 3 * num_coefficients(self.sh_degree)
+
+    @property
+    def radius(self) -> float:
+        """The Mahalanobis radius of a kernel's support: ``cutoff``, or ``sqrt 5`` for an ellipsoid."""
+        return self.cutoff if self.kernel == "gaussian" else ELLIPSOID_RADIUS
 
     def columns(self, key: str) -> int:
         """Columns of parameter ``key`` (``density``: the density channels; ``sh``: 3 K)."""
@@ -168,7 +185,7 @@ class CellLists:
         """The lists of ``kernels`` (their shells' bounding boxes, :func:`shell_extents`), on the host."""
         g = kernels.config.cells
         mean, M = kernels.numpy_geometry()
-        ext = shell_extents(M, kernels.config.cutoff)
+        ext = shell_extents(M, kernels.config.radius)
         lo, size = np.asarray(box.lo), np.asarray(box.size)
         first = np.floor((mean - ext - lo) / size * g).astype(np.int64)
         last = np.floor((mean + ext - lo) / size * g).astype(np.int64)
@@ -223,6 +240,18 @@ def unpack(g, a):
     return mean, M, sigma, [a[3 + i] for i in range(len(a) - 3)]
 
 
+def point_value(config: PrimitiveFieldConfig, x, mean, M):
+    """A kernel's value at points ``x`` (peak 1): the truncated Gaussian or the ellipsoid's indicator."""
+    return kernel_value(x, mean, M, config.cutoff) if config.kernel == "gaussian" else ellipsoid_value(x, mean, M)
+
+
+def line_integral(config: PrimitiveFieldConfig, o, d, mean, M, t0, t1):
+    """A kernel's integral (peak 1) over the segments ``[t0, t1]`` of rays ``o + t d``, in closed form
+    (:mod:`mitsnerf.math.gaussian`)."""
+    profile = ray_profile(o, d, mean, M, config.radius)
+    return segment_integral(profile, t0, t1) if config.kernel == "gaussian" else segment_length(profile, t0, t1)
+
+
 def kernel_colour(coeffs, Y, c_max: float):
     """``c_max sigmoid(sum_j k_j Y_j)`` per channel (``coeffs[3 j + c]``), Array3f."""
     m = _module(Y[0])
@@ -270,7 +299,7 @@ class PrimitiveField:
         def body(j, density, emission):
             k = dr.gather(m.UInt32, self.lists.items, j)
             mean, M, sigma, coeffs = kernel_rows(kern.geometry, kern.appearance, k, cfg.appearance)
-            w = sigma * kernel_value(x, mean, M, cfg.cutoff)
+            w = sigma * point_value(cfg, x, mean, M)
             if Y is not None:
                 emission = dr.fma(w, kernel_colour(coeffs, Y, cfg.c_max), emission)
             return j + 1, density + w, emission
@@ -293,10 +322,23 @@ class PrimitiveField:
         return rgb, self._sigma(density)
 
 
-def kernel_volume(log_scale: np.ndarray) -> np.ndarray:
-    """``(2 pi)^(3/2) s_x s_y s_z`` (N,): the integral of an untruncated kernel of peak 1 over space.
+def kernel_volume(log_scale: np.ndarray, kernel: str = "gaussian") -> np.ndarray:
+    """The integral over space of a kernel of peak 1 (N,): ``(2 pi)^(3/2) s_x s_y s_z`` for an untruncated
+    Gaussian, ``4/3 pi 5^(3/2) s_x s_y s_z`` for the ellipsoid.
 
-    >>> round(float(kernel_volume(np.zeros((1, 3)))[0]), 4)
-    15.7496
+    >>> [round(float(kernel_volume(np.zeros((1, 3)), k)[0]), 4) for k in ("gaussian", "ellipsoid")]
+    [15.7496, 46.8321]
     """
-    return (2.0 * math.pi) ** 1.5 * np.exp(np.sum(log_scale, axis=1))
+    unit = (2.0 * math.pi) ** 1.5 if kernel == "gaussian" else 4.0 / 3.0 * math.pi * ELLIPSOID_RADIUS**3
+    return unit * np.exp(np.sum(log_scale, axis=1))
+
+
+def largest_line_integral(log_scale_max: np.ndarray, config: PrimitiveFieldConfig) -> np.ndarray:
+    """A kernel's largest integral (peak 1) along any ray, through its centre along its longest axis: ``sqrt(2 pi)
+    s_max erf(cutoff / sqrt 2)`` for the Gaussian, ``2 sqrt(5) s_max`` for the ellipsoid.
+
+    >>> largest_line_integral(np.zeros(1), PrimitiveFieldConfig(kernel="ellipsoid")).round(4).tolist()
+    [4.4721]
+    """
+    unit = full_integral(0.0, config.cutoff) if config.kernel == "gaussian" else 2.0 * ELLIPSOID_RADIUS
+    return unit * np.exp(log_scale_max)

@@ -1,4 +1,5 @@
-"""Anisotropic Gaussian kernels: their value at a point and their closed-form integral along a ray.
+"""Anisotropic kernels, Gaussian or constant-density ellipsoids: their value at a point and their closed-form
+integral along a ray.
 
 A kernel of mean ``mu``, rotation ``R`` (a unit quaternion) and scales ``s`` (standard deviations along
 ``R``'s columns) is, truncated to the ellipsoid shell of Mahalanobis radius ``r`` (0 outside)::
@@ -16,6 +17,12 @@ Along a ray ``x(t) = o + t d``, with ``u = M (o - mu)`` and ``v = M d``, ``m^2``
 with ``lo = max(t0, t* - h)``, ``hi = min(t1, t* + h)`` (0 where ``hi <= lo``). So the optical depth a kernel of
 peak density ``sigma`` adds to any ray segment is ``sigma`` times that integral: exact whatever the segment,
 and consistent with ``g(x)`` at points (the same truncation).
+
+The constant-density ellipsoid of EVER (Mai et al. 2024) in the same frame is ``e(x) = 1`` where ``m <= sqrt 5``
+(0 outside): of the covariance of the Gaussian of scales ``s``, since a uniform ellipsoid of semi-axis ``A`` has
+variance ``A^2 / 5`` along it. Its integral over a segment is the length of the segment inside it::
+
+    int_{t0}^{t1} e dt = max(0, hi - lo)      (lo, hi as above with the radius sqrt 5 for the cutoff)
 
 The functions take Dr.Jit arrays of any backend (Array3f points, rays and means, Matrix3f ``M``, Float the
 rest), of one width or broadcast, and are differentiable with Dr.Jit's AD.
@@ -132,6 +139,35 @@ def segment_integral(profile: RayProfile, t0, t1):
     width = dr.erf(k * (hi - profile.t_peak)) - dr.erf(k * (lo - profile.t_peak))
     value = profile.peak * (0.5 * math.sqrt(math.pi)) / k * width
     return dr.select(profile.hit & (hi > lo), value, 0.0)
+
+
+#: Mahalanobis radius of the constant-density ellipsoid whose covariance is the Gaussian's of the same scales.
+ELLIPSOID_RADIUS = math.sqrt(5.0)
+
+
+def ellipsoid_value(x, mean, M):
+    """``e(x)``: 1 inside the ellipsoid ``|M (x - mu)| <= sqrt 5``, else 0, Float (N,).
+
+    >>> from drjit.llvm.ad import Array3f, Matrix3f
+    >>> ellipsoid_value(Array3f([0, 2.2, 2.3], 0, 0), Array3f(0, 0, 0), Matrix3f(1, 0, 0, 0, 1, 0, 0, 0, 1))
+    [1, 1, 0]
+    """
+    return dr.select(mahalanobis2(x, mean, M) <= 5.0, 1.0, 0.0)
+
+
+def segment_length(profile: RayProfile, t0, t1):
+    """``int_{t0}^{t1} e dt``: the length of the segment inside the ellipsoid (``profile`` from :func:`ray_profile`
+    with the cutoff :data:`ELLIPSOID_RADIUS`), Float (N,).
+
+    >>> from drjit.llvm.ad import Array3f, Matrix3f, Float
+    >>> I = Matrix3f(1, 0, 0, 0, 1, 0, 0, 0, 1)
+    >>> p = ray_profile(Array3f(0, 0, -5), Array3f(0, 0, 1), Array3f(0, 0, 0), I, ELLIPSOID_RADIUS)
+    >>> segment_length(p, Float(0.0, 0.0), Float(10.0, 5.0))  # doctest: +ELLIPSIS
+    [4.4721..., 2.2360...]
+    """
+    lo = dr.maximum(t0, profile.t_peak - profile.half)
+    hi = dr.minimum(t1, profile.t_peak + profile.half)
+    return dr.select(profile.hit, dr.maximum(hi - lo, 0.0), 0.0)
 
 
 def full_integral(log_scale_max, cutoff: float) -> float:

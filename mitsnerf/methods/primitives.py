@@ -1,14 +1,15 @@
-"""``primitives``: a cloud of anisotropic Gaussian kernels, each with a density and an SH colour, densified and
-pruned on a schedule of steps.
+"""``primitives``: a cloud of anisotropic kernels, each with a density and an SH colour, densified and pruned on
+a schedule of steps.
 
 The field is :class:`mitsnerf.fields.primitives.PrimitiveField`: ``sigma(x) = sum_k sigma_k g_k(x)``, each kernel a
-Gaussian truncated at ``cutoff`` standard deviations, the colour at a point the density-weighted mean of the
-kernels' SH colours (one density per colour channel with ``field.density_channels = 3``). It renders through
+Gaussian truncated at ``cutoff`` standard deviations (or, with ``field.kernel = "ellipsoid"``, EVER's
+constant-density ellipsoid), the colour at a point the density-weighted mean of the kernels' SH colours (one
+density per colour channel with ``field.density_channels = 3``). It renders through
 :func:`mitsnerf.render.primitives.render_primitives`: every ray walks the cells of the kernels' list grid and
 each kernel adds its exact optical depth over the ray's segment in the cell (the integral of a Gaussian along
-a line is an ``erf``), so the transmittance is exact at every cell boundary whatever the overlap; the gradient
-is replayed per ray. Being the sum of its kernels, the density is what the density scores and
-``mitsnerf export`` read, and it is the medium the images were rendered from.
+a line is an ``erf``, an ellipsoid's a chord), so the transmittance is exact at every cell boundary whatever the
+overlap; the gradient is replayed per ray. Being the sum of its kernels, the density is what the density scores
+and ``mitsnerf export`` read, and it is the medium the images were rendered from.
 
 Initialisation, from the seed alone: ``count`` kernels at uniform random positions in the box, isotropic with
 scale ``init_scale`` times the mean spacing ``(V / count)^(1/3)``, grey (SH 0), their density set so that the
@@ -17,17 +18,17 @@ box holds ``sigma_init`` on average.
 Densification and pruning, every ``densify_every`` steps from ``densify_from`` through ``densify_until``:
 
 - *prune*: a kernel whose largest optical depth along any ray (through its centre along its longest axis,
-  ``sigma_k sqrt(2 pi) s_max erf(cutoff / sqrt 2)``) is below ``prune_tau``, or whose shell has left the box,
-  is removed (it changes no pixel by more than ``prune_tau`` of its radiance);
+  ``sigma_k sqrt(2 pi) s_max erf(cutoff / sqrt 2)`` for a Gaussian) is below ``prune_tau``, or whose support has
+  left the box, is removed (it changes no pixel by more than ``prune_tau`` of its radiance);
 - *densify*: of the others, the ``densify_fraction`` with the largest mean norm of their position's gradient
   over the steps since the last densification (3DGS's criterion, in world space: a kernel the images pull in
-  different directions is under-resolving the medium) are each replaced by two, at positions drawn from
-  the kernel's own Gaussian (seeded by the seed and the step): scales divided by 1.6 and the density
-  multiplied by ``1.6^3 / 2`` where the kernel's largest scale exceeds ``split_scale`` (of the box's largest
-  side; a split), the same scales and half the density otherwise (a clone); the mass is kept either way;
+  different directions is under-resolving the medium) each become two (``densify_rule``): by default its two
+  halves along its longest axis, which keep its mean, covariance and mass (:func:`_halves`), or as 3DGS does,
+  two children drawn from it (``sample``);
 - never beyond ``max_count`` kernels.
 
-The parameters change shape then, so their Adam state restarts (as ``voxel``'s upsampling does).
+The parameters change shape then; the kernels kept carry their Adam state and the new ones start from zero
+moments (:class:`~mitsnerf.methods.base.Rows`), as 3DGS does.
 """
 
 from __future__ import annotations
@@ -50,9 +51,9 @@ from mitsnerf.fields.primitives import (
     PrimitiveField,
     PrimitiveFieldConfig,
     kernel_volume,
+    largest_line_integral,
 )
-from mitsnerf.math.gaussian import full_integral
-from mitsnerf.methods.base import MethodConfig, ParameterShapeError, RayModel, RenderOutput, SceneInfo
+from mitsnerf.methods.base import MethodConfig, ParameterShapeError, RayModel, RenderOutput, Rows, SceneInfo
 from mitsnerf.render.primitives import render_primitives
 
 KEYS = tuple(PARAMETER_COLUMNS)
@@ -81,9 +82,13 @@ class PrimitivesMethodConfig(MethodConfig):
     """Last step (counted from 1) after which they may be (0: never)."""
     densify_fraction: float = param(0.1, lo=0.0, hi=1.0)
     """Share of the kernels split or cloned at each densification: those of largest mean positional gradient."""
+    densify_rule: str = param("halve", choices=("halve", "sample"))
+    """How a kernel becomes two: ``halve``, two halves along its longest axis that keep its mean, variance and
+    mass (the field barely changes); ``sample``, 3DGS's: two children drawn from the kernel's Gaussian, smaller
+    and denser where it is larger than ``split_scale`` (split), the same size and half as dense otherwise (clone)."""
     split_scale: float = param(0.01, lo=0.0)
-    """A kernel whose largest scale exceeds this fraction of the box's largest side is split (smaller children),
-    a smaller one cloned."""
+    """``densify_rule = "sample"``: a kernel whose largest scale exceeds this fraction of the box's largest side is
+    split (smaller children), a smaller one cloned."""
     prune_tau: float = param(1e-3, lo=0.0)
     """Kernels whose largest optical depth along any ray is below it are removed at each densification."""
     min_transmittance: float = param(1e-4, lo=0.0, hi=1.0, hi_open=True)
@@ -132,7 +137,7 @@ def initial_kernels(config: PrimitivesMethodConfig, box, seed: int) -> dict[str,
     volume = float(np.prod(size))
     scale = config.init_scale * (volume / n) ** (1.0 / 3.0)
     log_scale = np.full((n, 3), math.log(scale))
-    sigma = config.sigma_init * volume / (n * kernel_volume(log_scale[:1])[0])
+    sigma = config.sigma_init * volume / (n * kernel_volume(log_scale[:1], cfg.kernel)[0])
     out = {"mean": lo + rng.random((n, 3)) * size, "log_scale": log_scale,
            "rotation": np.tile([0.0, 0.0, 0.0, 1.0], (n, 1)),
            "density": np.full((n, cfg.density_channels), math.log(sigma)),
@@ -140,14 +145,14 @@ def initial_kernels(config: PrimitivesMethodConfig, box, seed: int) -> dict[str,
     return {k: v.astype(np.float32) for k, v in out.items()}
 
 
-def largest_optical_depth(density: np.ndarray, log_scale: np.ndarray, cutoff: float) -> np.ndarray:
-    """Each kernel's largest optical depth along any ray (N,): ``max_c exp(density_c) sqrt(2 pi) s_max
-    erf(cutoff / sqrt 2)``, through its centre along its longest axis.
+def largest_optical_depth(density: np.ndarray, log_scale: np.ndarray, config: PrimitiveFieldConfig) -> np.ndarray:
+    """Each kernel's largest optical depth along any ray (N,), through its centre along its longest axis:
+    ``max_c exp(density_c)`` times :func:`~mitsnerf.fields.primitives.largest_line_integral`.
 
-    >>> round(float(largest_optical_depth(np.zeros((1, 1)), np.zeros((1, 3)), 3.0)[0]), 4)
+    >>> round(float(largest_optical_depth(np.zeros((1, 1)), np.zeros((1, 3)), PrimitiveFieldConfig())[0]), 4)
     2.4999
     """
-    return np.exp(density.max(axis=1)) * full_integral(0.0, cutoff) * np.exp(log_scale.max(axis=1))
+    return np.exp(density.max(axis=1)) * largest_line_integral(log_scale.max(axis=1), config)
 
 
 def _rotation_matrices(q: np.ndarray) -> np.ndarray:
@@ -161,25 +166,25 @@ def _rotation_matrices(q: np.ndarray) -> np.ndarray:
 
 def prune_mask(params: Mapping[str, np.ndarray], config: PrimitivesMethodConfig, box) -> np.ndarray:
     """The kernels kept (Bool (N,)): optical depth at least ``prune_tau`` and some of the shell inside the box."""
-    cutoff = config.field.cutoff
-    reach = cutoff * np.exp(params["log_scale"].max(axis=1))[:, None]
+    reach = config.field.radius * np.exp(params["log_scale"].max(axis=1))[:, None]
     inside = np.all((params["mean"] + reach > np.asarray(box.lo)) & (params["mean"] - reach < np.asarray(box.hi)), 1)
-    thick = largest_optical_depth(params["density"], params["log_scale"], cutoff) >= config.prune_tau
+    thick = largest_optical_depth(params["density"], params["log_scale"], config.field) >= config.prune_tau
     return inside & thick & np.all(np.isfinite(params["mean"]), axis=1)
 
 
 def densify(params: Mapping[str, np.ndarray], score: np.ndarray, config: PrimitivesMethodConfig, box,
-            rng: np.random.Generator) -> dict[str, np.ndarray]:
-    """Prune, then split or clone the kernels of largest ``score`` (module docstring); returns the new arrays.
+            rng: np.random.Generator) -> tuple[dict[str, np.ndarray], np.ndarray]:
+    """Prune, then split or clone the kernels of largest ``score`` (module docstring): ``(new arrays, sources)``,
+    ``sources[i]`` the old kernel that new kernel ``i`` is (-1: a child, new).
 
     Survivors keep their order; the chosen kernels' two children follow them.
 
     >>> from mitsnerf.math.box import UNIT_BOX
-    >>> cfg = PrimitivesMethodConfig(count=4, densify_fraction=0.5, split_scale=0.1)
-    >>> k = initial_kernels(cfg, UNIT_BOX, 0)  # scale 0.315: split
-    >>> new = densify(k, np.array([0.0, 3.0, 1.0, 2.0]), cfg, UNIT_BOX, np.random.default_rng(0))
-    >>> len(new["mean"]), np.allclose(new["log_scale"][2:], k["log_scale"][0] - np.log(1.6))
-    (6, True)
+    >>> cfg = PrimitivesMethodConfig(count=4, densify_fraction=0.5)
+    >>> k = initial_kernels(cfg, UNIT_BOX, 0)
+    >>> new, sources = densify(k, np.array([0.0, 3.0, 1.0, 2.0]), cfg, UNIT_BOX, np.random.default_rng(0))
+    >>> sources.tolist(), len(new["mean"])  # kernels 1 and 3 halved
+    ([0, 2, -1, -1, -1, -1], 6)
     """
     keep = prune_mask(params, config, box)
     kept = {key: v[keep] for key, v in params.items()}
@@ -189,9 +194,26 @@ def densify(params: Mapping[str, np.ndarray], score: np.ndarray, config: Primiti
     chosen = np.argsort(-score, kind="stable")[:chosen_n]
     rest = np.setdiff1d(np.arange(n), chosen)
     parents = {key: v[chosen] for key, v in kept.items()}
-    children = [_child(parents, config, box, rng) for _ in range(2)]
-    return {key: np.concatenate([kept[key][rest]] + [c[key] for c in children]).astype(np.float32)
-            for key in KEYS}
+    children = _halves(parents) if config.densify_rule == "halve" else \
+        [_child(parents, config, box, rng) for _ in range(2)]
+    new = {key: np.concatenate([kept[key][rest]] + [c[key] for c in children]).astype(np.float32) for key in KEYS}
+    return new, np.concatenate([np.flatnonzero(keep)[rest], np.full(2 * len(chosen), -1)])
+
+
+def _halves(parent: Mapping[str, np.ndarray]) -> list[dict[str, np.ndarray]]:
+    """The two halves of each parent along its longest axis ``a`` (scale ``s``): centres ``mu +- s/2`` along it,
+    scale ``sqrt(3)/2 s`` there (the pair's mean and variance are the parent's), each ``1/sqrt(3)`` as dense (half
+    the mass each)."""
+    scale = np.exp(parent["log_scale"])
+    a = np.argmax(scale, axis=1)
+    rows = np.arange(len(a))
+    axis = _rotation_matrices(parent["rotation"])[rows, :, a]
+    offset = 0.5 * scale[rows, a][:, None] * axis
+    log_scale = parent["log_scale"].copy()
+    log_scale[rows, a] += math.log(math.sqrt(3.0) / 2.0)
+    density = parent["density"] - math.log(math.sqrt(3.0))
+    return [{"mean": parent["mean"] + sign * offset, "log_scale": log_scale, "rotation": parent["rotation"],
+             "density": density, "sh": parent["sh"]} for sign in (1.0, -1.0)]
 
 
 def _child(parent: Mapping[str, np.ndarray], config: PrimitivesMethodConfig, box,
@@ -309,13 +331,14 @@ class PrimitivesModel(RayModel):
             return {}
         host = {k: np.asarray(params[k].numpy(), np.float64).reshape(self.params[k].shape) for k in KEYS}
         score = np.asarray(self.grad_sum.numpy()) / np.maximum(np.asarray(self.grad_hits.numpy()), 1.0)
-        new = densify(host, score, self.config, self.scene.box, np.random.default_rng([int(self.seed), int(step)]))
+        new, sources = densify(host, score, self.config, self.scene.box,
+                               np.random.default_rng([int(self.seed), int(step)]))
         if len(new["mean"]) == 0:
             return {}
         values = {k: mi.TensorXf(v) for k, v in new.items()}
         self.set_parameters(values)
         self._reset_scores()
-        return values
+        return Rows(values, {k: sources for k in KEYS})
 
     def extra_state(self) -> dict:
         return {"densify.grad_sum": np.asarray(self.grad_sum.numpy()),

@@ -26,7 +26,7 @@ def _tensors(p):
     return {key: mi.TensorXf(v.astype(np.float32)) for key, v in p.items()}
 
 
-def _brute(p, x, d, degree: int, cutoff: float = 3.0):
+def _brute(p, x, d, degree: int, kernel: str = "gaussian"):
     """``(rgb, sigma per channel)`` at numpy points ``x`` (M, 3), every kernel summed (float64)."""
     q = p["rotation"] / np.linalg.norm(p["rotation"], axis=1, keepdims=True)
     qx, qy, qz, qw = q.T
@@ -35,7 +35,7 @@ def _brute(p, x, d, degree: int, cutoff: float = 3.0):
                   2 * (qx * qz - qy * qw), 2 * (qy * qz + qx * qw), 1 - 2 * (qx**2 + qy**2)], 1).reshape(-1, 3, 3)
     local = np.einsum("nji,mnj->mni", R, x[:, None, :] - p["mean"][None]) / np.exp(p["log_scale"])[None]
     m2 = np.sum(local**2, axis=2)
-    g = np.where(m2 <= cutoff**2, np.exp(-0.5 * m2), 0.0)
+    g = np.where(m2 <= 9.0, np.exp(-0.5 * m2), 0.0) if kernel == "gaussian" else np.where(m2 <= 5.0, 1.0, 0.0)
     sigma = np.exp(p["density"])
     sigma = np.repeat(sigma, 3, axis=1) if sigma.shape[1] == 1 else sigma
     w = g[:, :, None] * sigma[None]
@@ -48,16 +48,18 @@ def _brute(p, x, d, degree: int, cutoff: float = 3.0):
     return rgb, density
 
 
-@pytest.mark.parametrize("channels, cells", [(1, 5), (3, 7), (1, 1)])
-def test_the_field_is_the_sum_over_every_kernel(channels, cells):
+@pytest.mark.parametrize("channels, cells, kernel", [(1, 5, "gaussian"), (3, 7, "gaussian"), (1, 1, "gaussian"),
+                                                     (1, 5, "ellipsoid"), (3, 3, "ellipsoid")])
+def test_the_field_is_the_sum_over_every_kernel(channels, cells, kernel):
     rng = np.random.default_rng(channels + cells)
     p = _params(rng, 60, channels)
-    field = PrimitiveField(Kernels(PrimitiveFieldConfig(density_channels=channels, cells=cells), _tensors(p)), BOX)
+    config = PrimitiveFieldConfig(density_channels=channels, cells=cells, kernel=kernel)
+    field = PrimitiveField(Kernels(config, _tensors(p)), BOX)
     x = rng.uniform(-0.75, 0.75, (3000, 3))  # inside and outside the box
     X = mi.Array3f(*(x.T.astype(np.float32)))
     d = np.array([0.3, -0.5, 0.8]) / math.sqrt(0.98)
     rgb, sigma = field(X, mi.Array3f(*(float(c) for c in d)))
-    rgb_ref, sigma_ref = _brute(p, x.astype(np.float32).astype(np.float64), d, 1)
+    rgb_ref, sigma_ref = _brute(p, x.astype(np.float32).astype(np.float64), d, 1, kernel)
     sigma = _channels(sigma, channels)
     np.testing.assert_array_equal(_channels(field.density(X), channels), sigma)
     np.testing.assert_allclose(sigma, sigma_ref[:, :channels], rtol=1e-4, atol=1e-5)

@@ -7,7 +7,15 @@ import mitsuba as mi
 import numpy as np
 import pytest
 
-from mitsnerf.math.gaussian import inverse_frame, kernel_value, ray_profile, segment_integral
+from mitsnerf.math.gaussian import (
+    ELLIPSOID_RADIUS,
+    ellipsoid_value,
+    inverse_frame,
+    kernel_value,
+    ray_profile,
+    segment_integral,
+    segment_length,
+)
 
 
 def _floats(values):
@@ -42,17 +50,27 @@ def test_segment_integral_is_the_integral_of_the_point_values(seed):
     numeric = g.mean(axis=1) * (t1 - t0)
     assert np.count_nonzero(numeric > 1e-3) > 10  # many rays cross the kernel
     np.testing.assert_allclose(closed, numeric, atol=2e-4 * numeric.max())
+    chord = np.asarray(segment_length(ray_profile(origins, dirs, mean, M, ELLIPSOID_RADIUS),
+                                      mi.Float(t0.astype(np.float32)), mi.Float(t1.astype(np.float32))))
+    inside = np.asarray(ellipsoid_value(x, mean, M), np.float64).reshape(n_rays, n).mean(axis=1) * (t1 - t0)
+    assert np.count_nonzero(inside > 1e-3) > 10
+    np.testing.assert_allclose(chord, inside, atol=2e-3 * inside.max())
 
 
-def test_the_profile_gradient_is_the_finite_difference():
+@pytest.mark.parametrize("kernel", ["gaussian", "ellipsoid"])
+def test_the_profile_gradient_is_the_finite_difference(kernel):
     rng = np.random.default_rng(5)
     q = mi.Array4f(*_floats(rng.normal(size=4)))
     ls = mi.Array3f(*_floats(np.log(rng.uniform(0.1, 0.3, 3))))
     mean = mi.Array3f(0.05, -0.02, 0.03)
     o, d = mi.Array3f(0.1, 0.0, -2.0), dr.normalize(mi.Array3f(-0.05, 0.02, 1.0))
 
-    def value(q, ls, mean):
-        return segment_integral(ray_profile(o, d, mean, inverse_frame(q, ls), 3.0), mi.Float(1.8), mi.Float(2.05))
+    def value(q, ls, mean):  # a segment that cuts the kernel (the ray passes 0.05 from its centre: no grazing)
+        if kernel == "gaussian":
+            return segment_integral(ray_profile(o, d, mean, inverse_frame(q, ls), 3.0), mi.Float(1.8), mi.Float(2.05))
+        profile = ray_profile(o, d, mean, inverse_frame(q, ls), ELLIPSOID_RADIUS)
+        return segment_length(profile, mi.Float(1.8), mi.Float(2.05)) + segment_length(profile, mi.Float(1.0),
+                                                                                       mi.Float(3.0))
 
     dr.enable_grad(q, ls, mean)
     dr.backward(value(q, ls, mean))
