@@ -66,7 +66,7 @@ class PrimitivesMethodConfig(MethodConfig):
 
     field: PrimitiveFieldConfig = param(default_factory=PrimitiveFieldConfig)
     """What each kernel holds (SH degree, density channels, truncation) and the cells that list them."""
-    count: int = param(4096, lo=1, hi=10**7)
+    count: int = param(2048, lo=1, hi=10**7)
     """Kernels at the start, at uniform random positions in the box."""
     max_count: int = param(20000, lo=1, hi=10**7)
     """Densification stops adding kernels here."""
@@ -78,7 +78,7 @@ class PrimitivesMethodConfig(MethodConfig):
     """Steps between densifications (and prunings)."""
     densify_from: int = param(100, lo=1)
     """First step (counted from 1) after which the kernels are densified and pruned."""
-    densify_until: int = param(1000, lo=0)
+    densify_until: int = param(700, lo=0)
     """Last step (counted from 1) after which they may be (0: never)."""
     densify_fraction: float = param(0.1, lo=0.0, hi=1.0)
     """Share of the kernels split or cloned at each densification: those of largest mean positional gradient."""
@@ -93,7 +93,7 @@ class PrimitivesMethodConfig(MethodConfig):
     """Kernels whose largest optical depth along any ray is below it are removed at each densification."""
     min_transmittance: float = param(1e-4, lo=0.0, hi=1.0, hi_open=True)
     """A ray stops where its transmittance is below it in every channel."""
-    lr: float = param(0.05, lo=0.0, lo_open=True)
+    lr: float = param(0.1, lo=0.0, lo_open=True)
     """Adam learning rate of the densities (raw, ``sigma = exp(raw)``); the others below."""
     lr_mean: float = param(1e-3, lo=0.0, lo_open=True)
     """Learning rate of the positions, in units of the box's largest side."""
@@ -101,7 +101,7 @@ class PrimitivesMethodConfig(MethodConfig):
     """Learning rate of the log scales."""
     lr_rotation: float = param(1e-3, lo=0.0, lo_open=True)
     """Learning rate of the quaternions."""
-    lr_sh: float = param(0.02, lo=0.0, lo_open=True)
+    lr_sh: float = param(0.1, lo=0.0, lo_open=True)
     """Learning rate of the SH coefficients."""
 
     def __post_init__(self) -> None:
