@@ -106,7 +106,8 @@ class Fit:
     method: str
     metrics: Mapping[str, Any]
     """What the run's ``metrics.json`` records: the test scores (``psnr_test``, ``psnr_test_medium``, ...), the
-    step budget, ``steps``, ``train_seconds``, ``rays_per_s``, ``num_parameters``."""
+    step budget, ``steps``, ``train_seconds``, ``rays_per_s``, ``num_parameters``, ``model_bytes`` (the size of
+    ``params.npz``)."""
     summary: str
     """The line ``mitsnerf train`` prints."""
     out: Path | None

@@ -59,8 +59,10 @@ COST: tuple[Column, ...] = KEYS + (
     ("train_seconds", "train s", 1),
     ("rays_per_s", "rays/s", 0),
     ("samples_per_s", "samples/s", 0),
+    ("peak_memory_mb", "peak MiB", 0),
     ("peak_rss_mb", "peak RSS MiB", 0),
     ("num_parameters", "params", 0),
+    ("model_mb", "model MB", 3),
     ("curve_eval_seconds", "curve eval s", 1),
     ("note", "note", 0),
 )
@@ -75,6 +77,8 @@ COMPACT: tuple[Column, ...] = (
     ("gap_to_ceiling", "gap to its ceiling", 2),
     ("ssim_test", "SSIM", 4),
     ("density_rel_l1", "sigma rel L1", 3),
+    ("peak_memory_mb", "peak MiB", 0),
+    ("model_mb", "model MB", 3),
 )
 """The printed table: the headline (medium-pixel PSNR) and one figure of each kind; every column is in
 ``table.md``, the CSVs, ``results.json`` and ``report.html``."""
@@ -85,6 +89,7 @@ BEST: dict[str, str] = {
     "density_rel_l1": "min", "density_rel_l2": "min", "density_rel_l1_reduced": "min", "density_psnr": "max",
     "tau_rel_l1": "min",
     "transmittance_mae": "min", "rays_per_s": "max", "samples_per_s": "max", "peak_rss_mb": "min",
+    "peak_memory_mb": "min", "model_mb": "min",
 }  # and "min" for every "seconds to X dB" column, whatever the config's targets (:func:`best_values`)
 
 MEANINGS: dict[str, str] = {
@@ -131,9 +136,12 @@ MEANINGS: dict[str, str] = {
     "train s": "training seconds, held-out evaluation excluded",
     "rays/s": "training rays per second",
     "samples/s": "training samples (points along rays) per second",
-    "peak RSS MiB": "high-water mark of the process that ran the cell (cumulative over a sequential run's cells, "
-                    "so bold only when every cell had its own process)",
+    "peak MiB": "the cell's own peak memory: Dr.Jit's allocator high-water mark from its start (host memory on "
+                "LLVM, device memory on CUDA), the same whatever ran before it",
+    "peak RSS MiB": "resident high-water mark of the process during the cell (reset at its start on Linux), the "
+                    "process's baseline included (so bold only when every cell had its own process)",
     "params": "trainable parameters",
+    "model MB": "size of the saved model, the run's params.npz (10^6 bytes; model_bytes in the CSV and JSON)",
     "curve eval s": "seconds spent on the held-out evaluations of the PSNR curve",
     "s to X dB medium": "training seconds at the first held-out evaluation (steps k/N of the budget) reaching "
                         "X dB on medium pixels (measured, not decisive)",
@@ -264,6 +272,8 @@ def cell_row(record: dict) -> dict:
     for key, value in (record.get("metrics") or {}).items():
         if value is None or _is_number(value) or isinstance(value, str):
             row[key] = value
+    if _is_number(row.get("model_bytes")):
+        row["model_mb"] = row["model_bytes"] / 1e6
     return row
 
 

@@ -11,7 +11,6 @@ from __future__ import annotations
 import io
 import os
 import platform
-import sys
 import time
 from dataclasses import dataclass, replace
 from pathlib import Path
@@ -19,22 +18,9 @@ from typing import Any
 
 import numpy as np
 
+from mitsnerf.bench import memory
 from mitsnerf.bench.cells import IN_FLIGHT_FILE, RECORD_FORMAT, Cell, SceneData
 from mitsnerf.scoring.images import image_scores
-
-PEAK_MEMORY_NOTE = ("peak_rss_mb: RSS high-water mark (resource.getrusage ru_maxrss) of the process that ran "
-                    "the cell, read when it ended; in a reused process (the sequential executor) it includes "
-                    "whatever ran there before (earlier cells, ground-truth rendering)")
-
-
-def peak_rss_mb() -> float | None:
-    """The process's RSS high-water mark in MiB (``getrusage``), None where unavailable."""
-    try:
-        import resource
-    except ImportError:  # pragma: no cover (Windows)
-        return None
-    peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
-    return peak / (1024.0 * 1024.0) if sys.platform == "darwin" else peak / 1024.0
 
 
 class CurveRecorder:
@@ -229,10 +215,11 @@ def run_cell(cell: Cell, *, progress: bool = False, threads: int = 0, executor: 
     if threads:
         dr.set_thread_count(int(threads))
     started = time.time()
-    rss_before = peak_rss_mb()
+    rss_before = memory.peak_rss_mb()
     evalc = from_dict(EvalConfig, dict(cell.eval))
     train_config = from_dict(TrainConfig, dict(cell.train))
     dataset, oracle, ref = (loads if loads is not None else SceneLoads()).scene(cell, progress)
+    rss_reset = memory.start()  # the cell's own peaks from here: its scene is loaded, what ran before is freed
     k = len(ref.cameras) if evalc.curve_views == 0 else min(evalc.curve_views, len(ref.cameras))
     curve_ref = replace(ref, images=ref.images[:k], cameras=ref.cameras[:k],
                         masks=None if ref.masks is None else ref.masks[:k])
@@ -251,13 +238,14 @@ def run_cell(cell: Cell, *, progress: bool = False, threads: int = 0, executor: 
                        "psnr_medium": last.get("psnr_test_medium")})
     metrics.update(time_to_targets(points, evalc.psnr_targets))
     metrics.update(ceiling_figures(run.model, oracle, dataset, evalc.footprint, ref, metrics))
-    metrics["peak_rss_mb"] = peak_rss_mb()
+    metrics["peak_memory_mb"], metrics["peak_rss_mb"] = memory.peak_memory_mb(), memory.peak_rss_mb()
 
     record = _record(cell, dataset, metrics, points, k, evalc, run.train.history)
     record["oracle"] = oracle_summary(oracle, evalc.footprint)
     record["worker"] = {"executor": executor, "host": platform.node(), "pid": os.getpid(),
                         "fresh_process": fresh_process, "threads": dr.thread_count(), "resumed_from_step": resumed_from,
-                        "peak_rss_mb_at_start": rss_before, "peak_memory_note": PEAK_MEMORY_NOTE}
+                        "peak_rss_mb_at_start": rss_before, "peak_rss_reset": rss_reset,
+                        "peak_memory_note": memory.PEAK_MEMORY_NOTE}
     record["started"], record["finished"] = started, time.time()
     return record, _artefacts(run, ref, evalc.report_view)
 

@@ -25,7 +25,9 @@ checkpoints and the schedules. Parameters are a mapping (a ``drjit.nn`` module o
 that ``drjit.opt`` optimisers take as is; after every step the trainer hands the optimiser's
 values back through :meth:`Model.set_parameters`. A model changes its parameters only by
 returning new values from :meth:`Model.after_step`, which the trainer writes into the optimiser
-(coarse to fine, clamping): schedules return values, they never rewrite the optimiser.
+(coarse to fine, clamping): schedules return values, they never rewrite the optimiser. A value of
+a new shape restarts its optimiser state, unless the model returns :class:`Rows` saying which old row
+each new row continues (primitives added and removed): the trainer then carries those rows' state.
 
 A capability beyond rendering is a protocol of its own, tested with ``isinstance``: :class:`HasField`, a
 model whose learned medium can be queried (``field()``; with ``density(x)`` the density scores and
@@ -112,6 +114,17 @@ def check_shapes(current: Mapping[str, Any], values: Mapping[str, Any]) -> None:
     for key, value in values.items():
         if tuple(value.shape) != tuple(current[key].shape):
             raise ParameterShapeError(key, value.shape, current[key].shape)
+
+
+class Rows(dict):
+    """New parameter values (a dict, as :meth:`Model.after_step` returns) whose rows continue old rows: for each key
+    in ``sources``, row ``i`` of the new ``(N', ...)`` value continues row ``sources[key][i]`` of the old ``(N, ...)``
+    one (-1: a new row). The trainer carries the optimiser's state of those rows (Adam's moments; its step count
+    is the parameter's) and starts the new rows' at zero, as when the parameter was first registered."""
+
+    def __init__(self, values: Mapping[str, Any], sources: Mapping[str, Any]) -> None:
+        super().__init__(values)
+        self.sources = dict(sources)
 
 
 @dataclass(frozen=True)
@@ -201,7 +214,8 @@ class Model(ABC):
     def after_step(self, step: int, params: Mapping[str, Any]) -> Mapping[str, Any]:
         """Called after optimiser step ``step`` (0-based) with the optimiser's values; returns new
         values for some parameters (upsampled, clamped), which the trainer writes into the
-        optimiser. May update the model's non-parameter state (an occupancy grid). Default: none."""
+        optimiser (as :class:`Rows`, rows that continue old rows keep their optimiser state). May update
+        the model's non-parameter state (an occupancy grid). Default: none."""
         return {}
 
     def extra_state(self) -> dict:

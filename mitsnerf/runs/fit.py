@@ -62,6 +62,8 @@ class RunResult:
     num_parameters: int
     eval_seconds: float
     model: Model
+    model_bytes: int = 0
+    """The size of the saved model, ``params.npz`` (:func:`parameter_file`), in bytes."""
 
     def metrics(self) -> dict:
         """Everything ``metrics.json`` records: scores, budget, timings."""
@@ -77,6 +79,7 @@ class RunResult:
             "rays_per_s": self.train.rays_per_s,
             "samples_per_s": self.train.samples_per_s,
             "num_parameters": self.num_parameters,
+            "model_bytes": self.model_bytes,
             "eval_seconds": self.eval_seconds,
             **self.scores,
         }
@@ -322,20 +325,30 @@ def evaluate_run(model: Model, method: str, run_config: dict, result: TrainResul
     n = min(eval_config.train_eval_views, len(train_views.cameras))
     train_renders, _ = render_views(model, train_views.cameras[:n], pixel_center=train_views.pixel_center, footprint=k)
     scores["psnr_train"] = image_scores(stack_rgb(train_renders), train_views.images[:n], with_ssim=False)["psnr_test"]
-    return RunResult(method, run_config, result, scores, renders, slices, num_parameters(model.parameters()),
-                     seconds, model)
+    params = model.parameters()
+    return RunResult(method, run_config, result, scores, renders, slices, num_parameters(params), seconds, model,
+                     len(parameter_file(params)))
 
 
-def save_parameters(path: Path, params: Mapping[str, Any]) -> None:
-    """Parameters as a numpy ``.npz`` (dotted names as keys), written atomically."""
+def parameter_file(params: Mapping[str, Any]) -> bytes:
+    """The bytes of ``params.npz``: the parameters as a numpy ``.npz`` (dotted names as keys, uncompressed).
+
+    >>> len(parameter_file({"x": np.zeros((4, 3), np.float32)})) > 48
+    True
+    """
     import io
-
-    from mitsnerf.data.atomic import atomic_write_bytes
 
     arrays: dict[str, Any] = {k: np.asarray(v.numpy() if hasattr(v, "numpy") else v) for k, v in params.items()}
     buf = io.BytesIO()
     np.savez(buf, **arrays)
-    atomic_write_bytes(path, buf.getvalue())
+    return buf.getvalue()
+
+
+def save_parameters(path: Path, params: Mapping[str, Any]) -> None:
+    """Parameters as a numpy ``.npz`` (:func:`parameter_file`), written atomically."""
+    from mitsnerf.data.atomic import atomic_write_bytes
+
+    atomic_write_bytes(path, parameter_file(params))
 
 
 def write_run(run: RunResult, dataset: Dataset, out_dir: Path, test_names) -> None:

@@ -10,7 +10,7 @@ from __future__ import annotations
 import drjit as dr
 import mitsuba as mi
 
-from mitsnerf.methods.base import Model, RendersRays, StepLoss, TrainsOnViews
+from mitsnerf.methods.base import Model, RendersRays, Rows, StepLoss, TrainsOnViews
 from mitsnerf.train.config import TrainConfig
 from mitsnerf.train.data import PixelData
 
@@ -44,10 +44,49 @@ def step_loss(model: Model, data: PixelData, config: TrainConfig, step: int, rng
 def apply_step(model: Model, opt, step: int) -> None:
     """The optimiser's step and what follows it (methods/base.py): the optimiser's values handed to the model,
     then the values the model returns from ``after_step`` (resampled, clamped) written into the optimiser and
-    handed back. ``opt``: a ``drjit.opt`` optimiser whose gradients are set."""
+    handed back (:class:`~mitsnerf.methods.base.Rows`: with the state of the rows they continue). ``opt``: a
+    ``drjit.opt`` optimiser whose gradients are set."""
     opt.step()
     model.set_parameters(opt)
     new = model.after_step(step, opt)
     if new:
+        sources = new.sources if isinstance(new, Rows) else {}
+        before = {key: opt.state[key] for key in sources}
         opt.update(new)
+        for key, rows in sources.items():
+            carry_rows(opt, key, before[key], rows)
         model.set_parameters(opt)
+
+
+def carry_rows(opt, key: str, before, sources) -> None:
+    """Give parameter ``key`` of ``opt`` (just written with a value of new rows) the Adam moments of the rows its
+    rows continue (``sources``: the old row of each new row, -1 for none: zero moments) from ``before`` (its
+    ``opt.state`` entry before the write); its step count continues. Other optimisers' state restarts.
+
+    >>> import drjit.opt, numpy as np
+    >>> from mitsnerf.env import set_variant; _ = set_variant("llvm_ad_rgb")
+    >>> opt = dr.opt.Adam(lr=0.1); opt["x"] = mi.TensorXf(np.zeros((3, 2), np.float32))
+    >>> value, promoted, lr, (t, m, v, v_max) = opt.state["x"]
+    >>> opt.state["x"] = (value, promoted, lr, (mi.UInt32(5), mi.Float([1, 1, 2, 2, 3, 3]), v, v_max))
+    >>> before = opt.state["x"]; opt["x"] = mi.TensorXf(np.zeros((2, 2), np.float32))
+    >>> carry_rows(opt, "x", before, np.array([2, -1]))
+    >>> opt.state["x"][3][0], opt.state["x"][3][1]
+    ([5], [3, 3, 0, 0])
+    """
+    import numpy as np
+
+    extra = before[3]
+    if not (isinstance(extra, tuple) and len(extra) == 4):
+        return
+    value, promoted, lr, _ = opt.state[key]
+    width = max(1, dr.width(value.array) // max(len(sources), 1))
+    rows = np.asarray(sources, np.int64)
+    UInt32 = dr.uint32_array_t(type(value.array))
+    index = UInt32((np.maximum(rows, 0)[:, None] * width + np.arange(width)[None]).ravel().astype(np.uint32))
+    keep = dr.mask_t(type(value.array))(np.repeat(rows >= 0, width))
+
+    def carried(old):
+        return None if old is None else dr.gather(type(value.array), old, index, keep)
+
+    t, m, v, v_max = extra
+    opt.state[key] = (value, promoted, lr, (t, carried(m), carried(v), carried(v_max)))

@@ -95,7 +95,7 @@ def test_the_printed_table_is_compact_and_says_what_a_perfect_model_scores():
     text = compact_report(with_oracle_rows(rows, [ceiling]), average_rows(rows))
     header = next(line for line in text.splitlines() if line.startswith("| scene"))
     assert header == ("| scene | method | given | budget | train s | PSNR medium | gap to oracle | gap to its ceiling | "
-                      "SSIM | sigma rel L1 |")
+                      "SSIM | sigma rel L1 | peak MiB | model MB |")
     assert f"a: two reference renders agree to 40.00 dB (medium pixels): a perfect model would score about " \
            f"{40 + PERFECT_DB:.2f} dB; the oracle scores 41.50 dB." in text
     assert PERFECT_DB == pytest.approx(3.0103, abs=1e-4)
@@ -159,3 +159,19 @@ def test_a_quick_table_says_it_is_a_smoke_test_first():
         assert text.startswith("Quick profile (16x16 views, 2 test views at 16 spp, 30 steps): a smoke test")
         assert "SSIM below 0" in text.split("\n")[0]
     assert not compact_report(rows, average_rows(rows)).startswith("Quick")
+
+
+def test_every_table_shows_each_cells_own_peak_memory_and_its_models_size():
+    from mitsnerf.bench.tables import COMPACT, compact_report, markdown_report
+
+    records = [{**r, "metrics": {**r["metrics"], "peak_memory_mb": 100.0 + i, "model_bytes": 224_000 * (i + 1)}}
+               for i, r in enumerate(RECORDS)]
+    rows = scene_rows(records)
+    assert rows[0]["model_mb"] == pytest.approx((0.224 + 0.448) / 2) and rows[0]["peak_memory_mb"] == 100.5
+    for text in (compact_report(rows, average_rows(rows)), markdown_report(rows, average_rows(rows))):
+        header = next(line for line in text.splitlines() if "peak MiB" in line)
+        assert "model MB" in header and "- peak MiB: the cell's own peak memory" in text
+    lines = compact_report(rows, average_rows(rows)).splitlines()
+    a_m1, a_m2 = (next(line for line in lines if f"| a | {m} |" in line) for m in ("m1", "m2"))
+    assert a_m1.endswith("| **100** | **0.336** |") and a_m2.endswith("| 102 | 0.672 |")  # the least of a scene: bold
+    assert ("peak_memory_mb", "peak MiB", 0) in COMPACT
