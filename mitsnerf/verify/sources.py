@@ -130,9 +130,12 @@ def scatter_field_source(scenario, sigma_t, albedo, scene, quality):
     """The ``scatter`` method's field (:class:`mitsnerf.fields.scatter.ScatterField`) holding the true medium: a
     grid medium (:class:`mitsnerf.fields.media.GridMedium`) of the scenario's ``sigma_t`` and albedo (activations
     ``relu`` and ``clamp``, so its lookups are Mitsuba's trilinear ones), the scenario's sun as its one delta
-    light, its phase function, a remainder of 0; the transmittance to the sun from its default cache (32^3 cells,
-    32 samples). Its colour is then ``albedo p(w . d) E T_light``: single scattering (volpath ``max_depth`` 2,
-    black environment)."""
+    light, its phase function, a remainder of 0; the transmittance to the sun marched from every sample
+    (``shadow_resolution = 0``, 64 midpoint samples), not looked up in the training's cache: this checks the physics
+    (the light's direction, the phase function, the irradiance), and the cache's own error (about 5e-3 of T at 32^3,
+    tests/fields/test_scatter.py) would bias the image mean by ~1%, which the check resolves (channel-mean z -4.3
+    at quick size with the cache). Its colour is then ``albedo p(w . d) E T_light``: single scattering (volpath
+    ``max_depth`` 2, black environment)."""
     import mitsuba as mi
 
     from mitsnerf.fields.media import GridMedium, GridMediumConfig
@@ -145,7 +148,7 @@ def scatter_field_source(scenario, sigma_t, albedo, scene, quality):
     grids = [mi.TensorXf(np.ascontiguousarray(g, dtype=np.float32)) for g in (sigma, albedo_grid)]
     medium = GridMedium(GridMediumConfig(sigma_scale=1.0, density_activation="relu", albedo_activation="clamp"),
                         grids[0], grids[1], dr.zeros(mi.TensorXf, (1, 1, 1, 3)), UNIT_BOX)
-    config = ScatterFieldConfig(remainder_degree=0, zonal_degree=0)
+    config = ScatterFieldConfig(remainder_degree=0, zonal_degree=0, shadow_resolution=0, shadow_samples=64)
     return ScatterField(config, medium, UNIT_BOX, [sun], scenario.phase_g).with_shadows()
 
 
