@@ -308,7 +308,7 @@ def test_the_leaderboard_config_names_the_plugin_and_the_external_rows(site, tmp
                           capture_output=True, text=True, timeout=120)
     assert done.returncode == 0, done.stderr
     methods, external = json.loads(done.stdout)
-    assert methods == ["voxel", "ngp", "nerf", "tensorf", "scatter", "mitsuba-inverse"]
+    assert methods == ["voxel", "ngp", "nerf", "primitives", "tensorf", "scatter", "mitsuba-inverse"]
     assert [e[0] for e in external] == ["nerfacto", "tensorf", "vanilla-nerf", "mipnerf"]
     for name, fmt, renders, timings in external:
         run = f"../../runs/external/leaderboard/{name}"

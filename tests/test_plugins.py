@@ -23,7 +23,7 @@ MLP = f"{Path(__file__).resolve().parents[1] / 'examples' / 'mlp_method.py'}"
 
 def test_the_built_ins_register_themselves_in_their_own_modules():
     registry = methods()
-    assert sorted(registry) == ["mitsuba-inverse", "nerf", "ngp", "scatter", "voxel"]
+    assert sorted(registry) == ["mitsuba-inverse", "nerf", "ngp", "primitives", "scatter", "voxel"]
     assert {m.source.kind for m in registry.values()} == {"built-in"}
     assert get_method("nerf").source.where == "mitsnerf.methods.nerf" and get_method("nerf").source.version is None
     assert registry.problems == {}
