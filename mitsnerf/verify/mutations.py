@@ -209,6 +209,20 @@ MUTATION_LIST: tuple[Mutation, ...] = (
         "zip(_xyz(w), _xyz(d))", "zip(_xyz(w), _xyz(-d))",
     ),
     Mutation(
+        "drt_no_ratio_weight", "differential ratio tracking without the ratio-tracking transmittance in its "
+        "reservoir weights: every tentative point as likely, wherever the medium has already stopped the light",
+        "mitsnerf.render.drt", "drt_weight",
+        "return dr.mean(transmittance) / sigma_bar", "return dr.mean(transmittance) ** 0 / sigma_bar",
+        kind="gradient",
+    ),
+    Mutation(
+        "majorant_below_density", "the majorant grid at half the densest voxel each cell reads: tracking "
+        "meets sigma_t > sigma_bar",
+        "mitsnerf.render.tracking", "majorant_grid",
+        "out = np.maximum(peak * np.float32(1.0 + 1e-5), np.float32(floor))",
+        "out = np.maximum(peak * np.float32(0.5), np.float32(floor))",
+    ),
+    Mutation(
         "extinction_first_channel", "a chromatic grid's red extinction taken for every colour channel",
         "mitsnerf.fields.grid", "extinction",
         "Array3f(channels[0], channels[1], channels[2])", "Array3f(channels[0], channels[0], channels[0])",
