@@ -41,10 +41,11 @@ the derivative of the radiance ``L(x)`` leaving it splits into::
    ``-E[C int_0^t* d(sigma_t)]``; the same walk's points before ``t*`` (a Poisson process independent of the
    path) give that integral by a reservoir with weights ``1 / sigma_bar``.
 
-The shadow rays of next-event estimation add ``-K int d(sigma_t)`` over their points, with the ratio-tracking
-product of the *other* points (``sum_i (d sigma_t(u_i) / sigma_bar_i) prod_{j != i} (1 - r_j)``, unbiased for
-``T int d sigma_t``; one point kept by a reservoir). The phase function and the emitters are not
-differentiated. A chromatic ``sigma_t``: each channel's extinction gets its gradient from that channel's
+Every walk plays Russian roulette once its mean transmittance falls below :data:`ROULETTE_BELOW` (the gradient
+walk only beyond ``t*``). The shadow rays of next-event estimation add ``-K int d(sigma_t)`` over their points,
+with the ratio-tracking product of the *other* points (``sum_i (d sigma_t(u_i) / sigma_bar_i) prod_{j != i}
+(1 - r_j)``, unbiased for ``T int d sigma_t``; one point kept by a reservoir). The phase function and the emitters
+are not differentiated. A chromatic ``sigma_t``: each channel's extinction gets its gradient from that channel's
 estimates (the walks' products and the path's radiance per channel); a grey one, from the sum over channels.
 
 Parameters: ``max_depth`` (-1: unlimited), ``rr_depth`` (5), ``majorant_cell`` (voxels per majorant cell along
@@ -77,6 +78,26 @@ def ratio_factor(sigma_t, sigma_bar):
     [0.75, 0.25]
     """
     return 1.0 - sigma_t / sigma_bar
+
+
+ROULETTE_BELOW = 0.1
+"""A walk whose mean transmittance falls below this goes on with probability ``mean T / ROULETTE_BELOW`` (its
+products divided by that probability): unbiased, and far fewer points deep inside a dense medium."""
+
+
+def walk_roulette(transmittance, u, active):
+    """``(keep, scale)`` of Russian roulette on a walk's transmittance (:data:`ROULETTE_BELOW`); ``u`` uniform.
+
+    >>> from drjit.llvm import Array3f, Bool, Float
+    >>> walk_roulette(Array3f(0.5, 0.02, 0.01), Float(0.9), Bool(True))         # mean 0.18: no roulette
+    ([True], [1])
+    >>> walk_roulette(Array3f(0.02, 0.02, 0.02), Float(0.1, 0.3), Bool(True))   # survives with probability 0.2
+    ([True, False], [5])
+    """
+    mean = dr.mean(transmittance)
+    rr = active & (mean < ROULETTE_BELOW)
+    q = dr.maximum(mean / ROULETTE_BELOW, 1e-6)
+    return ~rr | (u < q), dr.select(rr, dr.rcp(q), 1.0)
 
 
 def drt_weight(transmittance, sigma_bar):
@@ -246,8 +267,11 @@ def drt_walk(med: GridMedium, rng, o, d, t0, t1, t_star, active):
         p_b[take_b] = p
         r_b[take_b] = T / dr.mean(T)
         T[hit] *= ratio_factor(med.sigma_t(p, hit), sigma_bar)
+        past = hit & (w.t >= t_star)  # the attenuation's points are all behind: roulette may end the walk
+        keep, scale = walk_roulette(T, rng.next_1d(past), past)
+        T *= scale
         w.tau[hit] = exponential(rng.next_1d(hit))
-        going &= ~done
+        going &= ~done & keep
     return p_a, w_a, p_b, w_b, r_b
 
 
@@ -273,8 +297,11 @@ def shadow(med: GridMedium, sampler, rng, o, d, t1, active, adjoint: bool):
             Q = dr.select(take, T, dr.select(hit, Q * f, Q))
             u[take] = p
         T[hit] *= f
+        keep, scale = walk_roulette(T, sampler.next_1d(hit), hit)
+        T = dr.select(keep, T * scale, 0.0)
+        Q = dr.select(keep, Q * scale, 0.0)
         w.tau[hit] = exponential(sampler.next_1d(hit))
-        going &= ~done
+        going &= ~done & keep
     return T, Q, w_s, u
 
 
