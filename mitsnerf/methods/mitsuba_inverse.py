@@ -322,6 +322,10 @@ class MitsubaInverseModel(ViewModel):
                 scales[key] = factor * self.config.albedo_lr_factor
         return scales
 
+    def objective_stage(self, step: int) -> int:
+        """0 during the emissive start, 1 once the path tracer has taken over (its loss carries its render noise)."""
+        return int(step >= self.config.emissive_steps)
+
     def after_step(self, step: int, params: Mapping[str, Any]) -> Mapping[str, Any]:
         """The grids resampled after ``upsample_at`` steps; the extinction clamped to [0, depth_clamp] and carved,
         the albedo clamped to [0, 1], the emission to >= 0."""

@@ -274,3 +274,17 @@ def test_total_variation_smooths_inside_the_mask_only(tiny):
         pairs = tv_pairs(model._keep_mask(8))
         tvs[weight] = float(masked_tv(model.sigma_t, pairs, 1)[0])
     assert tvs[200.0] < 0.7 * tvs[0.0], tvs
+
+
+def test_the_switch_from_the_emissive_fit_is_not_taken_for_a_divergence(tiny):
+    # The path tracer's loss carries its render noise, far above the emissive fit's: the trainer's divergence check
+    # starts afresh at the switch instead of stopping the run.
+    _, info, data = tiny
+    config = MitsubaInverseConfig(resolutions=(8,), upsample_at=(), spp=1, emissive_steps=6, emissive_rays=256,
+                                  init_depth=2.0)
+    model = MitsubaInverseModel(config, info)
+    assert [model.objective_stage(s) for s in (0, 5, 6, 20)] == [0, 0, 1, 1]
+    result, _ = train(model, data, TrainConfig(steps=14, log_every=1, divergence_factor=2.0, divergence_patience=2),
+                      0.5, progress=False)
+    losses = [h["loss"] for h in result.history]
+    assert result.steps == 14 and min(losses[6:]) > 2 * min(losses[:6]), losses  # the jump the check forgave
