@@ -24,7 +24,8 @@ dataset's spec chromatic and ``density_channels = 0``): Mitsuba's RGB variants c
 path; ``mitsnerf_drt`` tracks under the largest channel's majorant and each channel's extinction gets its
 gradient from that channel's estimates, while ``prbvolpath`` samples one channel per path for its distances.
 
-**Starts.** ``init_depth`` (a constant), ``init_from`` (a directory ``mitsnerf export`` wrote, or a run holding
+**Starts.** ``albedo_first`` path-traced steps fit the albedo alone before the extinction moves. ``init_depth``
+(a constant), ``init_from`` (a directory ``mitsnerf export`` wrote, or a run holding
 one in ``export/``: that density resampled to the grid) and ``emissive_steps``: the first steps fit an
 emission-absorption model (this extinction and an RGB emission grid, ``emissive_rays`` random training pixels per
 step, quadrature with ``2 R`` samples per ray) whose extinction the path tracer then takes over
@@ -102,6 +103,10 @@ class MitsubaInverseConfig(MethodConfig):
     """Training pixels per step of the emissive start."""
     init_albedo: float = param(0.6, lo=0.0, hi=1.0)
     """Initial constant albedo."""
+    albedo_first: int = param(0, lo=0)
+    """Path-traced steps (after the emissive start) in which the albedo alone is fitted, the start's extinction
+    held: a start too dark for its albedo is otherwise matched by thinning the medium, mass the images do not
+    give back."""
     optimize_albedo: bool = param(True)
     """Optimise the albedo grid too (else it stays ``init_albedo``)."""
     lr: float = param(0.5, lo=0.0, lo_open=True)
@@ -160,6 +165,8 @@ class MitsubaInverseConfig(MethodConfig):
         if self.majorant_depth and self.estimator != "prbvolpath":
             raise ValueError(f"majorant_depth: fixes prbvolpath's one majorant; estimator {self.estimator!r} uses a "
                              "majorant grid (majorant_cell, majorant_floor)")
+        if self.albedo_first and not self.optimize_albedo:
+            raise ValueError("albedo_first: fits the albedo alone, but optimize_albedo is false")
         if self.init_depth > self.depth_clamp:
             raise ValueError(f"init_depth: must be <= {'majorant_depth' if self.majorant_depth else 'depth_max'} "
                              f"({self.depth_clamp:g}), got {self.init_depth:g}")
@@ -316,7 +323,9 @@ class MitsubaInverseModel(ViewModel):
 
     def lr_scales(self, step: int) -> Mapping[str, float]:
         factor = self.config.upsample_lr_factor ** self.level(step)
-        scales = {"sigma_t": factor}
+        c = self.config
+        held = c.emissive_steps <= step < c.emissive_steps + c.albedo_first
+        scales = {"sigma_t": 0.0 if held else factor}
         for key in ("albedo", "emission"):
             if key in self.parameters():
                 scales[key] = factor * self.config.albedo_lr_factor

@@ -288,3 +288,18 @@ def test_the_switch_from_the_emissive_fit_is_not_taken_for_a_divergence(tiny):
                       0.5, progress=False)
     losses = [h["loss"] for h in result.history]
     assert result.steps == 14 and min(losses[6:]) > 2 * min(losses[:6]), losses  # the jump the check forgave
+
+
+def test_the_albedo_can_be_fitted_first_with_the_extinction_held(tiny):
+    _, info, data = tiny
+    config = MitsubaInverseConfig(resolutions=(8,), upsample_at=(), spp=4, albedo_first=3, init_depth=4.0)
+    model = MitsubaInverseModel(config, info)
+    assert model.lr_scales(2)["sigma_t"] == 0.0 and model.lr_scales(3)["sigma_t"] == 1.0
+    sigma, albedo = np.asarray(model.sigma_t).copy(), np.asarray(model.albedo).copy()
+    _, opt = train(model, data, TrainConfig(steps=3, log_every=3), 0.5, progress=False)
+    np.testing.assert_array_equal(np.asarray(model.sigma_t), sigma)
+    assert not np.allclose(np.asarray(model.albedo), albedo)
+    train(model, data, TrainConfig(steps=5, log_every=5), 0.5, state=TrainState(opt, 3), progress=False)
+    assert not np.allclose(np.asarray(model.sigma_t), sigma)
+    with pytest.raises(ValueError, match="albedo_first"):
+        MitsubaInverseConfig(albedo_first=2, optimize_albedo=False)
