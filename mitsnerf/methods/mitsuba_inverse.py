@@ -243,7 +243,8 @@ class MitsubaInverseModel(ViewModel):
     name = "mitsuba-inverse"
     config_type = MitsubaInverseConfig
     description = "extinction/albedo grids through a differentiable path tracer (differential ratio tracking)"
-    tiny = MappingProxyType({"resolutions": [4, 8], "upsample_at": [3], "spp": 2, "eval_spp": 4})
+    tiny = MappingProxyType({"resolutions": [4, 8], "upsample_at": [3], "spp": 2, "eval_spp": 4, "emissive_steps": 4,
+                             "emissive_rays": 64, "albedo_first": 1, "tv_sigma": 1e-3, "tv_albedo": 1e-3})
 
     def __init__(self, config: MitsubaInverseConfig, scene: SceneInfo, seed: int = 0) -> None:
         from mitsnerf.scene.spec import parse_scene
