@@ -13,7 +13,9 @@ state (``--states``):
 Reported per state, estimator and spp: the time per step (median over the repeats, seconds), the variance of the
 gradient of the extinction grid (``sum over the voxels inside the mask of the variance over the repeats``, mean
 over ``--views`` views), their product (the variance a second of compute leaves; lower is better) and that
-product over prbvolpath's at 8 spp (today's step): at equal variance, the time per step relative to today's.
+product over prbvolpath's at 8 spp (today's step): at equal variance, the time per step relative to today's;
+and the tail: the largest share one repeat holds of the summed squared deviations (the worst view), and the
+variance without that repeat (a heavy-tailed gradient's sample variance is dominated by its rare large samples).
 
     .venv/bin/python benchmarks/inverse_variance.py --data /work/data/lib [--repeats 12] [--spp 4 8 16]
 """
@@ -111,26 +113,49 @@ def measure(args) -> list[dict]:
     return rows
 
 
+def tail(g: np.ndarray) -> tuple[float, float]:
+    """Of repeats ``g`` (K, ...): the largest share one repeat has of the summed squared deviations
+    ``d_k = |g_k - mean g|^2``, and the variance (summed over voxels) without that repeat.
+
+    A gradient whose variance is finite spreads ``sum d_k`` over the repeats (each near ``1 / K``); one
+    repeat holding most of it is a heavy tail, where the sample variance says little.
+
+    >>> g = np.array([[0.0], [0.0], [0.0], [4.0]])  # d = 1, 1, 1, 9
+    >>> tail(g)
+    (0.75, 0.0)
+    """
+    d = np.square(g - g.mean(axis=0)).reshape(len(g), -1).sum(axis=1)
+    worst = int(np.argmax(d))
+    rest = np.delete(g, worst, axis=0)
+    return float(d[worst] / d.sum()), float(rest.var(axis=0, ddof=1).sum())
+
+
 def summary(state: str, estimator: str, spp: int, runs: list[list[tuple]], keep: np.ndarray) -> dict:
-    variances, means, seconds = [], [], []
+    variances, means, seconds, shares, trimmed = [], [], [], [], []
     for run in runs:
         g = np.stack([x[0] for x in run]) * keep
         variances.append(float(g.var(axis=0, ddof=1).sum()))
         means.append(float(np.sqrt(np.square(g.mean(axis=0)).sum())))
         seconds += [x[1] for x in run]
+        share, rest = tail(g)
+        shares.append(share)
+        trimmed.append(rest)
     return {"state": state, "estimator": estimator, "spp": spp, "seconds": float(np.median(seconds)),
-            "variance": float(np.mean(variances)), "mean_norm": float(np.mean(means)), "repeats": len(runs[0])}
+            "variance": float(np.mean(variances)), "mean_norm": float(np.mean(means)), "repeats": len(runs[0]),
+            "largest_share": float(np.max(shares)), "variance_without_largest": float(np.mean(trimmed))}
 
 
 def table(rows: list[dict]) -> str:
     lines = ["| state | estimator | spp | time per step (s) | variance of the sigma_t gradient | variance x time | "
-             "vs prbvolpath at 8 spp | norm of the mean gradient |", "|---|---|---|---|---|---|---|---|"]
+             "vs prbvolpath at 8 spp | largest repeat's share | variance without it | norm of the mean gradient |",
+             "|---|---|---|---|---|---|---|---|---|---|"]
     for r in rows:
         base = next((b for b in rows if b["state"] == r["state"] and b["estimator"] == "prbvolpath"
                      and b["spp"] == 8), None)
         ratio = "-" if base is None else f"{r['variance'] * r['seconds'] / (base['variance'] * base['seconds']):.3f}"
         lines.append(f"| {r['state']} | {r['estimator']} | {r['spp']} | {r['seconds']:.3f} | {r['variance']:.3e} | "
-                     f"{r['variance'] * r['seconds']:.3e} | {ratio} | {r['mean_norm']:.3e} |")
+                     f"{r['variance'] * r['seconds']:.3e} | {ratio} | {r['largest_share']:.2f} | "
+                     f"{r['variance_without_largest']:.3e} | {r['mean_norm']:.3e} |")
     return "\n".join(lines)
 
 
