@@ -219,8 +219,8 @@ MUTATION_LIST: tuple[Mutation, ...] = (
         "majorant_below_density", "the majorant grid at half the densest voxel each cell reads: tracking "
         "meets sigma_t > sigma_bar",
         "mitsnerf.render.tracking", "majorant_grid",
-        "out = np.maximum(peak * np.float32(1.0 + 1e-5), np.float32(floor))",
-        "out = np.maximum(peak * np.float32(0.5), np.float32(floor))",
+        "bound = peak * np.float32(MAJORANT_MARGIN)",
+        "bound = peak * np.float32(0.5)",
     ),
     Mutation(
         "extinction_first_channel", "a chromatic grid's red extinction taken for every colour channel",

@@ -55,7 +55,7 @@ def test_the_majorant_grid_bounds_the_density_everywhere():
     bound = np.asarray(med.majorant)[(q[:, 2] * med.cells + q[:, 1]) * med.cells + q[:, 0]]
     values = np.asarray(med.sigma_t(mi.Point3f(*p.T)))[0]
     assert np.all(values <= bound) and med.cells == 3
-    assert np.mean(bound) < 0.3 * sigma.max()  # and it is tighter than one global maximum
+    assert np.mean(bound) < 0.3 * tracking.MAJORANT_MARGIN * sigma.max()  # tighter than one global majorant
 
 
 def test_a_walk_spends_the_majorant_optical_depth_of_its_ray():
@@ -82,6 +82,15 @@ def test_a_walk_spends_the_majorant_optical_depth_of_its_ray():
     sb = np.asarray(med.majorant)[(q[:, 2] * med.cells + q[:, 1]) * med.cells + q[:, 0]]
     assert bool(hit[0]) and 3 < steps < 100 and float(w.t[0]) == pytest.approx(float(t1[0]))
     assert spent == pytest.approx(float(np.sum(sb) * (ts[1] - ts[0])), rel=2e-3)
+
+
+def test_the_majorant_keeps_ratio_trackings_factors_away_from_zero_where_the_density_is_constant():
+    # A constant start makes every cell's density its own maximum: with a majorant at the density, 1 - sigma_t /
+    # sigma_bar is ~0 at every tentative point and a shadow ray's transmittance derivative rests on the rare rays
+    # with one point (one seed in 16 held the gradient's variance on the default cloud).
+    sigma = np.full((8, 8, 8), 10.0, np.float32)
+    factors = 1.0 - sigma.max() / tracking.majorant_grid(sigma, 2, 0.0)
+    assert factors.min() >= 0.09
 
 
 def test_the_majorant_floor_stops_at_voxels_held_at_zero():
