@@ -284,10 +284,10 @@ def test_the_switch_from_the_emissive_fit_is_not_taken_for_a_divergence(tiny):
                                   init_depth=2.0)
     model = MitsubaInverseModel(config, info)
     assert [model.objective_stage(s) for s in (0, 5, 6, 20)] == [0, 0, 1, 1]
-    result, _ = train(model, data, TrainConfig(steps=14, log_every=1, divergence_factor=2.0, divergence_patience=2),
+    result, _ = train(model, data, TrainConfig(steps=14, log_every=1, divergence_factor=1.5, divergence_patience=2),
                       0.5, progress=False)
     losses = [h["loss"] for h in result.history]
-    assert result.steps == 14 and min(losses[6:]) > 2 * min(losses[:6]), losses  # the jump the check forgave
+    assert result.steps == 14 and min(losses[6:]) > 1.5 * min(losses[:6]), losses  # the jump the check forgave
 
 
 def test_the_albedo_can_be_fitted_first_with_the_extinction_held(tiny):
