@@ -273,7 +273,11 @@ CODE_BUILT = [  # (config, kwargs, message): built in code, checked as from_dict
     ("VoxelFieldConfig", {"sh_degree": 4}, "sh_degree: must be an integer in [0, 3], got 4"),
     ("VoxelMethodConfig", {"upsample_steps": (-1,)}, "upsample_steps.0: must be an integer >= 0, got -1"),
     ("MitsubaInverseConfig", {"max_depth": -2}, "max_depth: must be an integer >= -1, got -2"),
-    ("MitsubaInverseConfig", {"init_sigma_t": 300.0}, "init_sigma_t: must be <= sigma_t_max (200), got 300"),
+    ("MitsubaInverseConfig", {"init_depth": 300.0}, "init_depth: must be <= depth_max (200), got 300"),
+    ("MitsubaInverseConfig", {"majorant_depth": 40.0}, "majorant_depth: fixes prbvolpath's one majorant; estimator "
+                                                      "'drt' uses a majorant grid (majorant_cell, majorant_floor)"),
+    ("MitsubaInverseConfig", {"estimator": "delta"},
+     "estimator: must be one of 'drt', 'free_flight', 'prbvolpath', got 'delta'"),
 ]
 
 
@@ -307,7 +311,7 @@ def test_the_methods_command_prints_a_methods_settings(capsys):
     assert [line.split()[0] for line in capsys.readouterr().out.splitlines()] == list(methods())
     assert main(["methods", "mitsuba-inverse"]) == 0
     out = capsys.readouterr().out
-    assert "| max_depth | an integer >= -1 | 0 | prbvolpath path length" in out and "--method mitsuba-inverse" in out
+    assert "| max_depth | an integer >= -1 | 0 | Path length" in out and "--method mitsuba-inverse" in out
     assert main(["methods", "nope"]) == 2
     assert capsys.readouterr().err.startswith("mitsnerf: error: NAME: unknown method 'nope' (known: ")
 

@@ -206,6 +206,12 @@ class Model(ABC):
         """Field evaluations per ray (for samples/s figures)."""
         return 0
 
+    def objective_stage(self, step: int) -> int:
+        """Which objective step ``step`` (0-based) minimises: a model whose loss changes meaning on the way (a fit
+        of another model first, then its own) numbers its stages, and the trainer's divergence check starts afresh
+        at each new one; a function of the step alone. Default: 0 throughout."""
+        return 0
+
     def lr_scales(self, step: int) -> Mapping[str, float]:
         """Per-parameter factors on the scheduled learning rate at ``step`` (missing: 1); a
         function of the step alone, so a resumed run schedules exactly as an uninterrupted one."""

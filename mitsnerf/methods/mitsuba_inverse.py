@@ -1,57 +1,56 @@
-"""``mitsuba-inverse``: optimise a heterogeneous medium through Mitsuba's differentiable volumetric path tracer.
+"""``mitsuba-inverse``: optimise a heterogeneous medium through a differentiable volumetric path tracer.
 
-The physically based route, after Mitsuba's volume optimisation tutorial: the scene is the
-dataset's own (its manifest's spec through :func:`mitsnerf.scene.to_mitsuba.scene_dict`:
-the same lights, the medium box, phase function) with the medium's grids replaced by the
-unknowns, and each step renders training views with ``prbvolpath`` at low spp and
-minimises
+The physically based route: the scene is the dataset's own (its manifest's spec through
+:func:`mitsnerf.scene.to_mitsuba.scene_dict`: the same lights, the medium box, phase function) with the medium's
+grids replaced by the unknowns, and each step renders training views at low spp and minimises
 
-    L = mean over pixels and channels of (render(sigma_t, albedo; camera_i) - image_i)^2
+    L = mean over pixels and channels of (render(tau, albedo; camera_i) - image_i)^2  (+ priors)
 
-with Adam on ``sigma_t`` (TensorXf (R, R, R, 1), extinction per unit length) and, unless
-``optimize_albedo = false``, ``albedo`` (TensorXf (R, R, R, 3)). Gradients come from
-``mi.render(scene, params, ...)``; the views and render seeds are drawn from the step's
-generator, so a resumed run renders the same views with the same seeds.
+with Adam on ``sigma_t`` and, unless ``optimize_albedo = false``, ``albedo`` (TensorXf (R, R, R, 3)).
 
-Coarse to fine: the grids start at ``resolutions[0]`` and are resampled (trilinear,
-``dr.resample``) to ``resolutions[l + 1]`` after step ``upsample_at[l]``; the optimiser's
-state for them restarts then (their shape changed) and the learning rate is multiplied by
-``upsample_lr_factor`` for every upsampling so far (a fixed rate diverged after upsampling
-here). After every step ``sigma_t`` is clamped to ``[0, sigma_t_max]`` -- Mitsuba 3.9's
-heterogeneous medium uses one global majorant, so a single spiking voxel would slow every
-step -- and ``albedo`` to ``[0, 1]``.
+**Units: optical depth per box side.** The ``sigma_t`` grid holds ``tau = sigma_t * side`` (TensorXf (R, R, R, C),
+``C`` = 1, or 3 for a chromatic extinction; the medium's ``scale`` is ``1 / side``), so every setting in its units
+(``init_depth``, ``lr``, ``depth_max``, ``majorant_depth``, ``majorant_floor``) means the same in a box of any
+size: a bench config states nothing about the box. ``field()`` gives ``sigma_t`` in world units (``tau / side``).
 
-What it knows that the emission-absorption methods do not: the dataset's spec gives it the lights
-(the constant sky and the sun, with their radiance), the phase function, the medium's box and the path
-length, so it fits only ``sigma_t`` and the albedo, and its ``sigma_t`` is an extinction in the same
-units as the truth's; the other methods learn a radiance field that must also absorb the lighting.
+**The gradient** (``estimator``): ``"drt"`` (default) renders through ``mitsnerf_drt``
+(:mod:`mitsnerf.render.drt`): differential ratio tracking for the extinction's in-scattering gradient, a
+coarse majorant grid (``majorant_cell`` voxels per cell; ``majorant_floor`` keeps a rate where the density is 0,
+so that it can grow there); ``"free_flight"``: the same tracer with the in-scattering gradient at the path's own
+collisions; ``"prbvolpath"``: Mitsuba 3.9's ``prbvolpath`` (differentiable delta tracking under one global
+majorant, the grid's maximum or ``majorant_depth``). The free-flight gradients are biased where the density is 0
+(``mitsnerf check``'s ``drt_gradient`` case measures it). A chromatic extinction (``density_channels = 3``, or the
+dataset's spec chromatic and ``density_channels = 0``): Mitsuba's RGB variants carry the three channels on every
+path; ``mitsnerf_drt`` tracks under the largest channel's majorant and each channel's extinction gets its
+gradient from that channel's estimates, while ``prbvolpath`` samples one channel per path for its distances.
 
-The haze. Under a nearly uniform environment a scattering haze of the right albedo is almost invisible
-(the white-furnace ambiguity), so from ``init_sigma_t = 1`` the images leave a haze of sigma_t ~ 5 in the
-empty part of the box. The remedies, each a setting (benchmarks/README.md, "mitsuba-inverse: removing the
-haze", measures each):
+**Starts.** ``albedo_first`` path-traced steps fit the albedo alone before the extinction moves. ``init_depth``
+(a constant), ``init_from`` (a directory ``mitsnerf export`` wrote, or a run holding
+one in ``export/``: that density resampled to the grid) and ``emissive_steps``: the first steps fit an
+emission-absorption model (this extinction and an RGB emission grid, ``emissive_rays`` random training pixels per
+step, quadrature with ``2 R`` samples per ray) whose extinction the path tracer then takes over
+(:mod:`mitsnerf.methods.inverse_start`).
 
-- ``carve``: an emptiness mask. A training pixel whose value is the environment seen straight through
-  (``max over channels |image - background(d)| <= carve_tol``; in the generated datasets exactly the
-  pixels whose samples all missed the medium) says the medium is empty along its ray, so every voxel that
-  its centre ray crosses is held at 0 (space carving, at each resolution);
-- ``l1``: a sparsity prior ``l1 * mean(sigma_t)`` in the loss;
-- ``init_sigma_t``: a low start; a zero start needs ``majorant``, a fixed delta-tracking majorant
-  (the grid's ``max_value``), since under the grid's own maximum a zero grid gets no collisions and so
-  no gradient;
-- ``views_per_step`` and ``spp_late`` / ``spp_late_at``: less noise in each step's gradient.
+**Coarse to fine**: the grids start at ``resolutions[0]`` and are resampled (trilinear, ``dr.resample``) to
+``resolutions[l + 1]`` after step ``upsample_at[l]``; the optimiser's state for them restarts then and the learning
+rate is multiplied by ``upsample_lr_factor`` per upsampling so far. After every step ``sigma_t`` is clamped to
+``[0, depth_max]`` (and ``majorant_depth``), ``albedo`` to ``[0, 1]``.
 
-Mitsuba 3.9's ``prbvolpath`` has no other estimator to choose: its gradients of a heterogeneous medium
-come from differentiable delta tracking (unbiased, one global majorant); the majorant is its one knob.
+**The haze and the priors** (benchmarks/README.md, "mitsuba-inverse: removing the haze", measures each): under a
+nearly uniform environment a scattering haze of the right albedo is almost invisible, so a constant start leaves
+one. ``carve``: an emptiness mask: a training pixel whose value is the environment seen straight through
+(``max over channels |image - background(d)| <= carve_tol``) says the medium is empty along its ray, so every voxel
+its centre ray crosses is held at 0 (and the majorant grid gets no floor there); ``l1``: ``l1 * mean(tau)``;
+``tv_sigma``, ``tv_albedo``: total variation, the mean squared difference of neighbouring voxels that are both
+inside the mask; ``views_per_step`` and ``spp_late`` / ``spp_late_at``: less noise per step.
 
-The settings (a bench file's ``[[methods]] config`` table, ``--set`` on the command line) are
-:class:`MitsubaInverseConfig`'s fields.
+What it knows that the emission-absorption methods do not: the dataset's spec gives it the lights, the phase
+function, the medium's box and the path length, so it fits only the extinction and the albedo.
 
-Not supported: foreign datasets (no manifest spec: the lights are unknown), pixel centres
-other than Mitsuba's ``+0.5``, per-ray rendering: it is a whole-view model
-(:class:`mitsnerf.methods.base.ViewModel`). Evaluation renders whole cameras through Mitsuba's
-film, which box-filters each pixel whatever footprint is asked for; the opacity and depth maps
-come from emission-absorption quadrature of the current ``sigma_t`` grid over the same footprint.
+Not supported: foreign datasets (no manifest spec: the lights are unknown), pixel centres other than Mitsuba's
+``+0.5``, per-ray rendering: it is a whole-view model (:class:`mitsnerf.methods.base.ViewModel`). Evaluation
+renders whole cameras through Mitsuba's film (box-filtered pixels); the opacity and depth maps come from
+emission-absorption quadrature of the current extinction over the same footprint.
 """
 
 from __future__ import annotations
@@ -66,43 +65,66 @@ import mitsuba as mi
 import numpy as np
 
 from mitsnerf.config import check_fields, param
+from mitsnerf.errors import DatasetError
 from mitsnerf.fields.grid import GridField
 from mitsnerf.methods.base import MethodConfig, SceneInfo, StepLoss, ViewModel, scene_spec
+from mitsnerf.methods.inverse_start import masked_tv, resampled_depth, tv_pairs
 from mitsnerf.render.camera import Rendered, render_view
 from mitsnerf.render.volume import render_rays
 
 SIGMA_T_SUFFIX = "interior_medium.sigma_t.data"
 ALBEDO_SUFFIX = "interior_medium.albedo.data"
 EVAL_SEED = 0x5EED
+ESTIMATORS = ("drt", "free_flight", "prbvolpath")
 
 
 @dataclass(frozen=True)
 class MitsubaInverseConfig(MethodConfig):
-    """Configuration of the ``mitsuba-inverse`` method."""
+    """Configuration of the ``mitsuba-inverse`` method (extinctions in optical depth per box side)."""
 
     resolutions: tuple[int, ...] = param((16, 32, 64), lo=2, hi=512)
     """Grid resolution of each coarse-to-fine stage (one or more)."""
     upsample_at: tuple[int, ...] = param((100, 250), lo=1)
     """Step counts (increasing) after which the grids are resampled to the next resolution."""
-    init_sigma_t: float = param(1.0, lo=0.0)
-    """Initial constant extinction (world units^-1, at most ``sigma_t_max``)."""
+    estimator: str = param("drt", choices=ESTIMATORS)
+    """The gradient: ``drt`` (differential ratio tracking, majorant grid), ``free_flight`` (the same tracer, the
+    in-scattering gradient at the path's collisions), ``prbvolpath`` (Mitsuba's, one global majorant)."""
+    density_channels: int = param(0, choices=(0, 1, 3))
+    """Extinction channels: 1 grey, 3 one per colour (chromatic), 0 as the dataset's spec."""
+    init_depth: float = param(1.0, lo=0.0)
+    """Initial constant extinction as the optical depth across the box side (at most ``depth_max``)."""
+    init_from: str = param("")
+    """A directory written by ``mitsnerf export`` (or a run holding one in ``export/``): its density, resampled to
+    the grid, is the start instead of ``init_depth`` ("": none)."""
+    emissive_steps: int = param(0, lo=0)
+    """Steps of the emissive start (emission-absorption fit of the extinction and an emission grid) before the
+    path tracer takes over (0: none)."""
+    emissive_rays: int = param(4096, lo=1)
+    """Training pixels per step of the emissive start."""
     init_albedo: float = param(0.6, lo=0.0, hi=1.0)
     """Initial constant albedo."""
+    albedo_first: int = param(0, lo=0)
+    """Path-traced steps (after the emissive start) in which the albedo alone is fitted, the start's extinction
+    held: a start too dark for its albedo is otherwise matched by thinning the medium, mass the images do not
+    give back."""
     optimize_albedo: bool = param(True)
     """Optimise the albedo grid too (else it stays ``init_albedo``)."""
     lr: float = param(0.5, lo=0.0, lo_open=True)
-    """Adam learning rate of sigma_t (world units^-1 per step)."""
+    """Adam learning rate of the extinction (optical depth per box side, per step)."""
     albedo_lr_factor: float = param(0.04, lo=0.0, lo_open=True)
-    """The albedo's learning rate relative to sigma_t's (albedo lives in [0, 1])."""
+    """The albedo's (and the emissive start's emission's) learning rate relative to the extinction's."""
     upsample_lr_factor: float = param(0.5, lo=0.0, lo_open=True)
     """Learning-rate factor applied once per upsampling."""
-    sigma_t_max: float = param(200.0, lo=0.0, lo_open=True)
-    """Clamp of sigma_t after each step (one spiking voxel raises the global majorant)."""
-    majorant: float = param(0.0, lo=0.0)
-    """Fixed majorant of delta tracking (world units^-1; the sigma_t ``gridvolume``'s ``max_value``), and
-    then the clamp of sigma_t too when below ``sigma_t_max``; 0: Mitsuba's default, the grid's maximum
-    after each update. Differentiable delta tracking gets sigma_t's gradient only at the collisions,
-    real and null, that it samples at this rate: a zero grid under the default majorant has none."""
+    depth_max: float = param(200.0, lo=0.0, lo_open=True)
+    """Clamp of the extinction after each step (optical depth per box side)."""
+    majorant_depth: float = param(0.0, lo=0.0)
+    """``prbvolpath`` only: a fixed delta-tracking majorant (optical depth per side; also the clamp when below
+    ``depth_max``); 0: the grid's maximum after each update."""
+    majorant_cell: int = param(4, lo=1, hi=64)
+    """``drt``, ``free_flight``: voxels per majorant cell along each axis."""
+    majorant_floor: float = param(2.0, lo=0.0)
+    """``drt``, ``free_flight``: the least majorant (optical depth per side) outside the emptiness mask, so that
+    the gradient reaches voxels whose density is 0."""
     spp: int = param(8, lo=1)
     """Samples per pixel of each training render."""
     spp_late: int = param(0, lo=0)
@@ -112,16 +134,20 @@ class MitsubaInverseConfig(MethodConfig):
     views_per_step: int = param(1, lo=1)
     """Training views rendered per step; the image term is their mean squared error."""
     l1: float = param(0.0, lo=0.0)
-    """Weight of the sparsity prior: ``l1 * mean over voxels of sigma_t`` (world units^-1) is added to
-    the loss, so its gradient is ``l1 / R^3`` per voxel (0: no prior)."""
+    """Weight of the sparsity prior ``l1 * mean over voxels of tau`` (0: none)."""
+    tv_sigma: float = param(0.0, lo=0.0)
+    """Weight of the extinction's total variation inside the emptiness mask (mean squared difference of
+    neighbouring kept voxels, in optical depth per side; 0: none)."""
+    tv_albedo: float = param(0.0, lo=0.0)
+    """Weight of the albedo's total variation inside the emptiness mask (0: none)."""
     carve: bool = param(False)
-    """Emptiness mask: sigma_t is held at 0 in every voxel that a training pixel's centre ray crosses
-    when that pixel shows the environment unattenuated (``max over channels |image - background(d)|
-    <= carve_tol``: no sample of the pixel met the medium), at every resolution."""
+    """Emptiness mask: the extinction is held at 0 in every voxel that a training pixel's centre ray crosses
+    when that pixel shows the environment unattenuated (``max over channels |image - background(d)| <=
+    carve_tol``), at every resolution."""
     carve_tol: float = param(1e-4, lo=0.0)
     """Largest ``|image - background|`` (linear radiance) of a pixel that counts as unattenuated."""
     max_depth: int = param(0, lo=-1)
-    """prbvolpath path length: 0 takes the dataset's ``render.max_depth`` (-1: unlimited)."""
+    """Path length: 0 takes the dataset's ``render.max_depth`` (-1: unlimited)."""
     eval_spp: int = param(128, lo=1)
     """Samples per pixel of evaluation renders."""
 
@@ -136,15 +162,19 @@ class MitsubaInverseConfig(MethodConfig):
             raise ValueError(f"upsample_at: must be increasing, got {list(self.upsample_at)}")
         if self.spp_late and not self.spp_late_at:
             raise ValueError("spp_late_at: needs the step from which spp_late applies (> 0), got 0")
-        if self.init_sigma_t > self.sigma_t_max:
-            raise ValueError(f"init_sigma_t: must be <= sigma_t_max ({self.sigma_t_max:g}), got {self.init_sigma_t:g}")
-        if self.majorant and self.init_sigma_t > self.majorant:
-            raise ValueError(f"init_sigma_t: must be <= majorant ({self.majorant:g}), got {self.init_sigma_t:g}")
+        if self.majorant_depth and self.estimator != "prbvolpath":
+            raise ValueError(f"majorant_depth: fixes prbvolpath's one majorant; estimator {self.estimator!r} uses a "
+                             "majorant grid (majorant_cell, majorant_floor)")
+        if self.albedo_first and not self.optimize_albedo:
+            raise ValueError("albedo_first: fits the albedo alone, but optimize_albedo is false")
+        if self.init_depth > self.depth_clamp:
+            raise ValueError(f"init_depth: must be <= {'majorant_depth' if self.majorant_depth else 'depth_max'} "
+                             f"({self.depth_clamp:g}), got {self.init_depth:g}")
 
     @property
-    def sigma_t_clamp(self) -> float:
-        """The largest sigma_t kept after a step: ``sigma_t_max``, or the fixed ``majorant`` if lower."""
-        return min(self.sigma_t_max, self.majorant) if self.majorant else self.sigma_t_max
+    def depth_clamp(self) -> float:
+        """The largest optical depth per side kept after a step: ``depth_max``, or ``majorant_depth`` if lower."""
+        return min(self.depth_max, self.majorant_depth) if self.majorant_depth else self.depth_max
 
 
 def unattenuated_pixels(images: np.ndarray, cameras, background, tol: float) -> list[np.ndarray]:
@@ -190,38 +220,68 @@ def _rgb_sensor(camera, spp: int):
     return mi.load_dict(d)
 
 
+def _integrator(config: MitsubaInverseConfig, max_depth: int, side: float) -> dict[str, Any]:
+    """The Mitsuba integrator of ``config.estimator`` (the majorant floor in world units)."""
+    if config.estimator == "prbvolpath":
+        return {"type": "prbvolpath", "max_depth": int(max_depth)}
+    from mitsnerf.render.drt import NAME, register
+
+    register()
+    return {"type": NAME, "max_depth": int(max_depth), "majorant_cell": config.majorant_cell,
+            "majorant_floor": config.majorant_floor / side, "drt": config.estimator == "drt"}
+
+
+def _cube_side(box) -> float:
+    """The side of the scene box, a cube (every spec's box is ``world.scale`` times the unit cube)."""
+    size = [float(v) for v in box.size]
+    if max(size) - min(size) > 1e-6 * max(size):
+        raise DatasetError(None, "manifest.json: spec", f"mitsuba-inverse needs a cubic scene box, got sides {size}")
+    return size[0]
+
+
 class MitsubaInverseModel(ViewModel):
     name = "mitsuba-inverse"
     config_type = MitsubaInverseConfig
-    description = "sigma_t/albedo grids through Mitsuba's prbvolpath, coarse to fine"
+    description = "extinction/albedo grids through a differentiable path tracer (differential ratio tracking)"
     knows = ("lights", "phase function")
     rung = "full transport"
-    tiny = MappingProxyType({"resolutions": [4, 8], "upsample_at": [3], "spp": 2, "eval_spp": 4})
+    tiny = MappingProxyType({"resolutions": [4, 8], "upsample_at": [3], "spp": 2, "eval_spp": 4, "emissive_steps": 4,
+                             "emissive_rays": 64, "albedo_first": 1, "tv_sigma": 1e-3, "tv_albedo": 1e-3})
 
     def __init__(self, config: MitsubaInverseConfig, scene: SceneInfo, seed: int = 0) -> None:
         from mitsnerf.scene.to_mitsuba import scene_dict
 
         self.spec = scene_spec(scene, self.name, "its spec gives the lights and the medium's placement")
-        self.config = config
-        self.box = scene.box
+        self.config, self.box = config, scene.box
+        self.side = _cube_side(scene.box)
+        self.channels = config.density_channels or (3 if self.spec.volume.chromatic else 1)
         self.max_depth = config.max_depth or self.spec.render.max_depth
         r = config.resolutions[0]
-        sigma_t = np.full((r, r, r), config.init_sigma_t, dtype=np.float32)
-        albedo = np.full((r, r, r, 3), config.init_albedo, dtype=np.float32)
-        desc = scene_dict(self.spec, sigma_t, albedo)
-        desc["integrator"] = {"type": "prbvolpath", "max_depth": int(self.max_depth)}
-        if config.majorant:
-            desc["medium_box"]["interior"]["sigma_t"]["max_value"] = float(config.majorant)
+        tau = self._start(r)
+        desc = scene_dict(self.spec, tau[..., 0] if self.channels == 1 else tau,
+                          np.full((r, r, r, 3), config.init_albedo, dtype=np.float32))
+        desc["integrator"] = _integrator(config, self.max_depth, self.side)
+        desc["medium_box"]["interior"]["scale"] = 1.0 / self.side
+        if config.majorant_depth:
+            desc["medium_box"]["interior"]["sigma_t"]["max_value"] = float(config.majorant_depth)
         self.scene = mi.load_dict(desc)
         self.params = mi.traverse(self.scene)
-        self._key_sigma = self._find_key(SIGMA_T_SUFFIX)
-        self._key_albedo = self._find_key(ALBEDO_SUFFIX)
+        self._key_sigma, self._key_albedo = self._find_key(SIGMA_T_SUFFIX), self._find_key(ALBEDO_SUFFIX)
         self.sigma_t = mi.TensorXf(self.params[self._key_sigma])
         self.albedo = mi.TensorXf(self.params[self._key_albedo])
+        self.emission = dr.full(mi.TensorXf, 0.5, (r, r, r, 3)) if config.emissive_steps else None
         self._sensors: dict[int, Any] = {}
         self._targets: dict[int, Any] = {}
         self._background = scene.background
-        self._keep: dict[int, Any] | None = None  # resolution -> TensorXf (R, R, R, 1) of 0/1 (carve)
+        self._keep: dict[int, np.ndarray] | None = None  # resolution -> (R, R, R) bool (carve)
+        self._pairs: dict[int, tuple] = {}
+
+    def _start(self, r: int) -> np.ndarray:
+        """The initial extinction (R, R, R, C), optical depth per side: ``init_from``'s density, or ``init_depth``."""
+        if self.config.init_from:
+            start = resampled_depth(self.config.init_from, self.box, r, self.channels)
+            return np.minimum(start, np.float32(self.config.depth_clamp))
+        return np.full((r, r, r, self.channels), self.config.init_depth, dtype=np.float32)
 
     def _find_key(self, suffix: str) -> str:
         keys = [k for k in self.params.keys() if k.endswith(suffix)]
@@ -235,6 +295,8 @@ class MitsubaInverseModel(ViewModel):
         params = {"sigma_t": self.sigma_t}
         if self.config.optimize_albedo:
             params["albedo"] = self.albedo
+        if self.emission is not None:
+            params["emission"] = self.emission
         return params
 
     def set_parameters(self, values: Mapping[str, Any]) -> None:
@@ -244,6 +306,8 @@ class MitsubaInverseModel(ViewModel):
         if "albedo" in values:
             self.albedo = values["albedo"]
             self.params[self._key_albedo] = self.albedo
+        if "emission" in values:
+            self.emission = values["emission"]
         self.params.update()
 
     @property
@@ -256,23 +320,32 @@ class MitsubaInverseModel(ViewModel):
 
     def lr_scales(self, step: int) -> Mapping[str, float]:
         factor = self.config.upsample_lr_factor ** self.level(step)
-        scales = {"sigma_t": factor}
-        if self.config.optimize_albedo:
-            scales["albedo"] = factor * self.config.albedo_lr_factor
+        c = self.config
+        held = c.emissive_steps <= step < c.emissive_steps + c.albedo_first
+        scales = {"sigma_t": 0.0 if held else factor}
+        for key in ("albedo", "emission"):
+            if key in self.parameters():
+                scales[key] = factor * self.config.albedo_lr_factor
         return scales
 
+    def objective_stage(self, step: int) -> int:
+        """0 during the emissive start, 1 once the path tracer has taken over (its loss carries its render noise)."""
+        return int(step >= self.config.emissive_steps)
+
     def after_step(self, step: int, params: Mapping[str, Any]) -> Mapping[str, Any]:
-        """The grids resampled after ``upsample_at`` steps; sigma_t clamped to [0, sigma_t_clamp] and carved,
-        albedo clamped to [0, 1]."""
+        """The grids resampled after ``upsample_at`` steps; the extinction clamped to [0, depth_clamp] and carved,
+        the albedo clamped to [0, 1], the emission to >= 0."""
         done = step + 1
-        new = {key: params[key] for key in ("sigma_t", "albedo") if key in params}
+        new = {key: params[key] for key in ("sigma_t", "albedo", "emission") if key in params}
         if done in self.config.upsample_at:
             r = self.config.resolutions[self.config.upsample_at.index(done) + 1]
             new = {key: dr.resample(v, (r, r, r, v.shape[-1]), filter="linear", boundary="nearest")
                    for key, v in new.items()}
-        new["sigma_t"] = self._carved(dr.clip(new["sigma_t"], 0.0, self.config.sigma_t_clamp))
+        new["sigma_t"] = self._carved(dr.clip(new["sigma_t"], 0.0, self.config.depth_clamp))
         if "albedo" in new:
             new["albedo"] = dr.clip(new["albedo"], 0.0, 1.0)
+        if "emission" in new:
+            new["emission"] = dr.maximum(new["emission"], 0.0)
         self.set_parameters(new)
         return new
 
@@ -289,23 +362,45 @@ class MitsubaInverseModel(ViewModel):
     def carve(self, data) -> None:
         """Build the emptiness masks of every resolution from the training views (``carve = true``)."""
         empty = unattenuated_pixels(data.images, data.cameras, self._background, self.config.carve_tol)
-        self._keep = {r: mi.TensorXf(carve_mask(data.cameras, empty, self.box, r).astype(np.float32)[..., None])
-                      for r in self.config.resolutions}
+        self._keep = {r: carve_mask(data.cameras, empty, self.box, r) for r in self.config.resolutions}
+
+    def _keep_mask(self, r: int) -> np.ndarray | None:
+        return None if self._keep is None else self._keep[r]
 
     def _carved(self, sigma_t):
-        """``sigma_t`` times the emptiness mask of its resolution (itself without one)."""
-        if self._keep is None:
+        """``sigma_t`` times the emptiness mask of its resolution (itself without one); the path tracer's majorant
+        floor then stays inside the mask."""
+        r = int(sigma_t.shape[0])
+        keep = self._keep_mask(r)
+        if keep is None:
             return sigma_t
-        return sigma_t * self._keep[int(sigma_t.shape[0])]
+        if self.config.estimator != "prbvolpath":
+            self.scene.integrator().free = keep
+        c = int(sigma_t.shape[-1])
+        return sigma_t * mi.TensorXf(np.repeat(keep[..., None], c, axis=-1).astype(np.float32))
 
-    def _sparsity(self, sigma_t):
-        """The prior's term ``l1 * mean(sigma_t)`` (Float of width 1)."""
-        return self.config.l1 * mi.Float(dr.mean(sigma_t.array))
+    def priors(self, sigma_t):
+        """``l1 mean(tau) + tv_sigma TV(tau) + tv_albedo TV(albedo)`` (TV over neighbouring voxels inside the mask;
+        Float of width 1, differentiable)."""
+        c = self.config
+        total = mi.Float(0.0)
+        if c.l1:
+            total += c.l1 * mi.Float(dr.mean(sigma_t.array))
+        if c.tv_sigma or c.tv_albedo:
+            r = int(sigma_t.shape[0])
+            if r not in self._pairs:
+                keep = self._keep_mask(r)
+                self._pairs[r] = tv_pairs(np.ones((r, r, r), bool) if keep is None else keep)
+            if c.tv_sigma:
+                total += c.tv_sigma * masked_tv(sigma_t, self._pairs[r], int(sigma_t.shape[-1]))
+            if c.tv_albedo and c.optimize_albedo:
+                total += c.tv_albedo * masked_tv(self.albedo, self._pairs[r], 3)
+        return total
 
     def training_loss(self, data, step: int, rng) -> StepLoss:
-        """Render ``views_per_step`` random training views at :meth:`spp_at` samples per pixel; the loss is
-        the mean squared error against their images plus the sparsity prior (``l1``), of ``sigma_t`` times
-        the emptiness mask (``carve``, built from the training views on the first call)."""
+        """The emissive start's loss for its first ``emissive_steps`` steps, then the path tracer's
+        (:meth:`rendered_mse`), each plus :meth:`priors`, of the extinction times the emptiness mask (``carve``,
+        built from the training views on the first call)."""
         if data is None or data.images is None or not data.cameras:
             raise ValueError("mitsuba-inverse trains on whole views: PixelData.from_views gives them")
         if abs(data.pixel_center - 0.5) > 1e-9:
@@ -315,45 +410,60 @@ class MitsubaInverseModel(ViewModel):
         if self.config.carve and self._keep is None:
             self.carve(data)
         sigma_t = self._carved(self.sigma_t)
-        if self._keep is not None or self.config.l1:
-            self.params[self._key_sigma] = sigma_t
-            self.params.update()
+        if step < self.config.emissive_steps:
+            mse, rays = self.emissive_mse(data, sigma_t, rng), self.config.emissive_rays
+        else:
+            mse, rays = self.rendered_mse(data, sigma_t, step, rng)
+        loss = mse + self.priors(sigma_t) if (self.config.l1 or self.config.tv_sigma or self.config.tv_albedo) else mse
+        return StepLoss(loss, dr.detach(mse), rays)
+
+    def emissive_mse(self, data, sigma_t, rng):
+        """The emissive start: ``emissive_rays`` random training pixels (jittered in their pixel) rendered by
+        emission-absorption quadrature of ``sigma_t / side`` and the emission grid (``2 R`` samples per ray)."""
+        o, d, target = data.batch(rng, self.config.emissive_rays, True)
+        n = 2 * int(sigma_t.shape[0])
+        field = GridField.from_arrays(sigma_t / self.side, self.box, self.emission)
+        out = render_rays(field, o, d, n, box=self.box, u=rng.random(mi.Float, self.config.emissive_rays * n),
+                          background=self._background)
+        return mi.Float(dr.mean(dr.square(out.rgb - target), axis=None))
+
+    def rendered_mse(self, data, sigma_t, step: int, rng) -> tuple[Any, int]:
+        """``views_per_step`` random training views through the path tracer at :meth:`spp_at` samples per pixel:
+        their mean squared error and the camera rays traced."""
+        self.params[self._key_sigma] = sigma_t
+        self.params.update()
         spp = self.spp_at(step)
-        n_views = len(data.cameras)
-        v = self.config.views_per_step
+        n_views, v = len(data.cameras), self.config.views_per_step
         u = np.asarray(rng.random(mi.Float, 2 * v), dtype=np.float64)
         loss: Any = None
         rays = 0
         for k in range(v):
             i = min(int(u[k] * n_views), n_views - 1)
-            seed = int(u[v + k] * 2**31)
             if i not in self._sensors:
                 self._sensors[i] = _rgb_sensor(data.cameras[i], self.config.spp)
                 self._targets[i] = mi.TensorXf(np.ascontiguousarray(data.images[i], dtype=np.float32))
-            img = mi.render(self.scene, self.params, sensor=self._sensors[i], spp=spp, seed=seed)
+            img = mi.render(self.scene, self.params, sensor=self._sensors[i], spp=spp, seed=int(u[v + k] * 2**31))
             err = mi.Float(dr.mean(dr.square(img - self._targets[i]), axis=None).array)
             loss = err if loss is None else loss + err
             rays += data.cameras[i].width * data.cameras[i].height
-        mse = loss / v
-        loss = mse + self._sparsity(sigma_t) if self.config.l1 else mse
-        return StepLoss(loss, dr.detach(mse), rays)
+        return loss / v, rays
 
     # ------------------------------------------------------------------ rendering
 
     def field(self) -> GridField:
-        """The medium as a field: ``sigma_t`` and, as its colour, the albedo."""
-        return GridField.from_arrays(dr.detach(self.sigma_t), self.box, dr.detach(self.albedo))
+        """The medium as a field: ``sigma_t`` in world units (``tau / side``) and, as its colour, the albedo."""
+        return GridField.from_arrays(dr.detach(self.sigma_t) / self.side, self.box, dr.detach(self.albedo))
 
     def render_view(self, camera, *, pixel_center: float = 0.5, footprint: int = 1) -> Rendered:
-        """``prbvolpath`` at ``eval_spp`` through Mitsuba's box-filtered film for the colour; opacity
-        and depth by quadrature of ``sigma_t`` with ``max(footprint, 2)`` rays per pixel side."""
+        """The path tracer at ``eval_spp`` through Mitsuba's box-filtered film for the colour; opacity and depth
+        by quadrature of the extinction with ``max(footprint, 2)`` rays per pixel side."""
         if abs(pixel_center - 0.5) > 1e-9:
             raise ValueError(f"mitsuba-inverse renders with Mitsuba's pixel centres (+0.5), asked for {pixel_center}")
         with dr.suspend_grad():
             img = mi.render(self.scene, sensor=_rgb_sensor(camera, self.config.eval_spp),
                             spp=self.config.eval_spp, seed=EVAL_SEED)
             rgb = np.array(img, dtype=np.float32)
-            density = GridField.from_arrays(dr.detach(self.sigma_t), self.box)
+            density = GridField.from_arrays(dr.detach(self.sigma_t) / self.side, self.box)
             n = 2 * self.resolution
             quad = render_view(lambda o, d: render_rays(density, o, d, n, box=self.box), camera,
                                pixel_center=pixel_center, footprint=max(footprint, 2))

@@ -109,6 +109,8 @@ class _Loop:
         scales = {k: lr * float(f) for k, f in model.lr_scales(step).items() if k in opt}
         if scales:
             opt.set_learning_rate(scales)
+        if step > 0 and model.objective_stage(step) != model.objective_stage(step - 1):
+            self.monitor.restart()
         out = step_loss(model, self.data, config, step, step_rng(config.seed, step))
         check_differentiable(model, out.loss, step)
         dr.backward(out.loss)

@@ -44,6 +44,16 @@ class LossMonitor:
             self.best = min(self.best, mean)
         return mean
 
+    def restart(self) -> None:
+        """Forget the lowest mean and the interval so far: the loss has changed meaning (a new objective stage).
+
+        >>> m = LossMonitor(factor=10.0, patience=1)
+        >>> m.add(1.0); _ = m.close_interval(); m.restart(); m.add(50.0); _ = m.close_interval()
+        >>> m.diverging, m.best
+        (False, 50.0)
+        """
+        self.best, self.bad, self.interval_sum, self.interval_n = math.inf, 0, 0.0, 0
+
     @property
     def diverging(self) -> bool:
         return bool(self.factor) and self.bad >= self.patience

@@ -222,6 +222,37 @@ class GradientCase:
 
 
 @dataclass(frozen=True)
+class DrtCase:
+    """``mitsnerf_drt``'s gradient expectation against volpath's finite differences (:mod:`mitsnerf.verify.drt`)."""
+
+    name: str
+    title: str
+    chromatic: bool = False
+    """A three-channel extinction (the grid times 0.7, 1, 1.4 per channel)."""
+    phase_g: float = 0.0
+    estimator: str = "drt"
+    """``"drt"`` (differential ratio tracking) or ``"free_flight"`` (the in-scattering gradient at the path's own
+    collisions)."""
+    resolution: int = 8
+    sigma_t_max: float = 6.0
+    max_depth: int = -1
+    majorant_cell: int = 2
+    majorant_floor: float = 1.0
+    renders: int = 16
+    """Independent gradient renders (each ``spp`` samples per pixel-centre ray)."""
+    spp: int = 64
+    eps: float = 0.02
+    """Difference step: ``eps sigma_t_max`` for the extinction, ``eps`` for the albedo."""
+    fd_seeds: int = 6
+    """Seeds of volpath's difference quotients (each a pair or triple of renders with common random numbers)."""
+    fd_spp_factor: float = 1.0
+    """Samples per ray of each of those renders, times the quality's ``spp``."""
+    ref_spp_factor: float = 4.0
+    """Samples per ray of the primal's volpath reference, times the quality's ``spp``."""
+    detects: tuple[str, ...] = ()
+
+
+@dataclass(frozen=True)
 class PluginCase:
     """The Mitsuba integrator plugin renders a field as an independent float64 quadrature of the same samples does."""
 
@@ -430,6 +461,13 @@ GRADIENT_CASES: tuple[GradientCase, ...] = (
                  detects=("rgb_detached", "rgb_grad_x1.003", "C_grad_x1.003")),
 )
 
+DRT_CASES: tuple[DrtCase, ...] = (
+    DrtCase("drt_gradient", "mitsnerf_drt: E[gradient] vs volpath FD (grey, isotropic)",
+            detects=("drt_no_ratio_weight", "majorant_below_density")),
+    DrtCase("drt_gradient_rgb", "mitsnerf_drt: E[gradient] vs volpath FD (chromatic sigma_t, HG g = 0.5)",
+            chromatic=True, phase_g=0.5, detects=("drt_no_ratio_weight", "majorant_below_density")),
+)
+
 PLUGIN_CASES: tuple[PluginCase, ...] = (
     PluginCase("plugin_grid", "mitsnerf_ea plugin: exit-heavy grid field, envmap", "grid", "envmap"),
     PluginCase("plugin_nerf", "mitsnerf_ea plugin: NeRF field, constant env", "nerf", "constant"),
@@ -540,6 +578,6 @@ def isotropic_phase() -> float:
 
 ALL_CASE_NAMES = (
     [CLOSED_FORM.name] + [s.name for s in SCENARIOS] + [TRAINING_PATH.name, JITTER.name]
-    + [g.name for g in GRADIENT_CASES] + [p.name for p in PLUGIN_CASES]
+    + [g.name for g in GRADIENT_CASES] + [d.name for d in DRT_CASES] + [p.name for p in PLUGIN_CASES]
     + [MITSUBA_FURNACE.name, FURNACE_DEPTHS.name]
 )

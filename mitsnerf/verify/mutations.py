@@ -220,6 +220,20 @@ MUTATION_LIST: tuple[Mutation, ...] = (
         "E * T * hg(scattering_cosine(w, d), self.g)", "E * T",
     ),
     Mutation(
+        "drt_no_ratio_weight", "differential ratio tracking without the ratio-tracking transmittance in its "
+        "reservoir weights: every tentative point as likely, wherever the medium has already stopped the light",
+        "mitsnerf.render.drt", "drt_weight",
+        "return dr.mean(transmittance) / sigma_bar", "return dr.mean(transmittance) ** 0 / sigma_bar",
+        kind="gradient",
+    ),
+    Mutation(
+        "majorant_below_density", "the majorant grid at half the densest voxel each cell reads: tracking "
+        "meets sigma_t > sigma_bar",
+        "mitsnerf.render.tracking", "majorant_grid",
+        "bound = peak * np.float32(MAJORANT_MARGIN)",
+        "bound = peak * np.float32(0.5)",
+    ),
+    Mutation(
         "extinction_first_channel", "a chromatic grid's red extinction taken for every colour channel",
         "mitsnerf.fields.grid", "extinction",
         "Array3f(channels[0], channels[1], channels[2])", "Array3f(channels[0], channels[0], channels[0])",

@@ -15,11 +15,13 @@ functions) and reports which cases catch each.
 from __future__ import annotations
 
 import functools
+import math
 import tempfile
 import time
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -130,6 +132,24 @@ def gradient_case(case: C.GradientCase, quality: C.Quality) -> CaseResult:
         else f"entries {r.max_rel_error:.1e}")
 
 
+def drt_case(prepared, artifacts: Artifacts | None = None) -> CaseResult:
+    """``mitsnerf_drt``'s primal and gradient expectation against volpath (:mod:`mitsnerf.verify.drt`)."""
+    from mitsnerf.verify.drt import evaluate_drt
+
+    r = evaluate_drt(prepared)
+    f = r.family
+    worst = max(r.gradient, key=lambda k: abs(r.gradient[k][0] - r.finite_difference[k][0])
+                / math.hypot(r.gradient[k][1], r.finite_difference[k][1]))
+    g, d = r.gradient[worst], r.finite_difference[worst]
+    detail = "" if f.passed else f.summary()
+    case = prepared.case
+    return CaseResult(
+        case.name, "gradients", f"volpath image and FD along {len(r.gradient)} directions ({case.renders} renders "
+        f"x {case.spp} spp)", f"{worst}: {g[0]:.3g}+/-{g[1]:.2g} vs FD {d[0]:.3g}+/-{d[1]:.2g}",
+        f.max_abs_z, f"{f.n_rejected_all}/{f.n_tests}", f.passed, r.seconds + prepared.seconds, detail,
+        evidence=f"mean z {f.z_mean:+.1f}" if f.mean_rejected_any else f"{f.n_rejected} px")
+
+
 def jitter_case(case: C.JitterCase, quality: C.Quality) -> CaseResult:
     from mitsnerf.verify.jitter import check_jitter
 
@@ -232,6 +252,7 @@ class Suite:
     quality: C.Quality
     artifacts: Artifacts | None = None
     prepared: dict[str, S.PreparedScenario] = field(default_factory=dict)
+    drt_prepared: dict[str, Any] = field(default_factory=dict)
 
     def _scenario_result(self, name: str) -> CaseResult:
         return _family_result(name, "integrator", S.evaluate_scenario(self.scenario(name)), self.artifacts)
@@ -240,6 +261,13 @@ class Suite:
         if name not in self.prepared:
             self.prepared[name] = S.prepare_scenario(next(s for s in C.SCENARIOS if s.name == name), self.quality)
         return self.prepared[name]
+
+    def drt(self, case: C.DrtCase) -> CaseResult:
+        from mitsnerf.verify.drt import prepare_drt
+
+        if case.name not in self.drt_prepared:
+            self.drt_prepared[case.name] = prepare_drt(case, self.quality)
+        return drt_case(self.drt_prepared[case.name], self.artifacts)
 
     def jobs(self) -> list[tuple[str, Callable[[], CaseResult]]]:
         """``(name, run)`` of every case, in table order."""
@@ -253,6 +281,7 @@ class Suite:
                                                  S.evaluate_training_path(t, self.scenario(t.scenario)), a))]
         jobs += [(C.JITTER.name, lambda: jitter_case(C.JITTER, q))]
         jobs += [(g.name, functools.partial(gradient_case, g, q)) for g in C.GRADIENT_CASES]
+        jobs += [(d.name, functools.partial(self.drt, d)) for d in C.DRT_CASES]
         jobs += [(p.name, functools.partial(plugin_case, p, q, a)) for p in C.PLUGIN_CASES]
         f = C.MITSUBA_FURNACE
         jobs += [(f.name, lambda: _family_result(f.name, "Mitsuba", S.mitsuba_furnace(f, q), a))]

@@ -6,15 +6,16 @@ import mitsuba as mi
 import numpy as np
 import pytest
 
-from mitsnerf.train.checkpoint import capture, restore_optimizer
 from mitsnerf.errors import DatasetError
-from mitsnerf.train.evaluate import render_views, stack_rgb
+from mitsnerf.fields.grid import GridField
 from mitsnerf.math.box import UNIT_BOX
 from mitsnerf.math.metrics import psnr
 from mitsnerf.methods.base import SceneInfo
 from mitsnerf.methods.mitsuba_inverse import MitsubaInverseConfig, MitsubaInverseModel
 from mitsnerf.render.background import ConstantBackground
 from mitsnerf.train import PixelData, TrainConfig, TrainState, make_optimizer, train
+from mitsnerf.train.checkpoint import capture, restore_optimizer
+from mitsnerf.train.evaluate import render_views, stack_rgb
 
 from ..conftest import tiny_scene
 
@@ -22,7 +23,7 @@ TINY = tiny_scene({"name": "tiny-inverse", "description": "a 16^3 cloud, 12x12 v
                    "cameras.width": 12, "cameras.height": 12, "render.spp_train": 32, "render.spp_test": 32,
                    "render.max_depth": 8, "render.noise_floor": False})
 
-CONFIG = MitsubaInverseConfig(resolutions=(8, 16), upsample_at=(10,), spp=16, eval_spp=32, sigma_t_max=40.0, lr=1.0)
+CONFIG = MitsubaInverseConfig(resolutions=(8, 16), upsample_at=(10,), spp=16, eval_spp=32, depth_max=40.0, lr=1.0)
 FLAT = TrainConfig(steps=20, log_every=5, lr_final_factor=1.0)  # no decay: 20 steps only
 
 
@@ -33,8 +34,8 @@ def _mean_psnr(model, images, cameras) -> float:
 @pytest.fixture(scope="module")
 def tiny(tmp_path_factory):
     from mitsnerf.data.dataset import load_dataset
-    from mitsnerf.runs.fit import scene_info
     from mitsnerf.generate import generate_dataset
+    from mitsnerf.runs.fit import scene_info
     from mitsnerf.scene.spec import parse_scene
 
     root = generate_dataset(parse_scene(TINY, "tiny"), tmp_path_factory.mktemp("inverse"), progress=False)
@@ -54,7 +55,7 @@ def test_a_few_steps_lower_the_image_error_and_upsample(tiny):
     assert result.steps == 20 and result.rays_per_s > 0
     assert model.resolution == 16 and opt["sigma_t"].shape == (16, 16, 16, 1) and opt["albedo"].shape == (16, 16, 16, 3)
     sigma = np.asarray(model.sigma_t)
-    assert sigma.min() >= 0 and sigma.max() <= CONFIG.sigma_t_max
+    assert sigma.min() >= 0 and sigma.max() <= CONFIG.depth_max
     assert model.lr_scales(9) == {"sigma_t": 1.0, "albedo": CONFIG.albedo_lr_factor}
     assert model.lr_scales(10)["sigma_t"] == 0.5
 
@@ -63,7 +64,7 @@ def test_a_few_steps_lower_the_image_error_and_upsample(tiny):
     assert rendered.rgb.shape == (12, 12, 3) and rendered.opacity.shape == (12, 12)
     assert 0 < rendered.opacity.max() <= 1
     field_sigma = model.field().density(mi.Array3f(0.0, 0.0, 0.0))
-    assert np.asarray(field_sigma)[0] > CONFIG.init_sigma_t  # the cloud's centre got denser
+    assert np.asarray(field_sigma)[0] > CONFIG.init_depth  # the centre got denser (unit box: tau = sigma_t)
 
 
 def test_a_checkpoint_restores_the_upsampled_grids(tiny):
@@ -134,17 +135,21 @@ def test_late_samples_are_used_from_their_step(tiny):
         MitsubaInverseConfig(spp_late=32)
 
 
-def test_a_zero_start_learns_only_under_a_fixed_majorant(tiny):
+def test_a_zero_start_learns_under_a_majorant_floor_and_not_under_prbvolpaths_grid_maximum(tiny):
     _, info, data = tiny
     means = {}
-    for majorant in (0.0, 20.0):
-        config = MitsubaInverseConfig(resolutions=(8,), upsample_at=(), spp=4, init_sigma_t=0.0, majorant=majorant,
-                                      sigma_t_max=40.0)
+    for name, settings in {"prbvolpath": {"estimator": "prbvolpath"},
+                           "prbvolpath, majorant 20": {"estimator": "prbvolpath", "majorant_depth": 20.0},
+                           "drt": {}, "drt, no floor": {"majorant_floor": 0.0}}.items():
+        config = MitsubaInverseConfig(resolutions=(8,), upsample_at=(), spp=4, init_depth=0.0, depth_max=40.0,
+                                      **settings)
         model = MitsubaInverseModel(config, info)
         train(model, data, TrainConfig(steps=4, log_every=4), 0.5, progress=False)
-        means[majorant] = float(np.mean(np.asarray(model.sigma_t)))
-        assert np.asarray(model.sigma_t).max() <= config.sigma_t_clamp == (majorant or 40.0)
-    assert means[0.0] == 0.0 and means[20.0] > 0.01, means  # no collisions, no gradient under a zero maximum
+        means[name] = float(np.mean(np.asarray(model.sigma_t)))
+        assert np.asarray(model.sigma_t).max() <= config.depth_clamp
+    # No collisions, no gradient: under a zero grid maximum, or a majorant grid without its floor.
+    assert means["prbvolpath"] == 0.0 and means["drt, no floor"] == 0.0, means
+    assert means["prbvolpath, majorant 20"] > 0.01 and means["drt"] > 0.01, means
 
 
 def test_several_views_per_step_are_rendered_and_averaged(tiny):
@@ -154,3 +159,147 @@ def test_several_views_per_step_are_rendered_and_averaged(tiny):
     model = MitsubaInverseModel(MitsubaInverseConfig(resolutions=(8,), upsample_at=(), spp=2, views_per_step=3), info)
     step = model.training_loss(data, 0, step_rng(0, 0))
     assert step.rays == 3 * 12 * 12 and np.isfinite(float(step.mse[0]))
+
+
+def _info(overrides: dict) -> SceneInfo:
+    """The scene a model sees, from a spec alone (no images are needed to build one)."""
+    from mitsnerf.scene.spec import parse_scene
+    from mitsnerf.scene.to_mitsuba import scene_box
+
+    spec = tiny_scene(overrides)
+    return SceneInfo(scene_box(parse_scene(spec, "tiny")), ConstantBackground((0.5, 0.55, 0.6)), 1.0, {"spec": spec})
+
+
+def test_its_settings_are_optical_depths_whatever_the_box():
+    # The same config in a box twice as large: the same optical depths, half the extinction per unit length.
+    config = MitsubaInverseConfig(resolutions=(8,), upsample_at=(), init_depth=4.0, majorant_floor=3.0)
+    for scale in (1.0, 2.0):
+        model = MitsubaInverseModel(config, _info({"world.scale": scale}))
+        assert model.side == scale
+        np.testing.assert_allclose(np.asarray(model.sigma_t), 4.0)
+        density = model.field().density(mi.Array3f(0.1 * scale, 0.0, -0.2 * scale))
+        assert np.asarray(density)[0] == pytest.approx(4.0 / scale)
+        assert model.scene.integrator().majorant_floor == pytest.approx(3.0 / scale)
+
+
+def test_a_chromatic_spec_gets_one_extinction_per_colour():
+    chromatic = _info({"volume.sigma_t_scale": [20.0, 30.0, 45.0]})
+    assert MitsubaInverseModel(MitsubaInverseConfig(), chromatic).sigma_t.shape[-1] == 3
+    assert MitsubaInverseModel(MitsubaInverseConfig(density_channels=1), chromatic).sigma_t.shape[-1] == 1
+    assert MitsubaInverseModel(MitsubaInverseConfig(), _info({})).sigma_t.shape[-1] == 1
+
+
+@pytest.mark.parametrize("estimator", ["drt", "prbvolpath"])
+def test_three_extinction_channels_train(tiny, estimator):
+    _, info, data = tiny
+    config = MitsubaInverseConfig(resolutions=(8,), upsample_at=(), spp=4, density_channels=3, estimator=estimator)
+    model = MitsubaInverseModel(config, info)
+    before = np.asarray(model.sigma_t).copy()
+    train(model, data, TrainConfig(steps=3, log_every=3), 0.5, progress=False)
+    after = np.asarray(model.sigma_t)
+    assert after.shape == (8, 8, 8, 3) and model.field().sigma_channels == 3
+    changed = np.abs(after - before).reshape(-1, 3).sum(axis=0)
+    assert np.all(changed > 0), changed  # every channel got its own gradient
+    assert not np.allclose(after[..., 0], after[..., 2])
+
+
+def _export(tmp_path, model_box, blob):
+    from mitsnerf.runs.export import export_field
+
+    field = GridField.from_arrays(blob, model_box)
+    export_field(field, tmp_path / "export", resolution=blob.shape[0], box=model_box, info={"method": "test"})
+    (tmp_path / "config.json").write_text("{}")  # a run directory holding its export
+
+
+def test_it_starts_from_another_runs_exported_density(tmp_path):
+    info = _info({"world.scale": 2.0})
+    z, y, x = np.meshgrid(*(np.linspace(-1, 1, 16),) * 3, indexing="ij")
+    blob = (6.0 * np.exp(-(x**2 + y**2 + z**2) / 0.3)).astype(np.float32)  # world units^-1
+    _export(tmp_path, info.box, blob)
+    model = MitsubaInverseModel(MitsubaInverseConfig(resolutions=(8, 16), upsample_at=(5,), init_from=str(tmp_path)),
+                                info)
+    tau = np.asarray(model.sigma_t)[..., 0]
+    assert tau.shape == (8, 8, 8)
+    # tau = side x the exported density at the grid's voxel centres (world units^-1 there, trilinear)
+    x = info.box.voxel_centres(8).reshape(-1, 3).astype(np.float32)
+    exported = np.asarray(GridField.from_arrays(blob, info.box).density(mi.Array3f(*x.T))).reshape(8, 8, 8)
+    np.testing.assert_allclose(tau, 2.0 * exported, rtol=1e-4, atol=1e-4)
+    assert tau.max() > 5.0 and tau[0, 0, 0] < 0.05 * tau.max()
+    # the export directory itself works as well as the run holding it
+    config = MitsubaInverseConfig(resolutions=(8,), upsample_at=(), init_from=str(tmp_path / "export"))
+    again = MitsubaInverseModel(config, info)
+    np.testing.assert_array_equal(np.asarray(again.sigma_t), np.asarray(model.sigma_t))
+
+
+def test_a_run_without_an_export_is_one_clear_error(tmp_path):
+    (tmp_path / "config.json").write_text("{}")
+    with pytest.raises(DatasetError, match=r"init_from: no exported density .*run 'mitsnerf export"):
+        MitsubaInverseModel(MitsubaInverseConfig(init_from=str(tmp_path)), _info({}))
+    with pytest.raises(DatasetError, match="init_from: no exported density"):
+        MitsubaInverseModel(MitsubaInverseConfig(init_from=str(tmp_path / "missing")), _info({}))
+
+
+def test_the_emissive_start_fits_an_emission_grid_then_hands_over(tiny):
+    from mitsnerf.train.schedule import step_rng
+
+    _, info, data = tiny
+    config = MitsubaInverseConfig(resolutions=(8,), upsample_at=(), spp=2, emissive_steps=6, emissive_rays=128,
+                                  init_depth=2.0)
+    model = MitsubaInverseModel(config, info)
+    assert set(model.parameters()) == {"sigma_t", "albedo", "emission"}
+    first = model.training_loss(data, 0, step_rng(0, 0))
+    assert first.rays == 128
+    emission = np.asarray(model.emission).copy()
+    train(model, data, TrainConfig(steps=6, log_every=1, lr_final_factor=1.0), 0.5, progress=False)
+    assert not np.allclose(np.asarray(model.emission), emission)
+    assert float(model.training_loss(data, 0, step_rng(0, 0)).mse[0]) < float(first.mse[0])  # the same pixels
+    assert model.training_loss(data, 6, step_rng(0, 6)).rays == 12 * 12  # one view through the path tracer
+
+
+def test_total_variation_smooths_inside_the_mask_only(tiny):
+    from mitsnerf.methods.inverse_start import masked_tv, tv_pairs
+
+    keep = np.ones((4, 4, 4), bool)
+    keep[:, :, :2] = False
+    grid = mi.TensorXf(np.where(keep, 5.0, 0.0).astype(np.float32)[..., None])
+    assert float(masked_tv(grid, tv_pairs(keep), 1)[0]) == 0.0  # the carved edge costs nothing
+    assert float(masked_tv(grid, tv_pairs(np.ones((4, 4, 4), bool)), 1)[0]) > 0.0
+    _, info, data = tiny
+    tvs = {}
+    for weight in (0.0, 200.0):
+        config = MitsubaInverseConfig(resolutions=(8,), upsample_at=(), spp=4, tv_sigma=weight, carve=True,
+                                      init_depth=5.0)
+        model = MitsubaInverseModel(config, info)
+        train(model, data, TrainConfig(steps=4, log_every=4, seed=3), 0.5, progress=False)
+        pairs = tv_pairs(model._keep_mask(8))
+        tvs[weight] = float(masked_tv(model.sigma_t, pairs, 1)[0])
+    assert tvs[200.0] < 0.7 * tvs[0.0], tvs
+
+
+def test_the_switch_from_the_emissive_fit_is_not_taken_for_a_divergence(tiny):
+    # The path tracer's loss carries its render noise, far above the emissive fit's: the trainer's divergence check
+    # starts afresh at the switch instead of stopping the run.
+    _, info, data = tiny
+    config = MitsubaInverseConfig(resolutions=(8,), upsample_at=(), spp=1, emissive_steps=6, emissive_rays=256,
+                                  init_depth=2.0)
+    model = MitsubaInverseModel(config, info)
+    assert [model.objective_stage(s) for s in (0, 5, 6, 20)] == [0, 0, 1, 1]
+    result, _ = train(model, data, TrainConfig(steps=14, log_every=1, divergence_factor=1.5, divergence_patience=2),
+                      0.5, progress=False)
+    losses = [h["loss"] for h in result.history]
+    assert result.steps == 14 and min(losses[6:]) > 1.5 * min(losses[:6]), losses  # the jump the check forgave
+
+
+def test_the_albedo_can_be_fitted_first_with_the_extinction_held(tiny):
+    _, info, data = tiny
+    config = MitsubaInverseConfig(resolutions=(8,), upsample_at=(), spp=4, albedo_first=3, init_depth=4.0)
+    model = MitsubaInverseModel(config, info)
+    assert model.lr_scales(2)["sigma_t"] == 0.0 and model.lr_scales(3)["sigma_t"] == 1.0
+    sigma, albedo = np.asarray(model.sigma_t).copy(), np.asarray(model.albedo).copy()
+    _, opt = train(model, data, TrainConfig(steps=3, log_every=3), 0.5, progress=False)
+    np.testing.assert_array_equal(np.asarray(model.sigma_t), sigma)
+    assert not np.allclose(np.asarray(model.albedo), albedo)
+    train(model, data, TrainConfig(steps=5, log_every=5), 0.5, state=TrainState(opt, 3), progress=False)
+    assert not np.allclose(np.asarray(model.sigma_t), sigma)
+    with pytest.raises(ValueError, match="albedo_first"):
+        MitsubaInverseConfig(albedo_first=2, optimize_albedo=False)

@@ -77,7 +77,7 @@ def test_gradient_mutations_keep_the_values():
 
 def test_every_mutation_is_claimed_by_some_case():
     claimed = set(C.CLOSED_FORM.detects) | set(C.JITTER.detects) | set(C.TRAINING_PATH.detects)
-    for group in (C.SCENARIOS, C.GRADIENT_CASES, C.PLUGIN_CASES):
+    for group in (C.SCENARIOS, C.GRADIENT_CASES, C.DRT_CASES, C.PLUGIN_CASES):
         for case in group:
             claimed |= set(case.detects)
     assert claimed == set(MUTATIONS), (set(MUTATIONS) - claimed, claimed - set(MUTATIONS))
