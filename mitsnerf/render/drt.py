@@ -525,13 +525,6 @@ def _make_class():
 
 def register() -> type:
     """Register ``mitsnerf_drt`` for the current Mitsuba variant (idempotent); returns the class."""
-    import mitsuba as mi
+    from mitsnerf.render.mitsuba_plugin import register_once
 
-    variant = mi.variant()
-    if variant is None:
-        raise RuntimeError(f"{NAME}: choose a Mitsuba variant first (mitsnerf.env.set_variant())")
-    if variant not in _CLASSES:
-        cls = _make_class()
-        mi.register_integrator(NAME, lambda props: cls(props))
-        _CLASSES[variant] = cls
-    return _CLASSES[variant]
+    return register_once(NAME, _make_class, _CLASSES)

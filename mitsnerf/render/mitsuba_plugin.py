@@ -108,13 +108,20 @@ def _make_class():
 
 def register() -> type:
     """Register ``mitsnerf_ea`` for the current Mitsuba variant (idempotent); returns the class."""
+    return register_once(NAME, _make_class, _CLASSES)
+
+
+def register_once(name: str, make_class, classes: dict[str, type]) -> type:
+    """Register the integrator ``make_class()`` builds under ``name`` for the current Mitsuba variant, once per
+    variant (``classes``: the module's own cache, variant -> class, since a class binds one variant's types);
+    returns the class."""
     import mitsuba as mi
 
     variant = mi.variant()
     if variant is None:
-        raise RuntimeError(f"{NAME}: choose a Mitsuba variant first (mitsnerf.env.set_variant())")
-    if variant not in _CLASSES:
-        cls = _make_class()
-        mi.register_integrator(NAME, lambda props: cls(props))
-        _CLASSES[variant] = cls
-    return _CLASSES[variant]
+        raise RuntimeError(f"{name}: choose a Mitsuba variant first (mitsnerf.env.set_variant())")
+    if variant not in classes:
+        cls = make_class()
+        mi.register_integrator(name, lambda props: cls(props))
+        classes[variant] = cls
+    return classes[variant]

@@ -301,6 +301,23 @@ _sun = np.array([0.3, 0.5, -0.8]) / np.linalg.norm([0.3, 0.5, -0.8])
 SUN = (float(_sun[0]), float(_sun[1]), float(_sun[2]))
 
 #: The oracle's J by volpath (shared with its anisotropic variants below).
+SCATTER_SINGLE = VolpathScenario(
+    "scatter_single",
+    "the scatter method's field on the true medium: front-heavy, directional light, volpath max_depth 2",
+    "front_heavy",
+    sigma_t_max=8.0,
+    albedo="procedural",
+    environment="black",
+    source="scatter_field",
+    sun_direction=SUN,
+    sun_irradiance=(3.0, 2.5, 2.0),
+    max_depth=2,
+    spp_factor=4.0,
+    max_rel_error=0.02,
+    detects=("phase_factor_missing",),  # the sun's reversal: symmetric here for an isotropic medium, see below
+)
+"""The ``scatter`` method's field holding the true medium, against volpath's single scattering."""
+
 MULTIPLE_SCATTER = VolpathScenario(
     "multiple_scatter",
     "front-heavy, albedo < 1, sky + sun, unlimited depth: the oracle's J by volpath",
@@ -397,37 +414,10 @@ SCENARIOS: tuple[VolpathScenario, ...] = (
         max_rel_error=0.02,
         detects=("T_off_by_one",),
     ),
-    VolpathScenario(
-        "scatter_single",
-        "the scatter method's field on the true medium: front-heavy, directional light, volpath max_depth 2",
-        "front_heavy",
-        sigma_t_max=8.0,
-        albedo="procedural",
-        environment="black",
-        source="scatter_field",
-        sun_direction=SUN,
-        sun_irradiance=(3.0, 2.5, 2.0),
-        max_depth=2,
-        spp_factor=4.0,
-        max_rel_error=0.02,
-        detects=("phase_factor_missing",),  # the sun's reversal: symmetric here for an isotropic medium, see below
-    ),
-    VolpathScenario(
-        "scatter_single_g85",
-        "the same with Henyey-Greenstein g = 0.85: the phase function of the sun's light",
-        "front_heavy",
-        sigma_t_max=8.0,
-        albedo="procedural",
-        environment="black",
-        source="scatter_field",
-        sun_direction=SUN,
-        sun_irradiance=(3.0, 2.5, 2.0),
-        max_depth=2,
-        spp_factor=4.0,
-        max_rel_error=0.02,
-        phase_g=0.85,
-        detects=("light_direction_flipped", "phase_factor_missing", "hg_sign", "cosine_reversed"),
-    ),
+    SCATTER_SINGLE,
+    replace(SCATTER_SINGLE, name="scatter_single_g85", phase_g=0.85,
+            title="the same with Henyey-Greenstein g = 0.85: the phase function of the sun's light",
+            detects=("light_direction_flipped", "phase_factor_missing", "hg_sign", "cosine_reversed")),
     MULTIPLE_SCATTER,
     replace(MULTIPLE_SCATTER, name="forward_scatter_g50", phase_g=0.5, detects=("hg_sign", "cosine_reversed"),
             title="front-heavy, albedo < 1, sky + sun, unlimited depth, Henyey-Greenstein g = 0.5: the directional "
