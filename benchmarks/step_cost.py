@@ -65,8 +65,7 @@ def main() -> int:
     from mitsnerf.data.dataset import load_dataset
     from mitsnerf.runs.fit import build_model, scene_info
     from mitsnerf.train import PixelData, TrainConfig, make_optimizer
-    from mitsnerf.train.schedule import learning_rate, step_rng
-    from mitsnerf.train.step import apply_step, step_loss
+    from mitsnerf.train.step import bare_step
 
     dataset = load_dataset(args.dataset)
     views = dataset.views("train")
@@ -74,20 +73,6 @@ def main() -> int:
     data = PixelData.from_views(views.images, views.cameras, views.pixel_center)
     train_config = TrainConfig(steps=args.steps, seed=args.seed,
                                **({"batch_rays": args.batch_rays} if args.batch_rays else {}))
-
-    def one_step(run: dict, step: int) -> float:
-        model, opt = run["model"], run["opt"]
-        lr = learning_rate(run["lr"], step, train_config.steps, train_config.lr_final_factor)
-        opt.set_learning_rate(lr)
-        scales = {k: lr * float(f) for k, f in model.lr_scales(step).items() if k in opt}
-        if scales:
-            opt.set_learning_rate(scales)
-        out = step_loss(model, data, train_config, step, step_rng(train_config.seed, step))
-        dr.backward(out.loss)
-        loss = float(out.loss[0])
-        apply_step(model, opt, step)
-        dr.sync_thread()
-        return loss
 
     runs = []
     for text in args.model:
@@ -100,7 +85,7 @@ def main() -> int:
     for step in range(args.steps):
         for run in runs:
             t0 = time.perf_counter()
-            run["loss"] = one_step(run, step)
+            run["loss"] = bare_step(run["model"], run["opt"], data, train_config, run["lr"], step)
             if step >= args.warmup:
                 run["times"].append(time.perf_counter() - t0)
     first = np.asarray(runs[0]["times"])

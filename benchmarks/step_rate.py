@@ -52,8 +52,7 @@ def main() -> int:
     from mitsnerf.data.dataset import load_dataset
     from mitsnerf.runs.fit import build_model, scene_info
     from mitsnerf.train import PixelData, TrainConfig, make_optimizer
-    from mitsnerf.train.schedule import learning_rate, step_rng
-    from mitsnerf.train.step import apply_step, step_loss
+    from mitsnerf.train.step import bare_step
 
     dataset = load_dataset(args.dataset)
     views = dataset.views("train")
@@ -62,19 +61,6 @@ def main() -> int:
     train_config = TrainConfig(steps=args.steps, seed=args.seed,
                                **({"batch_rays": args.batch_rays} if args.batch_rays else {}))
     extra = {k: json.loads(v) for k, v in (s.split("=", 1) for s in args.set)}
-
-    def one_step(model, opt, lr0: float, step: int) -> float:
-        lr = learning_rate(lr0, step, train_config.steps, train_config.lr_final_factor)
-        opt.set_learning_rate(lr)
-        scales = {k: lr * float(f) for k, f in model.lr_scales(step).items() if k in opt}
-        if scales:
-            opt.set_learning_rate(scales)
-        out = step_loss(model, data, train_config, step, step_rng(train_config.seed, step))
-        dr.backward(out.loss)
-        loss = float(out.loss[0])
-        apply_step(model, opt, step)
-        dr.sync_thread()
-        return loss
 
     for method in args.methods:
         runs = {}
@@ -86,7 +72,7 @@ def main() -> int:
         for step in range(args.steps):
             for run in runs.values():
                 t0 = time.perf_counter()
-                run["losses"].append(one_step(run["model"], run["opt"], run["lr"], step))
+                run["losses"].append(bare_step(run["model"], run["opt"], data, train_config, run["lr"], step))
                 if step >= args.warmup:
                     run["times"].append(time.perf_counter() - t0)
         base = np.asarray(runs[False]["losses"])

@@ -28,8 +28,8 @@ from mitsnerf.train.config import TrainConfig
 from mitsnerf.train.data import PixelData
 from mitsnerf.train.monitor import LossMonitor
 from mitsnerf.train.progress import Progress
-from mitsnerf.train.schedule import learning_rate, step_rng
-from mitsnerf.train.step import apply_step, step_loss
+from mitsnerf.train.schedule import step_rng
+from mitsnerf.train.step import apply_step, set_step_learning_rate, step_loss
 
 
 @dataclass
@@ -104,11 +104,7 @@ class _Loop:
 
     def one_step(self) -> None:
         model, opt, config, step = self.model, self.opt, self.config, self.step
-        lr = learning_rate(self.base_lr, step, config.steps, config.lr_final_factor)
-        opt.set_learning_rate(lr)
-        scales = {k: lr * float(f) for k, f in model.lr_scales(step).items() if k in opt}
-        if scales:
-            opt.set_learning_rate(scales)
+        lr = set_step_learning_rate(model, opt, self.base_lr, step, config)
         if step > 0 and model.objective_stage(step) != model.objective_stage(step - 1):
             self.monitor.restart()
         out = step_loss(model, self.data, config, step, step_rng(config.seed, step))

@@ -13,6 +13,7 @@ import mitsuba as mi
 from mitsnerf.methods.base import Model, RendersRays, Rows, StepLoss, TrainsOnViews
 from mitsnerf.train.config import TrainConfig
 from mitsnerf.train.data import PixelData
+from mitsnerf.train.schedule import learning_rate, step_rng
 
 
 def ray_batch_loss(model: RendersRays, data: PixelData, config: TrainConfig, rng) -> StepLoss:
@@ -39,6 +40,31 @@ def step_loss(model: Model, data: PixelData, config: TrainConfig, step: int, rng
         return model.training_loss(data, step, rng)
     raise TypeError(f"{type(model).__name__}: a Model must render rays (RendersRays: subclass RayModel) or "
                     "train on views (TrainsOnViews: subclass ViewModel)")
+
+
+def set_step_learning_rate(model: Model, opt, base_lr: float, step: int, config: TrainConfig) -> float:
+    """Set ``opt``'s learning rate for ``step``: ``lr`` = :func:`~mitsnerf.train.schedule.learning_rate` of
+    ``base_lr``, and ``lr * f`` for each parameter the model scales by ``f`` (``model.lr_scales(step)``).
+    Returns ``lr``."""
+    lr = learning_rate(base_lr, step, config.steps, config.lr_final_factor)
+    opt.set_learning_rate(lr)
+    scales = {k: lr * float(f) for k, f in model.lr_scales(step).items() if k in opt}
+    if scales:
+        opt.set_learning_rate(scales)
+    return lr
+
+
+def bare_step(model: Model, opt, data: PixelData, config: TrainConfig, base_lr: float, step: int) -> float:
+    """The trainer's step without its bookkeeping (no NaN check, log or checkpoint): the step's learning rate,
+    its loss on the step's random numbers, backward, :func:`apply_step`; waits for the work to finish (for the
+    benchmarks that time steps). Returns the loss."""
+    set_step_learning_rate(model, opt, base_lr, step, config)
+    out = step_loss(model, data, config, step, step_rng(config.seed, step))
+    dr.backward(out.loss)
+    loss = float(out.loss[0])
+    apply_step(model, opt, step)
+    dr.sync_thread()
+    return loss
 
 
 def apply_step(model: Model, opt, step: int) -> None:

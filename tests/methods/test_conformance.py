@@ -37,9 +37,9 @@ def test_a_plugin_whose_set_parameters_drops_the_values_fails_to_train(monkeypat
 
 
 def test_a_learning_rate_of_zero_is_seen_as_not_learning(monkeypatch):
-    import mitsnerf.train.loop
+    import mitsnerf.train.step
 
-    monkeypatch.setattr(mitsnerf.train.loop, "learning_rate", lambda *args, **kwargs: 0.0)
+    monkeypatch.setattr(mitsnerf.train.step, "learning_rate", lambda *args, **kwargs: 0.0)
     report = check_method("ngp")
     assert _broken(report)[:1] == ["trains and evaluates"], report.summary()
     assert "every parameter is as initialised" in report.failures()[0].detail
