@@ -35,28 +35,21 @@ def main() -> int:
 
     from mitsnerf.data.dataset import load_dataset
     from mitsnerf.oracle.cache import OracleConfig, load_oracle, oracle_path
-    from mitsnerf.oracle.field import render_field
-    from mitsnerf.oracle.rungs import single_scattering_field
-    from mitsnerf.render.background import make_background
+    from mitsnerf.oracle.rungs import score_on_basis
     from mitsnerf.scoring.reference import load_reference
-    from mitsnerf.scoring.views import score_views
 
     dataset = load_dataset(args.dataset)
     oracle = load_oracle(oracle_path(dataset, OracleConfig(), args.footprint))
     if oracle is None or "directional" not in oracle.info:
         sys.exit(f"{args.dataset}: no cached directional oracle at footprint {args.footprint}")
     ref = load_reference(dataset, "test")
-    background = make_background(dataset.background, dataset.root)
     print(json.dumps({"oracle_medium": oracle.metrics(args.footprint).get("psnr_test_medium"),
                       "by_order": oracle.info["directional"].get("psnr_test_medium_by_order"),
                       "noise_floor_medium": (ref.noise_floor or {}).get("psnr_medium")}), flush=True)
     for basis in args.bases:
         degree, zonal = (int(v) for v in basis.split(":"))
         t0 = time.perf_counter()
-        field, info = single_scattering_field(oracle.path, dataset, degree, zonal)
-        image = render_field(field, ref.cameras, dataset.box, int(info["config"]["n_samples"]), background=background,
-                             footprint=args.footprint, pixel_center=ref.pixel_center)
-        psnr = score_views(image, ref, None)[0].get("psnr_test_medium")
+        psnr = score_on_basis(oracle.path, dataset, degree, zonal, args.footprint, ref)
         print(json.dumps({"basis": basis, "degree": degree, "zonal": zonal, "psnr_test_medium": psnr,
                           "seconds": time.perf_counter() - t0}), flush=True)
     return 0

@@ -106,16 +106,12 @@ def _key(degree: int, zonal: int, footprint: int) -> str:
 
 
 def single_scattering_ceiling(oracle, dataset, degree: int, zonal: int, footprint: int, reference) -> float | None:
-    """Medium PSNR of the single-scattering rung's ceiling (:func:`single_scattering_field` rendered at
-    ``footprint`` and scored against ``reference``, the test views'); the oracle's own for an isotropic medium
-    (only order 0 scatters). Computed once and kept in the oracle's directory (``rungs.json``)."""
+    """Medium PSNR of the single-scattering rung's ceiling (:func:`score_on_basis`); the oracle's own for an
+    isotropic medium (only order 0 scatters). Computed once and kept in the oracle's directory (``rungs.json``)."""
     import json
 
     from mitsnerf.data.atomic import atomic_write_json
     from mitsnerf.data.cache import dataset_lock
-    from mitsnerf.oracle.field import render_field
-    from mitsnerf.render.background import make_background
-    from mitsnerf.scoring.views import score_views
 
     if "directional" not in oracle.info:
         return oracle.metrics(footprint).get("psnr_test_medium")
@@ -124,10 +120,21 @@ def single_scattering_ceiling(oracle, dataset, degree: int, zonal: int, footprin
     with dataset_lock(path, progress=False):  # one writer at a time (a pool's workers share the oracle)
         found = json.loads(path.read_text()) if path.is_file() else {}
         if key not in found:
-            field, info = single_scattering_field(oracle.path, dataset, degree, zonal)
-            image = render_field(field, reference.cameras, dataset.box, int(info["config"]["n_samples"]),
-                                 background=make_background(dataset.background, dataset.root), footprint=footprint,
-                                 pixel_center=reference.pixel_center)
-            found[key] = score_views(image, reference, None)[0].get("psnr_test_medium")
+            found[key] = score_on_basis(oracle.path, dataset, degree, zonal, footprint, reference)
             atomic_write_json(path, found)
     return found[key]
+
+
+def score_on_basis(oracle_dir, dataset, degree: int, zonal: int, footprint: int, reference) -> float | None:
+    """Medium PSNR of :func:`single_scattering_field` (the directional oracle in ``oracle_dir`` with its remainder
+    on the basis ``degree``/``zonal``) rendered at ``footprint`` and scored against ``reference`` (the test
+    views'); not cached."""
+    from mitsnerf.oracle.field import render_field
+    from mitsnerf.render.background import make_background
+    from mitsnerf.scoring.views import score_views
+
+    field, info = single_scattering_field(oracle_dir, dataset, degree, zonal)
+    image = render_field(field, reference.cameras, dataset.box, int(info["config"]["n_samples"]),
+                         background=make_background(dataset.background, dataset.root), footprint=footprint,
+                         pixel_center=reference.pixel_center)
+    return score_views(image, reference, None)[0].get("psnr_test_medium")
