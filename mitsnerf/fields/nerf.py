@@ -34,7 +34,6 @@ their gradients in their own order.
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
 
 import drjit as dr
@@ -42,7 +41,7 @@ import drjit.nn as nn
 
 from mitsnerf.config import check_fields, param
 from mitsnerf.fields.mlp import NETWORK_PATHS, network_path, pack_layers
-from mitsnerf.math.activations import sigmoid, softplus
+from mitsnerf.math.activations import colour_bias, sigmoid, softplus
 from mitsnerf.math.box import Box
 
 
@@ -181,21 +180,6 @@ def build_network(config: NeRFConfig, TensorXf, seed: int = 0, head: bool = True
     h2 = nn.Linear(config.head_width, 3).alloc(TensorXf, 0, rng)
     h2.bias = TensorXf([colour_bias(config.c_max)] * 3)
     return NeRFNetwork(trunk, out, [h1, h2])
-
-
-def colour_bias(c_max: float, c_0: float = 0.5) -> float:
-    """The colour head's initial output bias ``b = logit(c_0 / c_max)``: the colour ``c_max sigmoid(b)`` starts
-    at ``c_0`` (the middle of ``[0, 1]``) whatever ``c_max`` is; 0 at ``c_max = 1``, as before.
-
-    A start at ``c_max / 2`` made nerf learn an empty medium on cloud_hg85 (benchmarks/README.md, "The physics
-    table"): ``c_max`` follows the brightest training pixels (:func:`mitsnerf.methods.base.cover_radiance`:
-    ~12 where the sun's forward peak is seen through the cloud), a start ~10x brighter than the medium, which
-    the fit darkens fastest by clearing the density, whose softplus and occupancy grid then keep it cleared.
-
-    >>> colour_bias(1.0), round(colour_bias(12.0), 4)
-    (0.0, -3.1355)
-    """
-    return math.log(c_0 / (c_max - c_0)) if c_max > c_0 else 0.0
 
 
 @dataclass(frozen=True)

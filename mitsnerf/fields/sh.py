@@ -14,6 +14,8 @@ an activation.
 
 from __future__ import annotations
 
+from mitsnerf.math.activations import colour_bias
+
 MAX_DEGREE = 3
 
 _C0 = 0.28209479177387814
@@ -33,6 +35,17 @@ def num_coefficients(degree: int) -> int:
     """
     _check_degree(degree)
     return (degree + 1) ** 2
+
+
+def colour_start(degree: int, c_max: float, c_0: float = 0.5) -> list[float]:
+    """The ``3 (degree + 1)^2`` coefficients (index ``3 k + c``: basis function ``k``, channel ``c``) at which an SH
+    colour ``c_max sigmoid(sum_k k_k Y_k(d))`` is ``c_0`` in every direction: band 0 at
+    ``colour_bias(c_max, c_0) / Y_0``, the others 0 (all 0 at ``c_max = 1``).
+
+    >>> [round(v, 3) for v in colour_start(0, 12.0)], colour_start(1, 1.0)[3:6]
+    ([-11.115, -11.115, -11.115], [0.0, 0.0, 0.0])
+    """
+    return [colour_bias(c_max, c_0) / _C0] * 3 + [0.0] * (3 * num_coefficients(degree) - 3)
 
 
 def _check_degree(degree: int) -> None:

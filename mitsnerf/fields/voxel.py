@@ -30,7 +30,7 @@ import numpy as np
 
 from mitsnerf.config import check_fields, param
 from mitsnerf.fields.grid import extinction
-from mitsnerf.fields.sh import MAX_DEGREE, num_coefficients, sh_basis
+from mitsnerf.fields.sh import MAX_DEGREE, colour_start, num_coefficients, sh_basis
 from mitsnerf.math.activations import sigmoid, softplus
 from mitsnerf.math.box import Box
 
@@ -101,10 +101,12 @@ class VoxelField:
 
     @classmethod
     def create(cls, config: VoxelFieldConfig, resolution: int, TensorXf, box: Box) -> VoxelField:
-        """Uniform grids: density ``sigma_init`` everywhere, SH coefficients 0 (grey ``c_max / 2``)."""
+        """Uniform grids: density ``sigma_init`` everywhere, the SH colour grey 0.5 in every direction
+        (:func:`~mitsnerf.fields.sh.colour_start`: whatever ``c_max`` is)."""
         r = int(resolution)
         sigma_raw = dr.full(TensorXf, config.raw_sigma_init, (r, r, r, config.density_channels))
-        sh = dr.zeros(TensorXf, (r, r, r, 3 * num_coefficients(config.sh_degree)))
+        start = colour_start(config.sh_degree, config.c_max)
+        sh = TensorXf(dr.tile(dr.array_t(TensorXf)(start), r ** 3), (r, r, r, len(start)))
         return cls(config, sigma_raw, sh, box)
 
     @property

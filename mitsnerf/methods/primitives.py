@@ -12,8 +12,8 @@ overlap; the gradient is replayed per ray. Being the sum of its kernels, the den
 and ``mitsnerf export`` read, and it is the medium the images were rendered from.
 
 Initialisation, from the seed alone: ``count`` kernels at uniform random positions in the box, isotropic with
-scale ``init_scale`` times the mean spacing ``(V / count)^(1/3)``, grey (SH 0), their density set so that the
-box holds ``sigma_init`` on average.
+scale ``init_scale`` times the mean spacing ``(V / count)^(1/3)``, grey 0.5 whatever ``c_max`` is (band 0 of the
+SH colour only), their density set so that the box holds ``sigma_init`` on average.
 
 Densification and pruning, every ``densify_every`` steps from ``densify_from`` through ``densify_until``:
 
@@ -53,7 +53,16 @@ from mitsnerf.fields.primitives import (
     kernel_volume,
     largest_line_integral,
 )
-from mitsnerf.methods.base import MethodConfig, ParameterShapeError, RayModel, RenderOutput, Rows, SceneInfo
+from mitsnerf.fields.sh import colour_start
+from mitsnerf.methods.base import (
+    MethodConfig,
+    ParameterShapeError,
+    RayModel,
+    RenderOutput,
+    Rows,
+    SceneInfo,
+    cover_radiance,
+)
 from mitsnerf.render.primitives import render_primitives
 
 KEYS = tuple(PARAMETER_COLUMNS)
@@ -122,7 +131,8 @@ class PrimitivesMethodConfig(MethodConfig):
 
 
 def initial_kernels(config: PrimitivesMethodConfig, box, seed: int) -> dict[str, np.ndarray]:
-    """The starting kernels (module docstring) as float32 arrays by parameter, drawn from ``seed`` alone.
+    """The starting kernels (module docstring) as float32 arrays by parameter, drawn from ``seed`` alone; their
+    colour grey 0.5 at ``config.field.c_max`` (:func:`~mitsnerf.fields.sh.colour_start`).
 
     >>> from mitsnerf.math.box import UNIT_BOX
     >>> k = initial_kernels(PrimitivesMethodConfig(count=8, sigma_init=0.5), UNIT_BOX, 0)
@@ -141,7 +151,7 @@ def initial_kernels(config: PrimitivesMethodConfig, box, seed: int) -> dict[str,
     out = {"mean": lo + rng.random((n, 3)) * size, "log_scale": log_scale,
            "rotation": np.tile([0.0, 0.0, 0.0, 1.0], (n, 1)),
            "density": np.full((n, cfg.density_channels), math.log(sigma)),
-           "sh": np.zeros((n, cfg.columns("sh")))}
+           "sh": np.tile(colour_start(cfg.sh_degree, cfg.c_max), (n, 1))}
     return {k: v.astype(np.float32) for k, v in out.items()}
 
 
@@ -246,12 +256,10 @@ class PrimitivesModel(RayModel):
 
     def __init__(self, config: PrimitivesMethodConfig, scene: SceneInfo, seed: int = 0) -> None:
         self.config = config
-        field = config.field
-        if field.c_max < scene.radiance_max:
-            field = replace(field, c_max=max(1.0, 1.25 * scene.radiance_max))
-        self.field_config = field
+        self.field_config = field = cover_radiance(config.field, scene)
         self.scene, self.seed = scene, seed
-        self.params = {k: mi.TensorXf(v) for k, v in initial_kernels(config, scene.box, seed).items()}
+        start = initial_kernels(replace(config, field=field), scene.box, seed)
+        self.params = {k: mi.TensorXf(v) for k, v in start.items()}
         self._lists: CellLists | None = None
         self._stats: dict = {}
         self._reset_scores()

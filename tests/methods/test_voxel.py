@@ -166,3 +166,22 @@ def test_a_per_colour_model_trains(tiny_views):
     result, opt = train(model, data, TrainConfig(steps=30, batch_rays=128, log_every=10), 0.3, progress=False)
     assert opt[SIGMA_KEY].shape == (8, 8, 8, 3)
     assert result.history[-1]["loss"] < result.history[0]["loss"]
+
+
+@pytest.mark.parametrize("sh_degree", [0, 2])
+def test_a_bright_colour_range_starts_the_colour_grey(tiny_views, sh_degree):
+    """Bright training views (cloud_hg85's sun seen through the cloud) raise ``c_max`` (``cover_radiance``); the SH
+    colour starts at 0.5 in every direction whatever ``c_max`` is, not at ``c_max / 2``, a start brighter than the
+    medium that the fit answered by clearing the density (benchmarks/README.md, "The physics table")."""
+    from dataclasses import replace
+
+    _, info = tiny_views()
+    config = VoxelMethodConfig(resolution=8, initial_resolution=8, upsample_steps=(),
+                               grid=VoxelFieldConfig(sh_degree=sh_degree))
+    model = VoxelModel(config, replace(info, radiance_max=10.0))
+    assert model.base_field.config.c_max == pytest.approx(12.5)
+    rng = np.random.default_rng(2)
+    x = mi.Array3f(*rng.uniform(-0.5, 0.5, (3, 256)).astype(np.float32))
+    d = dr.normalize(mi.Array3f(*rng.normal(size=(3, 256)).astype(np.float32)))
+    rgb, _ = model.base_field(x, d)
+    assert np.allclose(np.asarray(rgb), 0.5, atol=1e-5)
