@@ -300,20 +300,27 @@ class TrainingPathCase:
 _sun = np.array([0.3, 0.5, -0.8]) / np.linalg.norm([0.3, 0.5, -0.8])
 SUN = (float(_sun[0]), float(_sun[1]), float(_sun[2]))
 
-#: The oracle's J by volpath (shared with its anisotropic variants below).
-SCATTER_SINGLE = VolpathScenario(
-    "scatter_single",
-    "the scatter method's field on the true medium: front-heavy, directional light, volpath max_depth 2",
+SINGLE_SCATTER = VolpathScenario(
+    "single_scatter",
+    "front-heavy, directional light, black environment, volpath max_depth 2",
     "front_heavy",
     sigma_t_max=8.0,
     albedo="procedural",
     environment="black",
-    source="scatter_field",
+    source="single_scatter",
     sun_direction=SUN,
     sun_irradiance=(3.0, 2.5, 2.0),
     max_depth=2,
     spp_factor=4.0,
     max_rel_error=0.02,
+    detects=("T_off_by_one", "delta_wrong_end"),
+)
+
+SCATTER_SINGLE = replace(
+    SINGLE_SCATTER,
+    name="scatter_single",
+    title="the scatter method's field on the true medium: front-heavy, directional light, volpath max_depth 2",
+    source="scatter_field",
     detects=("phase_factor_missing",),  # the sun's reversal: symmetric here for an isotropic medium, see below
 )
 """The ``scatter`` method's field holding the true medium, against volpath's single scattering."""
@@ -359,21 +366,7 @@ SCENARIOS: tuple[VolpathScenario, ...] = (
         spp_factor=4.0,
         detects=("delta_wrong_end", "no_background"),
     ),
-    VolpathScenario(
-        "single_scatter",
-        "front-heavy, directional light, black environment, volpath max_depth 2",
-        "front_heavy",
-        sigma_t_max=8.0,
-        albedo="procedural",
-        environment="black",
-        source="single_scatter",
-        sun_direction=SUN,
-        sun_irradiance=(3.0, 2.5, 2.0),
-        max_depth=2,
-        spp_factor=4.0,
-        max_rel_error=0.02,
-        detects=("T_off_by_one", "delta_wrong_end"),
-    ),
+    SINGLE_SCATTER,
     VolpathScenario(
         "box_absorption",
         "homogeneous box, albedo 0, envmap; seed rule (closed-form bias) and midpoint",
