@@ -45,7 +45,7 @@ def main() -> None:
 
     dataset = load_dataset(generate_dataset(load_scene(args.scene), Path(args.data)))
     views = dataset.views("train")
-    info = scene_info(dataset, views.images)
+    info = scene_info(dataset, views)
     ref = load_reference(dataset, "test")
     rows = []
     for spp in args.spp:

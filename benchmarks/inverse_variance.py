@@ -94,7 +94,7 @@ def measure(args) -> list[dict]:
 
     dataset = load_dataset(generate_dataset(load_scene(args.scene), Path(args.data)))
     views = dataset.views("train")
-    info, data = scene_info(dataset, views.images), PixelData.from_views(views.images, views.cameras)
+    info, data = scene_info(dataset, views), PixelData.from_views(views.images, views.cameras)
     rows = []
     for state in args.states:
         models = {e: build(dataset, info, data, e, state) for e in args.estimators}

@@ -56,7 +56,7 @@ def main() -> int:
 
     dataset = load_dataset(args.dataset)
     views = dataset.views("train")
-    info = scene_info(dataset, views.images)
+    info = scene_info(dataset, views)
     data = PixelData.from_views(views.images, views.cameras, views.pixel_center)
     train_config = TrainConfig(steps=args.steps, seed=args.seed,
                                **({"batch_rays": args.batch_rays} if args.batch_rays else {}))

@@ -70,6 +70,36 @@ def grid_of(values, resolution: int, TensorXf):
     return TensorXf(dr.ravel(mi.ArrayXf(*channels), order="F"), shape=(r, r, r, len(channels)))
 
 
+class Carved:
+    """An emptiness mask (:mod:`mitsnerf.math.carve`) as a factor on a density: ``keep(x)`` is 1 in a kept voxel of
+    the ``R^3`` mask over ``box``, 0 in a carved one (the voxel holding ``x``; a constant, without gradient).
+
+    >>> import mitsuba as mi
+    >>> from mitsnerf.env import set_variant; _ = set_variant("llvm_ad_rgb")
+    >>> from mitsnerf.math.box import UNIT_BOX
+    >>> keep = np.ones((2, 2, 2), dtype=bool); keep[:, :, 0] = False          # the half x < 0 carved
+    >>> mask = Carved(keep, UNIT_BOX)
+    >>> mask(mi.Array3f([-0.3, -0.01, 0.01, 0.3], 0.0, 0.2)), mask.kept_fraction
+    ([0, 0, 1, 1], 0.5)
+    """
+
+    def __init__(self, keep: np.ndarray, box: Box) -> None:
+        import mitsuba as mi
+
+        self.keep = np.asarray(keep, dtype=bool)
+        self.box = box
+        self._texture = mi.Texture3f(mi.TensorXf(self.keep.astype(np.float32)[..., None]), use_accel=False,
+                                     filter_mode=dr.FilterMode.Nearest, wrap_mode=dr.WrapMode.Clamp)
+
+    @property
+    def kept_fraction(self) -> float:
+        """Share of the voxels kept."""
+        return float(self.keep.mean())
+
+    def __call__(self, x):
+        return self._texture.eval(self.box.to_unit(dr.detach(x)))[0]
+
+
 @dataclass(frozen=True)
 class GridMediumConfig:
     """Activations and starts of the grid medium."""

@@ -34,7 +34,7 @@ the march's own quadrature; for checks).
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from typing import Any
 
@@ -155,17 +155,30 @@ class ScatterField:
     """
 
     def __init__(self, config: ScatterFieldConfig, medium, box: Box, lights: Sequence[Any], g: float,
-                 shadows: Shadows | None = None) -> None:
+                 shadows: Shadows | None = None, keep: Callable[[Any], Any] | None = None) -> None:
         self.config, self.medium, self.box, self.lights, self.g = config, medium, box, tuple(lights), float(g)
         k = config.n_remainder(len(self.lights))
         if medium.n_rest != 3 * k:
             raise ValueError(f"scatter field: the medium holds {medium.n_rest} remainder values, the basis needs "
                              f"3 x {k}")
         self.shadows = shadows
+        self.keep = keep
+        """An emptiness mask ``x -> Float`` (0 where carved, 1 elsewhere: :class:`mitsnerf.fields.media.Carved`)
+        the medium's density is multiplied by, in the view rays and the shadows alike; None: none."""
+
+    def _new(self, medium, shadows: Shadows | None) -> ScatterField:
+        return ScatterField(self.config, medium, self.box, self.lights, self.g, shadows, self.keep)
 
     def with_medium(self, medium) -> ScatterField:
         """The same field over another medium (new parameters); its shadows are to be recomputed."""
-        return ScatterField(self.config, medium, self.box, self.lights, self.g)
+        return self._new(medium, None)
+
+    def with_keep(self, keep: Callable[[Any], Any] | None) -> ScatterField:
+        """The same field with an emptiness mask (None: without); its shadows are to be recomputed."""
+        return ScatterField(self.config, self.medium, self.box, self.lights, self.g, None, keep)
+
+    def _carved(self, sigma, x):
+        return sigma if self.keep is None else sigma * self.keep(x)
 
     @property
     def sigma_channels(self) -> int:
@@ -173,8 +186,8 @@ class ScatterField:
         return self.medium.density_channels
 
     def density(self, x):
-        """``sigma(x)``: Float (M,) (an Array3f with 3 density channels)."""
-        return self.medium.density(x)
+        """``sigma(x)``: Float (M,) (an Array3f with 3 density channels), times the emptiness mask."""
+        return self._carved(self.medium.density(x), x)
 
     # -- shadows ---------------------------------------------------------------------------------------------
 
@@ -190,14 +203,15 @@ class ScatterField:
         import mitsuba as mi
 
         cfg = self.config
-        density = self.medium.shadow_density(cfg.shadow_density_resolution)
+        shadow_density = self.medium.shadow_density(cfg.shadow_density_resolution)
+        density = shadow_density if self.keep is None else lambda x: self._carved(shadow_density(x), x)
         if cfg.shadow_resolution == 0:
-            return ScatterField(cfg, self.medium, self.box, self.lights, self.g, Shadows(None, density))
+            return self._new(self.medium, Shadows(None, density))
         r = cfg.shadow_resolution
         TensorXf = mi.TensorXf
         x = cell_centres(self.box, r, mi.Array3f)
         textures = tuple(texture(grid_of(tau, r, TensorXf)) for tau in self._march(density, x))
-        return ScatterField(cfg, self.medium, self.box, self.lights, self.g, Shadows(textures, density))
+        return self._new(self.medium, Shadows(textures, density))
 
     def _march(self, density, x) -> list:
         """``tau_l(x)``, the optical depth to every delta light, marched through ``density`` (Float, or Array3f
@@ -243,4 +257,4 @@ class ScatterField:
         if dr.width(d) != width:
             d = d + dr.zeros(type(d), width)
         sigma, albedo, rest = self.medium.lookup(x)
-        return albedo * dr.maximum(self.single_scatter(x, d) + self.remainder(x, d, rest), 0.0), sigma
+        return albedo * dr.maximum(self.single_scatter(x, d) + self.remainder(x, d, rest), 0.0), self._carved(sigma, x)

@@ -68,6 +68,10 @@ class SceneInfo:
     manifest: Mapping[str, Any] | None = None
     """The dataset's ``manifest.json`` (None for foreign data): its ``spec`` gives lights and
     medium placement to physically based methods."""
+    train_views: Any = None
+    """The training views (``images`` (V, H, W, 3) linear RGB, ``cameras``, ``pixel_center``: the dataset's
+    :class:`~mitsnerf.data.dataset.Views`), for what a method builds from them before its first step (an
+    emptiness mask, :mod:`mitsnerf.math.carve`); None where the caller gives none."""
 
 
 @dataclass(frozen=True)

@@ -67,6 +67,7 @@ import numpy as np
 from mitsnerf.config import check_fields, param
 from mitsnerf.errors import DatasetError
 from mitsnerf.fields.grid import GridField
+from mitsnerf.math.carve import carve_mask, unattenuated_pixels
 from mitsnerf.methods.base import MethodConfig, SceneInfo, StepLoss, ViewModel, scene_spec
 from mitsnerf.methods.inverse_start import masked_tv, resampled_depth, tv_pairs
 from mitsnerf.render.camera import Rendered, render_view
@@ -175,41 +176,6 @@ class MitsubaInverseConfig(MethodConfig):
     def depth_clamp(self) -> float:
         """The largest optical depth per side kept after a step: ``depth_max``, or ``majorant_depth`` if lower."""
         return min(self.depth_max, self.majorant_depth) if self.majorant_depth else self.depth_max
-
-
-def unattenuated_pixels(images: np.ndarray, cameras, background, tol: float) -> list[np.ndarray]:
-    """Per view, the pixels (H W,) bool whose value is the environment seen straight through:
-    ``max over channels |image - background(d)| <= tol``, ``d`` the pixel centre ray's direction."""
-    from mitsnerf.math.rays import camera_rays_numpy
-
-    out = []
-    for img, cam in zip(images, cameras):
-        _, d = camera_rays_numpy([cam])
-        bg = np.asarray(background(mi.Vector3f(*(np.ascontiguousarray(d[:, k]) for k in range(3)))))
-        bg = bg.reshape(3, -1).T  # (H W, 3), or (1, 3) for a constant background
-        out.append(np.abs(np.asarray(img, np.float64).reshape(-1, 3) - bg).max(axis=1) <= tol)
-    return out
-
-
-def carve_mask(cameras, empty: list[np.ndarray], box, resolution: int) -> np.ndarray:
-    """Voxels (R, R, R) ``[z, y, x]`` to keep: False where the centre ray of an ``empty`` pixel passes
-    (its points every half voxel along the chord ``[t_n, t_f]``, each in the voxel that holds it)."""
-    from mitsnerf.math.rays import camera_rays_numpy
-
-    r = int(resolution)
-    keep = np.ones((r, r, r), dtype=bool)
-    lo, size = np.asarray(box.lo, np.float64), np.asarray(box.size, np.float64)
-    n = int(np.ceil(2 * np.sqrt(3.0) * r)) + 1
-    u = (np.arange(n) + 0.5) / n
-    for cam, e in zip(cameras, empty):
-        o, d = camera_rays_numpy([cam])
-        t_n, t_f, hit = box.intersect_numpy(o, d)
-        sel = hit & e
-        t = t_n[sel, None] + u[None] * (t_f - t_n)[sel, None]
-        p = o[sel, None].astype(np.float64) + t[..., None] * d[sel, None].astype(np.float64)
-        idx = np.clip(((p - lo) / size * r).astype(np.int64), 0, r - 1).reshape(-1, 3)
-        keep[idx[:, 2], idx[:, 1], idx[:, 0]] = False
-    return keep
 
 
 def _rgb_sensor(camera, spp: int):
@@ -361,7 +327,8 @@ class MitsubaInverseModel(ViewModel):
 
     def carve(self, data) -> None:
         """Build the emptiness masks of every resolution from the training views (``carve = true``)."""
-        empty = unattenuated_pixels(data.images, data.cameras, self._background, self.config.carve_tol)
+        empty = unattenuated_pixels(data.images, data.cameras, self._background, self.config.carve_tol,
+                                    data.pixel_center)
         self._keep = {r: carve_mask(data.cameras, empty, self.box, r) for r in self.config.resolutions}
 
     def _keep_mask(self, r: int) -> np.ndarray | None:

@@ -29,10 +29,11 @@ import drjit as dr
 import mitsuba as mi
 
 from mitsnerf.config import check_fields, param
-from mitsnerf.fields.media import GridMedium, GridMediumConfig, HashMedium, HashMediumConfig, rest_start
+from mitsnerf.fields.media import Carved, GridMedium, GridMediumConfig, HashMedium, HashMediumConfig, rest_start
 from mitsnerf.fields.occupancy import OccupancyConfig
 from mitsnerf.fields.scatter import ScatterField, ScatterFieldConfig
 from mitsnerf.fields.voxel import total_variation, upsample
+from mitsnerf.math.carve import carve
 from mitsnerf.math.rays import fibonacci_directions, to_array3f
 from mitsnerf.methods.base import (
     MethodConfig,
@@ -80,6 +81,14 @@ class ScatterMethodConfig(MethodConfig):
     """Grid medium: weight of the total-variation prior on the remainder grid."""
     n_samples: int = param(128, lo=1)
     """Stratified samples per ray."""
+    carve: bool = param(False)
+    """An emptiness mask from the training views (:mod:`mitsnerf.math.carve`): the density is 0 in every voxel that
+    the ray of a pixel showing the background unattenuated crosses (``max over channels |image - background| <=
+    carve_tol``), in the view rays and the shadows alike, so no haze grows where the views show none."""
+    carve_tol: float = param(1e-4, lo=0.0)
+    """Largest ``|image - background|`` (linear radiance) of a pixel that counts as unattenuated."""
+    carve_resolution: int = param(64, lo=2, hi=512)
+    """Voxels per axis of the emptiness mask."""
     use_occupancy: bool = param(True)
     """Skip samples in empty cells of an occupancy grid refreshed from the density."""
     occupancy: OccupancyConfig = param(default_factory=OccupancyConfig)
@@ -139,6 +148,17 @@ def make_medium(config: ScatterMethodConfig, spec, scene: SceneInfo, n_rest: int
                              config.field.albedo_init)
 
 
+def emptiness_mask(config: ScatterMethodConfig, scene: SceneInfo) -> Carved:
+    """The training views' emptiness mask at ``carve_resolution`` (``carve = true``), built from
+    ``scene.train_views``."""
+    views = scene.train_views
+    if views is None:
+        raise ValueError("carve: needs the training views (SceneInfo.train_views), and none were given")
+    keep = carve(views.images, views.cameras, scene.background, scene.box, config.carve_resolution,
+                 config.carve_tol, views.pixel_center)
+    return Carved(keep, scene.box)
+
+
 class ScatterModel(OccupancyModel):
     name = "scatter"
     config_type = ScatterMethodConfig
@@ -161,8 +181,10 @@ class ScatterModel(OccupancyModel):
         lights = delta_lights(spec.lights)
         fc = field_config(config, spec)
         medium = make_medium(config, spec, scene, 3 * fc.n_remainder(len(lights)), seed)
-        super().__init__(ScatterField(fc, medium, scene.box, lights, asymmetry(spec)),
-                         config.occupancy if config.use_occupancy else None, scene, seed, config.n_samples)
+        field = ScatterField(fc, medium, scene.box, lights, asymmetry(spec))
+        if config.carve:
+            field = field.with_keep(emptiness_mask(config, scene))
+        super().__init__(field, config.occupancy if config.use_occupancy else None, scene, seed, config.n_samples)
 
     def parameters(self) -> Mapping[str, Any]:
         return self.base_field.medium.params

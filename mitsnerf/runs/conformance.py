@@ -204,7 +204,7 @@ def builds_with_parameters(ctx: _Context) -> str:
     from mitsnerf.runs.fit import build_model, scene_info
 
     try:
-        model, _ = build_model(ctx.method, ctx.config, scene_info(ctx.dataset, ctx.dataset.views("train").images), 0)
+        model, _ = build_model(ctx.method, ctx.config, scene_info(ctx.dataset, ctx.dataset.views("train")), 0)
     except MethodError as exc:
         raise Broken(str(exc)) from None
     params = model.parameters()
@@ -239,7 +239,7 @@ def _check_learned(ctx: _Context, model) -> None:
     from mitsnerf.runs.fit import build_model, scene_info
 
     train = ctx.dataset.views("train")
-    fresh, _ = build_model(ctx.method, ctx.config, scene_info(ctx.dataset, train.images), 0)
+    fresh, _ = build_model(ctx.method, ctx.config, scene_info(ctx.dataset, train), 0)
     before, after = _arrays(fresh.parameters()), _arrays(model.parameters())
     if before.keys() == after.keys() and all(np.array_equal(before[k], after[k]) for k in before):
         raise Broken(f"after {STEPS} steps every parameter is as initialised: the optimiser's values never reached "

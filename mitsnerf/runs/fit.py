@@ -26,7 +26,7 @@ from mitsnerf import env
 from mitsnerf.config import from_dict, to_dict
 from mitsnerf.data.arrays import read_npz
 from mitsnerf.data.atomic import atomic_dir, atomic_write_json
-from mitsnerf.data.dataset import Dataset, load_dataset
+from mitsnerf.data.dataset import Dataset, Views, load_dataset
 from mitsnerf.data.images import write_exr, write_png
 from mitsnerf.data.verify import verify_dataset
 from mitsnerf.errors import CLI, DatasetError, DiskFullError, OutputError, Placeholder, UsageError, Words
@@ -95,12 +95,15 @@ class RunResult:
                 f"{rate}" + ("" if out is None else f" -> {out}"))
 
 
-def scene_info(dataset: Dataset, train_images: np.ndarray) -> SceneInfo:
+def scene_info(dataset: Dataset, train_views: Views) -> SceneInfo:
+    """What a method is given of ``dataset`` before training: its box, background, largest training radiance,
+    manifest and training views."""
     return SceneInfo(
         box=dataset.box,
         background=make_background(dataset.background, dataset.root),
-        radiance_max=float(np.percentile(train_images, 99.9)),
+        radiance_max=float(np.percentile(train_views.images, 99.9)),
         manifest=dataset.manifest or None,
+        train_views=train_views,
     )
 
 
@@ -270,7 +273,7 @@ def fit(
     refuse_nondeterministic(deterministic)  # before _start empties or reads the run directory
     train_views = dataset.views("train")
     ref = reference or load_reference(dataset, "test")
-    model, config = build_model(method, method_overrides, scene_info(dataset, train_views.images), train_config.seed)
+    model, config = build_model(method, method_overrides, scene_info(dataset, train_views), train_config.seed)
     run_config = {"method": method, "method_config": to_dict(config), "train": to_dict(train_config),
                   "eval": to_dict(eval_config), "deterministic": bool(deterministic), **dataset_config(dataset)}
     checkpointer, state = _start(out_dir, run_config, model, config.lr, resume, words)
@@ -472,7 +475,7 @@ def load_run(run_dir: Path) -> tuple[Model, Dataset, dict]:
     method = run_method(config, config_where)
     method_config(method, config.get("method_config"), config_where)  # checked before the data loads
     dataset = open_dataset(config, config_where)
-    info = scene_info(dataset, dataset.views("train").images)
+    info = scene_info(dataset, dataset.views("train"))
     seed = int((config.get("train") or {}).get("seed", 0))
     model, _ = build_model(method, config.get("method_config"), info, seed, config_where)
     current = model.parameters()

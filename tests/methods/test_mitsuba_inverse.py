@@ -41,7 +41,7 @@ def tiny(tmp_path_factory):
     root = generate_dataset(parse_scene(TINY, "tiny"), tmp_path_factory.mktemp("inverse"), progress=False)
     dataset = load_dataset(root)
     views = dataset.views("train")
-    return dataset, scene_info(dataset, views.images), PixelData.from_views(views.images, views.cameras)
+    return dataset, scene_info(dataset, views), PixelData.from_views(views.images, views.cameras)
 
 
 def test_a_few_steps_lower_the_image_error_and_upsample(tiny):
@@ -110,7 +110,7 @@ def test_the_sparsity_prior_lowers_the_extinction(tiny):
 
 
 def test_the_emptiness_mask_zeroes_the_voxels_that_unattenuated_pixels_cross(tiny):
-    from mitsnerf.methods.mitsuba_inverse import carve_mask, unattenuated_pixels
+    from mitsnerf.math.carve import carve_mask, unattenuated_pixels
 
     _, info, data = tiny
     empty = unattenuated_pixels(data.images, data.cameras, info.background, 1e-4)
