@@ -198,6 +198,16 @@ def test_a_diverging_loss_stops_training_and_keeps_the_last_healthy_checkpoint(t
     assert load_checkpoint(path).step == 10
 
 
+def test_a_monte_carlo_losss_fireflies_are_not_taken_for_a_divergence():
+    """One step in five from step 10 on meets a firefly (its loss x 1e4, as a path tracer's few-sample loss can):
+    every later interval's mean is > 10 x the first's, which a mean-based check stops at; the median stays."""
+    model = _Quadratic(scale=lambda step: 1e4 if step >= 10 and step % 5 == 3 else 1.0)
+    config = TrainConfig(steps=40, log_every=5, divergence_factor=10.0, divergence_patience=2)
+    result, _ = train(model, None, config, 0.01, progress=False)
+    means = [h["loss_mean"] for h in result.history]
+    assert result.steps == 40 and min(means[2:]) > 10 * means[0], means
+
+
 def test_restore_refuses_a_mismatched_optimizer(tmp_path):
     path = tmp_path / CHECKPOINT_FILE
     opt = dr.opt.Adam(lr=0.1)

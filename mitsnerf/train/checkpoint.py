@@ -21,7 +21,7 @@ generator seeded by ``(seed, k)`` alone (:func:`mitsnerf.train.step_rng`), so th
 *is* the step; the parameters and every Adam moment are stored as the exact float32 bits;
 Adam's step count ``t`` is restored as an evaluated (opaque) UInt32 exactly as
 ``drjit.opt.Adam.step`` leaves it; the learning rate is recomputed from the step by the
-schedule; the loss monitor's interval sums are stored, so the resumed history is the
+schedule; the loss monitor's interval losses are stored, so the resumed history is the
 uninterrupted one's.
 
 The gradients must also be summed in the same order every run. ``nerf``'s are, with any

@@ -36,7 +36,7 @@ class TrainConfig:
     checkpoint_every: int = param(0, lo=0)
     """Steps between checkpoints (0: only at the end and when interrupted); needs a run directory."""
     divergence_factor: float = param(10.0, lo=0.0)
-    """Diverging: the mean loss of a log interval above this times its running minimum (0: no check)."""
+    """Diverging: the median loss of a log interval above this times its running minimum (0: no check)."""
     divergence_patience: int = param(3, lo=1)
     """Log intervals in a row above ``divergence_factor`` x minimum before training stops."""
 

@@ -136,9 +136,9 @@ class _Loop:
         if self.monitor.diverging:
             c = self.config
             raise TrainingError(None, f"step {self.step}",
-                                f"loss diverging: the mean loss of the last {c.divergence_patience} log intervals "
+                                f"loss diverging: the median loss of the last {c.divergence_patience} log intervals "
                                 f"stayed above {c.divergence_factor:g} x its minimum {self.monitor.best:.3g} (now "
-                                f"{entry['loss_mean']:.3g}); stopped; {self.policy.where()}")
+                                f"{self.monitor.last_median:.3g}); stopped; {self.policy.where()}")
         return entry
 
     def out_of_time(self) -> bool:
