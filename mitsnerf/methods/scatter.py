@@ -14,8 +14,10 @@ The medium (``medium``): a hash grid and two small MLPs (``hash``, the ngp field
 (``grid``, as ``voxel``: the density and albedo coarse to fine, the remainder on its own coarser grid, total
 variation priors; train it with ``lr = 0.3``). The shadow cache is recomputed from the density at every training
 step, inside the step's AD graph, and once per parameter change for evaluation; samples are skipped in empty
-cells by an occupancy grid as in ``voxel`` and ``ngp``. Foreign datasets (no manifest spec: the lights are
-unknown) are refused in one line.
+cells by an occupancy grid as in ``voxel`` and ``ngp``. ``carve``: the density is multiplied by the training
+views' emptiness mask (:mod:`mitsnerf.math.carve`), built when the model is (from ``SceneInfo.train_views``), so no
+haze grows, nor casts a shadow, where a view shows the background unattenuated. Foreign datasets (no manifest
+spec: the lights are unknown) are refused in one line.
 """
 
 from __future__ import annotations
@@ -167,6 +169,7 @@ class ScatterModel(OccupancyModel):
     knows = ("lights", "phase function")
     rung = "single scattering"
     tiny = MappingProxyType({"resolution": 8, "initial_resolution": 4, "upsample_steps": [3], "rest_resolution": 2,
+                             "carve": True,
                              "n_samples": 16, "hash": {"n_levels": 2, "log2_hashmap_size": 10, "base_resolution": 8,
                                                        "max_resolution": 16, "hidden": 8, "color_hidden": 8},
                              "field": {"shadow_resolution": 4, "shadow_samples": 4, "shadow_density_resolution": 4,

@@ -61,8 +61,9 @@ def _density64(p_world: np.ndarray) -> np.ndarray:
     return 10.0 * np.logaddexp(0.0, raw)
 
 
-def _exact_T(x: np.ndarray, light, n: int = 4000) -> np.ndarray:
-    """exp(-int sigma) from x to the light (point) or to where the ray leaves the box (sun), float64 midpoints."""
+def _exact_T(x: np.ndarray, light, n: int = 4000, density=None) -> np.ndarray:
+    """exp(-int sigma) from x to the light (point) or to where the ray leaves the box (sun), float64 midpoints
+    (``density``: :func:`_density64` unless given)."""
     if isinstance(light, DirectionalLight):
         w = -np.asarray(light.direction) / np.linalg.norm(light.direction)
         w = np.broadcast_to(w, x.shape)
@@ -78,7 +79,7 @@ def _exact_T(x: np.ndarray, light, n: int = 4000) -> np.ndarray:
         s = np.minimum(np.min(t, axis=1), s_light)
     k = (np.arange(n) + 0.5) / n
     pts = x[:, None, :] + (s[:, None, None] * k[None, :, None]) * w[:, None, :]
-    tau = _density64(pts.reshape(-1, 3)).reshape(len(x), n).mean(axis=1) * s
+    tau = (density or _density64)(pts.reshape(-1, 3)).reshape(len(x), n).mean(axis=1) * s
     return np.exp(-tau)
 
 
@@ -199,3 +200,43 @@ def test_a_loss_on_the_colour_reaches_the_density_along_the_shadow_rays(shadow_g
     assert (g.sum() > 0) == shadow_gradient
     if shadow_gradient:  # the sun comes straight down: only the column above (x, y) = (0.1, -0.2) is on its rays
         assert g[:, :, :5].sum() == 0 and g[:, :, 9:].sum() == 0 and g[:, 6:, :].sum() == 0
+
+
+def _carved_density64(p: np.ndarray) -> np.ndarray:
+    """:func:`_density64` with the half ``x < 0`` of the box carved."""
+    return np.where(p[:, 0] < 0.0, 0.0, _density64(p))
+
+
+def _check_carved() -> None:
+    """With half the box carved (the half x < 0), the density is 0 there and the shadows are the exact transmittance
+    of the carved density."""
+    from mitsnerf.fields.media import Carved
+
+    keep = np.ones((2, 2, 2), dtype=bool)
+    keep[:, :, 0] = False
+    x, _ = _points()
+    xs = mi.Array3f(*x.T.astype(np.float32))
+    field = _field(_config(0), [SUN, LAMP]).with_keep(Carved(keep, UNIT_BOX)).with_shadows()
+    sigma = _host(field.density(xs))
+    np.testing.assert_array_equal(sigma[x[:, 0] < 0.0], 0.0)
+    np.testing.assert_allclose(sigma[x[:, 0] >= 0.0], _density64(x[x[:, 0] >= 0.0]), rtol=1e-4)
+    for light, got in zip((SUN, LAMP), field.transmittance(xs)):
+        exact, uncarved = _exact_T(x, light, density=_carved_density64), _exact_T(x, light)
+        np.testing.assert_allclose(_host(got), exact, atol=1e-2, err_msg=light.type)
+        assert np.max(np.abs(exact - uncarved)) > 0.3, light.type
+
+
+def test_an_emptiness_mask_carves_the_density_in_the_view_and_the_shadow_rays():
+    _check_carved()
+
+
+def test_the_carving_check_fails_when_the_shadows_skip_the_mask():
+    """Planted in the field's own shadow computation: the marches through the uncarved density (carved haze would
+    still cast its shadow)."""
+    from mitsnerf.verify.mutations import Mutation
+
+    bug = Mutation("carve_skips_shadows", "the shadows marched through the uncarved density", "mitsnerf.fields.scatter",
+                   "ScatterField._with_shadows", "density = shadow_density if self.keep is None else",
+                   "density = shadow_density if True else")
+    with planted(bug), pytest.raises(AssertionError):
+        _check_carved()

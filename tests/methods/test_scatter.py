@@ -3,10 +3,13 @@ without one), sizes its medium from them, and trains."""
 
 from __future__ import annotations
 
+import mitsuba as mi
 import numpy as np
 import pytest
 
 from mitsnerf.errors import DatasetError
+from mitsnerf.fields.media import cell_centres
+from mitsnerf.math.carve import carve
 from mitsnerf.methods.base import SceneInfo
 from mitsnerf.methods.scatter import ScatterMethodConfig, ScatterModel
 from mitsnerf.train import TrainConfig, train
@@ -60,3 +63,25 @@ def test_training_lowers_the_loss(tiny_views, medium):
     result, _ = train(model, data, TrainConfig(steps=40, batch_rays=256, log_every=10), lr, progress=False)
     losses = [h["loss"] for h in result.history]
     assert np.mean(losses[-2:]) < 0.6 * losses[0], losses
+
+
+def test_carve_zeroes_the_density_where_the_views_show_the_background(tiny_views):
+    """``carve = true``: the mask is built from the training views at construction; the field's density is 0 in
+    every carved voxel (the blob's, off-centre at x = 0.1, kept), and the shadows too march through it."""
+    from dataclasses import replace
+
+    data, info = tiny_views(n_views=6, size=12)
+    info = replace(_with_spec(info), train_views=data)
+    config = _config(carve=True, carve_resolution=8, carve_tol=1e-3)
+    model = ScatterModel(config, info)
+    keep = carve(data.images, data.cameras, info.background, info.box, 8, 1e-3)
+    assert 0.05 < keep.mean() < 0.95 and keep[4, 4, 4]
+    sigma = np.asarray(model.field().density(cell_centres(info.box, 8, mi.Array3f))).reshape(8, 8, 8)
+    assert np.all(sigma[~keep] == 0.0) and np.all(sigma[keep] > 0.0)
+    assert model.base_field.keep is not None and model.base_field.with_shadows().shadows is not None
+
+
+def test_carve_without_the_training_views_is_refused(tiny_views):
+    _, info = tiny_views(n_views=2, size=4)
+    with pytest.raises(ValueError, match=r"^carve: needs the training views"):
+        ScatterModel(_config(carve=True), _with_spec(info))
