@@ -29,6 +29,7 @@ from typing import Any
 
 import drjit as dr
 import mitsuba as mi
+import numpy as np
 
 from mitsnerf.config import check_fields, param
 from mitsnerf.fields.media import Carved, GridMedium, GridMediumConfig, HashMedium, HashMediumConfig, rest_start
@@ -91,6 +92,10 @@ class ScatterMethodConfig(MethodConfig):
     """Largest ``|image - background|`` (linear radiance) of a pixel that counts as unattenuated."""
     carve_resolution: int = param(64, lo=2, hi=512)
     """Voxels per axis of the emptiness mask."""
+    init_depth: float = param(0.0, lo=0.0)
+    """The density's start as an optical depth per box side (scale-free: ``sigma = init_depth / side``): the hash
+    medium's density head starts there (its output bias ``log(sigma)``), the grid medium's grid too (for its
+    ``grid.sigma_init``); 0: the medium's own start (hash: ``exp(0)``, 1 per world unit; grid: ``grid.sigma_init``)."""
     use_occupancy: bool = param(True)
     """Skip samples in empty cells of an occupancy grid refreshed from the density."""
     occupancy: OccupancyConfig = param(default_factory=OccupancyConfig)
@@ -142,12 +147,18 @@ def make_medium(config: ScatterMethodConfig, spec, scene: SceneInfo, n_rest: int
     """The starting medium of ``config.medium`` for a scene."""
     channels = config.density_channels or (3 if spec.volume.chromatic else 1)
     first = rest_start(environment_mean(scene), n_rest)
+    sigma = config.init_depth / float(np.mean(scene.box.size))
     if config.medium == "hash":
-        return HashMedium(config.hash, mi.TensorXf, scene.box, channels, first, config.field.albedo_init, seed)
+        medium = HashMedium(config.hash, mi.TensorXf, scene.box, channels, first, config.field.albedo_init, seed)
+        if not sigma:
+            return medium
+        bias = np.asarray(medium.params["density.1.bias"], np.float32).copy()
+        bias[:channels] = np.log(sigma)
+        return medium.with_params({"density.1.bias": mi.TensorXf(bias)})
     r = config.initial_resolution
     resolutions = (r, config.albedo_resolution or r, config.rest_resolution)
-    return GridMedium.create(config.grid, resolutions, mi.TensorXf, scene.box, channels, first,
-                             config.field.albedo_init)
+    grid = replace(config.grid, sigma_init=sigma) if sigma else config.grid
+    return GridMedium.create(grid, resolutions, mi.TensorXf, scene.box, channels, first, config.field.albedo_init)
 
 
 def emptiness_mask(config: ScatterMethodConfig, scene: SceneInfo) -> Carved:

@@ -85,3 +85,17 @@ def test_carve_without_the_training_views_is_refused(tiny_views):
     _, info = tiny_views(n_views=2, size=4)
     with pytest.raises(ValueError, match=r"^carve: needs the training views"):
         ScatterModel(_config(carve=True), _with_spec(info))
+
+
+@pytest.mark.parametrize("medium", ["hash", "grid"])
+def test_init_depth_starts_the_density_at_an_optical_depth_per_box_side(tiny_views, medium):
+    """``init_depth = 5`` in a box of side 2: sigma = 2.5 everywhere at the start, whatever the medium."""
+    from dataclasses import replace
+
+    from mitsnerf.math.box import Box
+
+    _, info = tiny_views(n_views=2, size=4)
+    box = Box((-1.0, -1.0, -1.0), (1.0, 1.0, 1.0))
+    model = ScatterModel(_config(medium=medium, init_depth=5.0), replace(_with_spec(info), box=box))
+    sigma = np.asarray(model.base_field.density(cell_centres(box, 4, mi.Array3f)))
+    np.testing.assert_allclose(sigma, 2.5, rtol=1e-2)
