@@ -7,6 +7,7 @@ references' 2048. This sets the method's ``sigma_t`` and albedo to the dataset's
 dataset's noise floor.
 
     .venv/bin/python benchmarks/inverse_ceiling.py --data /work/data/lib --scene cloud --spp 128 2048 4096
+    .venv/bin/python benchmarks/inverse_ceiling.py --dataset DATA/cloud_hg85-d1a39285f64f --spp 2048
 """
 
 from __future__ import annotations
@@ -21,8 +22,9 @@ import numpy as np
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--data", required=True)
+    parser.add_argument("--data", help="the dataset cache: --scene is generated there unless it is cached")
     parser.add_argument("--scene", default="cloud")
+    parser.add_argument("--dataset", help="an existing dataset directory (instead of --data and --scene)")
     parser.add_argument("--spp", nargs="+", type=int, default=[128, 2048, 4096])
     parser.add_argument("--estimator", default="drt")
     args = parser.parse_args()
@@ -43,7 +45,9 @@ def main() -> None:
     from mitsnerf.scoring.views import score_views
     from mitsnerf.train.evaluate import render_views, stack_rgb
 
-    dataset = load_dataset(generate_dataset(load_scene(args.scene), Path(args.data)))
+    if args.dataset is None and args.data is None:
+        parser.error("give --data (with --scene) or --dataset")
+    dataset = load_dataset(args.dataset or generate_dataset(load_scene(args.scene), Path(args.data)))
     views = dataset.views("train")
     info = scene_info(dataset, views)
     ref = load_reference(dataset, "test")
@@ -59,7 +63,8 @@ def main() -> None:
         preds = stack_rgb(render_views(model, ref.cameras)[0])
         seconds = time.perf_counter() - start
         metrics, _ = score_views(preds, ref)
-        rows.append({"scene": args.scene, "eval_spp": spp, "psnr_test_medium": metrics["psnr_test_medium"],
+        name = dataset.manifest.get("name", args.scene)
+        rows.append({"scene": name, "eval_spp": spp, "psnr_test_medium": metrics["psnr_test_medium"],
                      "psnr_test": metrics["psnr_test"], "noise_floor_medium": metrics["noise_floor_psnr_medium"],
                      "render_seconds": seconds})
         print(json.dumps(rows[-1]), flush=True)

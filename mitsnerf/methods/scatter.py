@@ -84,18 +84,20 @@ class ScatterMethodConfig(MethodConfig):
     """Grid medium: weight of the total-variation prior on the remainder grid."""
     n_samples: int = param(128, lo=1)
     """Stratified samples per ray."""
-    carve: bool = param(False)
+    carve: bool = param(True)
     """An emptiness mask from the training views (:mod:`mitsnerf.math.carve`): the density is 0 in every voxel that
     the ray of a pixel showing the background unattenuated crosses (``max over channels |image - background| <=
-    carve_tol``), in the view rays and the shadows alike, so no haze grows where the views show none."""
+    carve_tol``), in the view rays and the shadows alike, so no haze grows where the views show none (false: none;
+    a model built without the training views, ``SceneInfo.train_views``, needs false)."""
     carve_tol: float = param(1e-4, lo=0.0)
     """Largest ``|image - background|`` (linear radiance) of a pixel that counts as unattenuated."""
     carve_resolution: int = param(64, lo=2, hi=512)
     """Voxels per axis of the emptiness mask."""
-    init_depth: float = param(0.0, lo=0.0)
+    init_depth: float = param(5.0, lo=0.0)
     """The density's start as an optical depth per box side (scale-free: ``sigma = init_depth / side``): the hash
     medium's density head starts there (its output bias ``log(sigma)``), the grid medium's grid too (for its
-    ``grid.sigma_init``); 0: the medium's own start (hash: ``exp(0)``, 1 per world unit; grid: ``grid.sigma_init``)."""
+    ``grid.sigma_init``); 0: the medium's own start (hash: ``exp(0)``, 1 per world unit; grid: ``grid.sigma_init``).
+    Carved to the views' hull, a thin start stays thin (benchmarks/README.md, "The middle rung")."""
     use_occupancy: bool = param(True)
     """Skip samples in empty cells of an occupancy grid refreshed from the density."""
     occupancy: OccupancyConfig = param(default_factory=OccupancyConfig)
@@ -166,7 +168,8 @@ def emptiness_mask(config: ScatterMethodConfig, scene: SceneInfo) -> Carved:
     ``scene.train_views``."""
     views = scene.train_views
     if views is None:
-        raise ValueError("carve: needs the training views (SceneInfo.train_views), and none were given")
+        raise ValueError("carve: needs the training views (SceneInfo.train_views), and none were given: give them, "
+                         "or set carve = false")
     keep = carve(views.images, views.cameras, scene.background, scene.box, config.carve_resolution,
                  config.carve_tol, views.pixel_center)
     return Carved(keep, scene.box)
@@ -180,7 +183,6 @@ class ScatterModel(OccupancyModel):
     knows = ("lights", "phase function")
     rung = "single scattering"
     tiny = MappingProxyType({"resolution": 8, "initial_resolution": 4, "upsample_steps": [3], "rest_resolution": 2,
-                             "carve": True,
                              "n_samples": 16, "hash": {"n_levels": 2, "log2_hashmap_size": 10, "base_resolution": 8,
                                                        "max_resolution": 16, "hidden": 8, "color_hidden": 8},
                              "field": {"shadow_resolution": 4, "shadow_samples": 4, "shadow_density_resolution": 4,

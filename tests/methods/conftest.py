@@ -33,7 +33,7 @@ def tiny_views(blob_grid):
         with dr.suspend_grad():
             comp = render_rays(gt, rays.o, rays.d, 64, background=bg, box=UNIT_BOX)
         images = np.stack([np.asarray(c) for c in comp.rgb], -1).reshape(n_views, size, size, 3)
-        info = SceneInfo(UNIT_BOX, bg, float(images.max()))
-        return PixelData.from_views(images, cams), info
+        data = PixelData.from_views(images, cams)
+        return data, SceneInfo(UNIT_BOX, bg, float(images.max()), train_views=data)
 
     return make

@@ -3,6 +3,8 @@ without one), sizes its medium from them, and trains."""
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import mitsuba as mi
 import numpy as np
 import pytest
@@ -28,8 +30,6 @@ def _config(**changes) -> ScatterMethodConfig:
 
 
 def _with_spec(info: SceneInfo, overrides: dict | None = None) -> SceneInfo:
-    from dataclasses import replace
-
     return replace(info, manifest={"spec": tiny_scene(overrides)})
 
 
@@ -68,11 +68,9 @@ def test_training_lowers_the_loss(tiny_views, medium):
 def test_carve_zeroes_the_density_where_the_views_show_the_background(tiny_views):
     """``carve = true``: the mask is built from the training views at construction; the field's density is 0 in
     every carved voxel (the blob's, off-centre at x = 0.1, kept), and the shadows too march through it."""
-    from dataclasses import replace
-
     data, info = tiny_views(n_views=6, size=12)
-    info = replace(_with_spec(info), train_views=data)
-    config = _config(carve=True, carve_resolution=8, carve_tol=1e-3)
+    info = _with_spec(info)
+    config = _config(carve_resolution=8, carve_tol=1e-3)
     model = ScatterModel(config, info)
     keep = carve(data.images, data.cameras, info.background, info.box, 8, 1e-3)
     assert 0.05 < keep.mean() < 0.95 and keep[4, 4, 4]
@@ -83,15 +81,15 @@ def test_carve_zeroes_the_density_where_the_views_show_the_background(tiny_views
 
 def test_carve_without_the_training_views_is_refused(tiny_views):
     _, info = tiny_views(n_views=2, size=4)
-    with pytest.raises(ValueError, match=r"^carve: needs the training views"):
-        ScatterModel(_config(carve=True), _with_spec(info))
+    info = replace(_with_spec(info), train_views=None)
+    with pytest.raises(ValueError, match=r"^carve: needs the training views .*or set carve = false$"):
+        ScatterModel(_config(), info)
+    assert ScatterModel(_config(carve=False), info).base_field.keep is None
 
 
 @pytest.mark.parametrize("medium", ["hash", "grid"])
 def test_init_depth_starts_the_density_at_an_optical_depth_per_box_side(tiny_views, medium):
     """``init_depth = 5`` in a box of side 2: sigma = 2.5 everywhere at the start, whatever the medium."""
-    from dataclasses import replace
-
     from mitsnerf.math.box import Box
 
     _, info = tiny_views(n_views=2, size=4)
