@@ -92,7 +92,7 @@ def measure(args) -> list[dict]:
     from mitsnerf.scene.spec import load_scene
     from mitsnerf.train import PixelData
 
-    dataset = load_dataset(generate_dataset(load_scene(args.scene), Path(args.data)))
+    dataset = load_dataset(args.dataset or generate_dataset(load_scene(args.scene), Path(args.data)))
     views = dataset.views("train")
     info, data = scene_info(dataset, views), PixelData.from_views(views.images, views.cameras)
     rows = []
@@ -161,7 +161,8 @@ def table(rows: list[dict]) -> str:
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--data", required=True, help="dataset cache root (the library's: /work/data/lib)")
+    parser.add_argument("--data", help="dataset cache root: --scene is generated there unless it is cached")
+    parser.add_argument("--dataset", help="an existing dataset directory (instead of --data and --scene)")
     parser.add_argument("--scene", default="cloud")
     parser.add_argument("--states", nargs="+", default=["start", "truth"], choices=["start", "truth"])
     parser.add_argument("--estimators", nargs="+", default=list(ESTIMATORS), choices=ESTIMATORS)
@@ -171,6 +172,8 @@ def main() -> None:
     parser.add_argument("--view0", type=int, default=3)
     parser.add_argument("--json", default=None, help="write the rows here too")
     args = parser.parse_args()
+    if args.dataset is None and args.data is None:
+        parser.error("give --data (with --scene) or --dataset")
 
     import mitsnerf  # noqa: F401  (libLLVM before drjit)
     from mitsnerf import env
