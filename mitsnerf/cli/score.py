@@ -62,7 +62,8 @@ def add_parser(sub) -> None:
     p.add_argument("--out", help="JSON record to write (default: RENDERS/scores.json)")
     p.add_argument("--footprint", type=int, metavar="K",
                    help="the tool's rays per pixel side (default 1: one through each pixel centre; a run: the "
-                        "footprint it rendered with): which of the cached oracle's renders the renders are held "
+                        "footprint it rendered with; a folder mitsnerf render wrote: the one its render.json "
+                        "records): which of the cached oracle's renders the renders are held "
                         "against")
     add_dataset_options(p)
     p.set_defaults(func=run)

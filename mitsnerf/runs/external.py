@@ -44,7 +44,8 @@ Mitsuba's ``gridvolume``.
 **Oracle** (:func:`read_oracle`): the dataset's cached emission-absorption oracle
 (``DATASET/oracle/<key>/``, :mod:`mitsnerf.oracle.cache`, computed by ``mitsnerf bench``), its
 scores at the renders' footprint (1: one ray through each pixel centre, what most tools render;
-``K``: the mean of ``K x K`` rays over the pixel). Of several cached oracles, the one whose medium PSNR a
+``K``: the mean of ``K x K`` rays over the pixel; a folder ``mitsnerf render`` wrote: the footprint its
+``render.json`` records, :func:`rendered_footprint`). Of several cached oracles, the one whose medium PSNR a
 run recorded, else the one with the default settings is taken. None cached: "no oracle".
 
 **Noise floor** (``noise_floor_*`` of the metrics, ``noise_floor_of`` says which): renders that are
@@ -316,6 +317,36 @@ def read_oracle(dataset: Dataset, footprint: int = 1, recorded: float | None = N
     return oracle, f"oracle {oracle.path} at footprint {footprint}"
 
 
+RENDER_RECORD = "render.json"
+"""What ``mitsnerf render`` writes beside its renders: each call's views and the footprint it rendered them at."""
+
+
+def rendered_footprint(folder: Path, paths: Sequence[Path], words: Words = CLI) -> int | None:
+    """The footprint ``mitsnerf render`` recorded for the renders ``paths`` in ``folder`` (its
+    :data:`RENDER_RECORD`: of each file, the last call that wrote a view of its name), None where the folder has
+    no such record or it names none of them; renders made at several footprints are a DatasetError naming
+    ``footprint`` (which oracle they are held against is then the user's to say)."""
+    from mitsnerf.runs.novel import read_calls
+
+    record = Path(folder) / RENDER_RECORD
+    if not record.is_file():
+        return None
+    try:
+        calls = read_calls(record)
+    except ValueError as exc:
+        raise DatasetError(record, None, f"{exc}: move it away, or say the footprint with "
+                                         f"{words.name('footprint')}") from None
+    made = {view.get("name"): call.get("footprint") for call in calls for view in call.get("views") or ()
+            if isinstance(view, dict)}
+    found = {made[p.stem] for p in paths if p.stem in made}
+    if any(not isinstance(k, int) or isinstance(k, bool) or k < 1 for k in found):
+        raise DatasetError(record, "footprint", f"must be whole numbers >= 1, got {sorted(map(str, found))}")
+    if len(found) > 1:
+        raise DatasetError(record, "footprint", f"the renders were made at footprints {sorted(found)}: score "
+                                                f"each footprint's apart, or say which with {words.name('footprint')}")
+    return found.pop() if found else None
+
+
 PNG_FLOOR = "8-bit sRGB PNG: test_ref quantised as a PNG against test"
 EXR_FLOOR = "linear float: test_ref against test (the manifest's)"
 
@@ -398,10 +429,11 @@ def score_renders(dataset: Dataset, folder: Path, *, density: Path | None = None
         from mitsnerf.runs.fit import check_same_dataset
 
         check_same_dataset(run.config, dataset, run.path, "renders", SCORE_ELSEWHERE, words)
-    k = footprint if footprint is not None else run.footprint if run is not None else 1
     folder = renders_folder(Path(folder))
     grid = read_density(density, dataset.box) if density is not None else None  # bad input before the work
     images, paths, rule = read_renders(dataset, folder, fmt, exr_alpha=exr_alpha)
+    k = footprint if footprint is not None else run.footprint if run is not None else \
+        rendered_footprint(folder, paths, words) or 1
     if oracle is None or f"footprint_{k}" not in oracle.scores:
         own = run.metrics.get("oracle_psnr_test_medium") if run is not None and k == run.footprint else None
         oracle, oracle_source = read_oracle(dataset, k, own)

@@ -255,23 +255,32 @@ def cameras_for(request: ViewRequest, dataset) -> tuple[list[Camera], list[str],
     return [Camera.from_fov(ref.c2w, width, height, fov)], [ref_name], pixel_center
 
 
-def previous_calls(path: Path) -> list:
-    """The entries of an existing ``render.json`` (one per earlier call; an older file's one record is one
-    entry), ``[]`` without one; an :class:`~mitsnerf.errors.OutputError` when it is not such a record."""
+def read_calls(path: Path) -> list:
+    """The entries of the ``render.json`` at ``path`` (one per call that rendered into its folder; an older file's
+    one record is one entry); a ``ValueError`` saying why when it is not such a record."""
     import json
 
+    try:
+        calls = json.loads(path.read_text())
+    except (OSError, UnicodeDecodeError, ValueError) as exc:
+        raise ValueError(f"not a render record ({exc})") from None
+    calls = [calls] if isinstance(calls, dict) else calls
+    if not isinstance(calls, list) or not all(isinstance(c, dict) for c in calls):
+        raise ValueError("not a render record (a JSON list of objects)")
+    return calls
+
+
+def previous_calls(path: Path) -> list:
+    """The entries of an existing ``render.json`` (:func:`read_calls`), ``[]`` without one; an
+    :class:`~mitsnerf.errors.OutputError` when it is not such a record."""
     from mitsnerf.errors import OutputError
 
     if not path.exists():
         return []
     try:
-        calls = json.loads(path.read_text())
-    except (OSError, UnicodeDecodeError, ValueError) as exc:
-        raise OutputError(path, None, f"not a render record ({exc}); move it away to render here") from None
-    calls = [calls] if isinstance(calls, dict) else calls
-    if not isinstance(calls, list) or not all(isinstance(c, dict) for c in calls):
-        raise OutputError(path, None, "not a render record (a JSON list of objects); move it away to render here")
-    return calls
+        return read_calls(path)
+    except ValueError as exc:
+        raise OutputError(path, None, f"{exc}; move it away to render here") from None
 
 
 def render_run(run_dir: Path, out_dir: Path, request: ViewRequest = ViewRequest(), progress: bool = True) -> list[Path]:

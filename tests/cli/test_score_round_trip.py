@@ -58,6 +58,30 @@ def test_render_split_test_scores_as_the_run(world, tmp_path, capsys):
     _same_as_run(_scores(capsys, world.dataset, out, "--out", tmp_path / "s.json"), world.run)
 
 
+def test_renders_of_render_split_test_are_held_at_the_footprint_render_json_records(world, tmp_path, capsys):
+    """``render RUN --split test`` renders at the run's footprint (3) and records it in render.json; ``score`` of
+    that folder reads it (it used to take 1, and so the footprint-1 oracle); --footprint still overrides it."""
+    out = tmp_path / "renders"
+    assert main(["render", str(world.run), "--split", "test", "--out", str(out), "--no-progress"]) == 0
+    assert json.loads((out / "render.json").read_text())[-1]["footprint"] == 3
+    assert _scores(capsys, world.dataset, out, "--out", tmp_path / "s.json")["footprint"] == 3
+    assert _scores(capsys, world.dataset, out, "--footprint", "1", "--out", tmp_path / "t.json")["footprint"] == 1
+
+
+def test_renders_made_at_two_footprints_are_refused_not_guessed(world, tmp_path, capsys):
+    """Views rendered into one folder at footprints 3 and 1: one line naming render.json and --footprint."""
+    out = tmp_path / "renders"
+    assert main(["render", str(world.run), "--split", "test", "--out", str(out), "--no-progress"]) == 0
+    calls = json.loads((out / "render.json").read_text())
+    calls.append({**calls[-1], "views": calls[-1]["views"][:1], "footprint": 1})
+    (out / "render.json").write_text(json.dumps(calls))
+    capsys.readouterr()
+    assert main(["score", str(world.dataset), str(out), "--out", str(tmp_path / "s.json")]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "render.json: footprint:" in err and "--footprint" in err, err
+    assert not (tmp_path / "s.json").exists()
+
+
 def test_a_run_gives_its_own_figures_unless_told_otherwise(world, tmp_path, capsys):
     """A run directory is scored as the run scored itself: at its footprint (3), in a row named after its
     method, with its model's density scores and train PSNR from metrics.json; --footprint, --density and
