@@ -14,6 +14,10 @@ process dies, however it dies.
 :func:`data_cache` is where datasets (and their oracles) are kept when no location is given: one
 directory per user, shared by every working directory, as pip, Hugging Face and torch keep theirs.
 
+:func:`progress_log` is how a command that can run for minutes says what it is doing: one line per step
+of its work on stderr, whether or not stderr is a terminal (progress bars are drawn only on one), so that a
+log file shows where the time went.
+
 >>> import tempfile
 >>> d = Path(tempfile.mkdtemp())
 >>> check_output_dir(d / "new" / "run", "--out")       # to be created: its parent's parent is writable
@@ -35,6 +39,7 @@ import fcntl
 import os
 import secrets
 import stat
+import sys
 from collections.abc import Callable, Iterator, Mapping
 from pathlib import Path
 
@@ -200,3 +205,14 @@ def exclusive_lock(lock_path: str | os.PathLike, *, wait: bool, what: str | os.P
     finally:
         lock_path.unlink(missing_ok=True)
         f.close()  # releases the lock
+
+
+def progress_log(progress: bool = True) -> Callable[[str], None]:
+    """Where a long command's progress lines go (``mitsnerf bench``'s, ``generate``'s ...): each line to stderr,
+    flushed, terminal or not; nowhere when ``progress`` is off (``--no-progress``, the API's default).
+
+    >>> progress_log(False)("nothing is printed")
+    """
+    if not progress:
+        return lambda line: None
+    return lambda line: print(line, file=sys.stderr, flush=True)

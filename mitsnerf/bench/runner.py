@@ -21,7 +21,6 @@ cell trains (:mod:`mitsnerf.bench.external`), and appear in every output as ``NA
 
 from __future__ import annotations
 
-import sys
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -60,7 +59,7 @@ from mitsnerf.bench.tables import (
 from mitsnerf.config import from_dict, to_dict
 from mitsnerf.data.atomic import atomic_write_json, atomic_write_text
 from mitsnerf.errors import CLI, SpecError, Words, signal_cause
-from mitsnerf.outputs import data_cache
+from mitsnerf.outputs import data_cache, progress_log
 
 
 def _cache_dir() -> Path:
@@ -409,7 +408,7 @@ def run_benchmark(config: BenchConfig, options: BenchOptions, log: Callable[[str
 
     check_options(options.executor, options.workers, options.cpus_per_cell, options.address, options.words)
     if log is None:
-        log = (lambda line: print(line, file=sys.stderr, flush=True)) if options.progress else (lambda line: None)
+        log = progress_log(options.progress)
     scenes = plan_scenes(config, options)
     cells = plan_cells(config, options, scenes)
     out_root = out_root_of(config, options)
