@@ -250,17 +250,20 @@ def evaluate(run: PathLike, *, footprint: int | None = None) -> dict[str, Any]:
 def score(dataset: Dataset | PathLike, renders: PathLike, *, density: PathLike | None = None,
           name: str | None = None, footprint: int | None = None,
           format: str | None = None,  # noqa: A002 (the CLI's word)
-          exr_alpha: str | None = None) -> dict[str, Any]:
+          exr_alpha: str | None = None, compute_oracle: bool = False, progress: bool = False) -> dict[str, Any]:
     """Score a folder of renders of ``dataset``'s test views (or a run directory's ``test/``), as ``mitsnerf
-    score``: the metrics of a bench cell, with the oracle where the dataset has one cached, and with
+    score``: the metrics of a bench cell, with the oracle where the dataset has one cached (``compute_oracle``:
+    computed and cached first where it has none; ``progress``: its progress lines on stderr), and with
     ``density`` (a ``.npy``/``.vol`` grid of sigma_t over the dataset's box) the density errors. A run
     directory gives the run's own figures (its footprint, its density scores; ``footprint`` and ``density``
     override them); one trained on another dataset is a :class:`~mitsnerf.errors.UsageError`."""
+    from mitsnerf.outputs import progress_log
     from mitsnerf.runs.external import score_renders
 
     _ready()
     result = score_renders(_open(dataset), Path(renders), density=Path(density) if density is not None else None,
-                           name=name, fmt=format, footprint=footprint, exr_alpha=exr_alpha)
+                           name=name, fmt=format, footprint=footprint, exr_alpha=exr_alpha,
+                           compute_oracle=compute_oracle, log=progress_log(progress))
     return dict(result.metrics)
 
 

@@ -217,3 +217,18 @@ def test_a_bad_footprint_is_one_line_and_exit_2(dataset, tmp_path, capsys):
     status, out, err = _score(capsys, dataset, renders, "--footprint", "0")
     assert status == 2 and err == "mitsnerf: error: --footprint: must be an integer in [1, 16], got 0\n", err
     assert not (renders / "scores.json").exists()
+
+
+def test_a_single_scattering_runs_basis_is_the_one_it_recorded_else_its_models(dataset, tmp_path):
+    """The ceiling of a scatter run's row needs its remainder basis (L_f, L_z): metrics.json's rung_basis, else
+    (a run from before it was recorded) the basis its model, built from the run's settings, has."""
+    from mitsnerf.methods import methods
+    from mitsnerf.runs.external import RunRenders, run_basis
+
+    ds = load_dataset(dataset)
+    assert run_basis(RunRenders(tmp_path, {"method": "scatter"}, {"rung_basis": [2, 5]}, 1), ds) == (2, 5)
+    settings = copy.deepcopy(dict(methods()["scatter"].model_type.tiny))
+    settings["field"].update({"remainder_degree": 1, "zonal_degree": 3})  # the model's: none in an isotropic medium
+    assert run_basis(RunRenders(tmp_path, {"method": "scatter", "method_config": settings}, {}, 1), ds) == (0, 0)
+    with pytest.raises(DatasetError, match="metrics.json: rung_basis: must be two whole numbers"):
+        run_basis(RunRenders(tmp_path, {"method": "scatter"}, {"rung_basis": [1.5, 2]}, 1), ds)

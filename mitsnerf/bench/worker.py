@@ -20,6 +20,7 @@ import numpy as np
 
 from mitsnerf.bench import memory
 from mitsnerf.bench.cells import IN_FLIGHT_FILE, RECORD_FORMAT, Cell, SceneData
+from mitsnerf.oracle.rungs import ceiling_figures
 from mitsnerf.scoring.images import image_scores
 
 
@@ -237,7 +238,8 @@ def run_cell(cell: Cell, *, progress: bool = False, threads: int = 0, executor: 
         points.append({"step": run.train.steps, "seconds": run.train.seconds, "psnr": last["psnr_test"],
                        "psnr_medium": last.get("psnr_test_medium")})
     metrics.update(time_to_targets(points, evalc.psnr_targets))
-    metrics.update(ceiling_figures(run.model, oracle, dataset, evalc.footprint, ref, metrics))
+    basis = run.model.rung_basis() if run.model.rung == "single scattering" else None
+    metrics.update(ceiling_figures(run.model.rung, basis, oracle, dataset, evalc.footprint, ref, metrics))
     metrics["peak_memory_mb"], metrics["peak_rss_mb"] = memory.peak_memory_mb(), memory.peak_rss_mb()
 
     record = _record(cell, dataset, metrics, points, k, evalc, run.train.history)
@@ -248,24 +250,6 @@ def run_cell(cell: Cell, *, progress: bool = False, threads: int = 0, executor: 
                         "peak_memory_note": memory.PEAK_MEMORY_NOTE}
     record["started"], record["finished"] = started, time.time()
     return record, _artefacts(run, ref, evalc.report_view)
-
-
-def ceiling_figures(model, oracle, dataset, footprint: int, reference, metrics: dict) -> dict[str, Any]:
-    """The ceiling of the row's rung (:mod:`mitsnerf.oracle.rungs`: the oracle, the oracle on a single-scattering
-    method's basis, or the references' agreement + 3.01 dB) and the gap to it, on medium pixels."""
-    from mitsnerf.oracle.rungs import PERFECT_DB, single_scattering_ceiling
-
-    ceiling = None
-    if model.rung == "emission-absorption":
-        ceiling = metrics.get("oracle_psnr_test_medium")
-    elif model.rung == "single scattering" and oracle is not None:
-        degree, zonal = model.rung_basis()
-        ceiling = single_scattering_ceiling(oracle, dataset, degree, zonal, footprint, reference)
-    elif model.rung == "full transport" and metrics.get("noise_floor_psnr_medium") is not None:
-        ceiling = metrics["noise_floor_psnr_medium"] + PERFECT_DB
-    medium = metrics.get("psnr_test_medium")
-    gap = None if ceiling is None or medium is None else ceiling - medium
-    return {"ceiling_psnr_test_medium": ceiling, "gap_to_ceiling": gap}
 
 
 def _record(cell: Cell, dataset, metrics: dict, points: list, k: int, evalc, history: list) -> dict[str, Any]:

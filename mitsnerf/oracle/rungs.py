@@ -22,7 +22,7 @@ the least-squares projection of ``a_l`` on the span of the lights' ``z`` (one li
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -138,3 +138,23 @@ def score_on_basis(oracle_dir, dataset, degree: int, zonal: int, footprint: int,
                          background=make_background(dataset.background, dataset.root), footprint=footprint,
                          pixel_center=reference.pixel_center)
     return score_views(image, reference, None)[0].get("psnr_test_medium")
+
+
+def ceiling_figures(rung: str | None, basis: tuple[int, int] | None, oracle, dataset, footprint: int, reference,
+                    metrics: Mapping[str, Any]) -> dict[str, Any]:
+    """The ceiling of a row's ``rung`` on medium pixels and the gap to it, ``{"ceiling_psnr_test_medium": C,
+    "gap_to_ceiling": C - metrics["psnr_test_medium"]}`` (None where there is no ceiling): the oracle's medium PSNR
+    in ``metrics`` (emission-absorption); the oracle with its remainder on the method's basis ``(L_f, L_z)``
+    (single scattering, :func:`single_scattering_ceiling`); the references' agreement + :data:`PERFECT_DB`
+    (full transport). ``metrics``: the row's scores (``psnr_test_medium``, ``oracle_psnr_test_medium``,
+    ``noise_floor_psnr_medium``)."""
+    ceiling = None
+    if rung == "emission-absorption":
+        ceiling = metrics.get("oracle_psnr_test_medium")
+    elif rung == "single scattering" and oracle is not None and basis is not None:
+        ceiling = single_scattering_ceiling(oracle, dataset, basis[0], basis[1], footprint, reference)
+    elif rung == "full transport" and metrics.get("noise_floor_psnr_medium") is not None:
+        ceiling = metrics["noise_floor_psnr_medium"] + PERFECT_DB
+    medium = metrics.get("psnr_test_medium")
+    gap = None if ceiling is None or medium is None else ceiling - medium
+    return {"ceiling_psnr_test_medium": ceiling, "gap_to_ceiling": gap}

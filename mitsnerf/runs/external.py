@@ -46,7 +46,8 @@ Mitsuba's ``gridvolume``.
 scores at the renders' footprint (1: one ray through each pixel centre, what most tools render;
 ``K``: the mean of ``K x K`` rays over the pixel; a folder ``mitsnerf render`` wrote: the footprint its
 ``render.json`` records, :func:`rendered_footprint`). Of several cached oracles, the one whose medium PSNR a
-run recorded, else the one with the default settings is taken. None cached: "no oracle".
+run recorded, else the one with the default settings is taken. None cached: "no oracle", naming what computes
+one (:func:`no_oracle`); ``compute_oracle`` computes it then and there (:func:`find_oracle`).
 
 **Noise floor** (``noise_floor_*`` of the metrics, ``noise_floor_of`` says which): renders that are
 all PNG are held against the floor of their format, :func:`mitsnerf.scoring.images.png_noise_floor` (the
@@ -57,7 +58,7 @@ it as PNG), others against the manifest's.
 from __future__ import annotations
 
 import re
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -310,11 +311,37 @@ def read_oracle(dataset: Dataset, footprint: int = 1, recorded: float | None = N
     found = [o for o in (load_oracle(p.parent) for p in sorted((Path(dataset.root) / ORACLE_DIR).glob("*/oracle.json")))
              if o is not None and f"footprint_{int(footprint)}" in o.scores]
     if not found:
-        return None, f"no oracle (none cached in {Path(dataset.root) / ORACLE_DIR} at footprint {footprint})"
+        return None, no_oracle(dataset, footprint)
     default = to_dict(OracleConfig())
     same = [o for o in found if recorded is not None and o.metrics(footprint).get("psnr_test_medium") == recorded]
     oracle = next(iter(same), next((o for o in found if o.info.get("config") == default), found[0]))
     return oracle, f"oracle {oracle.path} at footprint {footprint}"
+
+
+def no_oracle(dataset: Dataset, footprint: int) -> str:
+    """Why ``dataset`` has no oracle at ``footprint``, and how to get one (in the dataset's words): foreign data
+    has no true medium to compute it from; a generated dataset's is computed by ``compute_oracle``
+    (``--compute-oracle``)."""
+    from mitsnerf.oracle.cache import ORACLE_DIR
+
+    if not (dataset.manifest or {}).get("spec"):
+        return "no oracle (foreign data: no true medium to compute one from)"
+    return (f"no oracle (none cached in {Path(dataset.root) / ORACLE_DIR} at footprint {footprint}; "
+            f"{dataset.words(compute_oracle=True)} computes it and caches it with the dataset)")
+
+
+def find_oracle(dataset: Dataset, footprint: int, recorded: float | None, compute: bool, reference: Reference,
+                log: Callable[[str], None] = lambda line: None):
+    """``(oracle, source)`` as :func:`read_oracle`; with ``compute``, a generated dataset without one at
+    ``footprint`` gets the default settings' computed and cached first (:func:`mitsnerf.oracle.cache.ensure_oracle`,
+    its progress lines to ``log``)."""
+    from mitsnerf.oracle.cache import OracleConfig, ensure_oracle
+
+    oracle, source = read_oracle(dataset, footprint, recorded)
+    if oracle is not None or not compute or not (dataset.manifest or {}).get("spec"):
+        return oracle, source
+    oracle = ensure_oracle(dataset, OracleConfig(), footprint, log, reference)
+    return oracle, source if oracle is None else f"oracle {oracle.path} at footprint {footprint} (computed now)"
 
 
 RENDER_RECORD = "render.json"
@@ -411,14 +438,15 @@ SCORE_ELSEWHERE = "score it against the dataset it trained on"
 
 def score_renders(dataset: Dataset, folder: Path, *, density: Path | None = None, name: str | None = None,
                   fmt: str | None = None, footprint: int | None = None, oracle=None, exr_alpha: str | None = None,
-                  reference: Reference | None = None) -> ExternalScore:
+                  reference: Reference | None = None, compute_oracle: bool = False,
+                  log: Callable[[str], None] = lambda line: None) -> ExternalScore:
     """Score the renders in ``folder`` against ``dataset``'s test views: the metrics of a benchmark
     cell (:func:`mitsnerf.scoring.views.score_views`), with the oracle's at ``footprint`` (``oracle``, else
-    :func:`read_oracle`'s) where there is one; ``reference``: the test views'
-    :class:`~mitsnerf.scoring.reference.Reference` if the caller has it. A run directory is scored as the run
-    (module docstring): ``footprint`` (None: the run's, else 1), ``name`` and ``density`` override it. Messages
-    name settings in the dataset's words (:attr:`mitsnerf.data.dataset.Dataset.words`: ``--format``, or
-    ``format`` from the Python API)."""
+    :func:`find_oracle`'s: ``compute_oracle`` computes a missing one, its progress lines to ``log``) where there is
+    one; ``reference``: the test views' :class:`~mitsnerf.scoring.reference.Reference` if the caller has it. A
+    run directory is scored as the run (module docstring): ``footprint`` (None: the run's, else 1), ``name`` and
+    ``density`` override it. Messages name settings in the dataset's words
+    (:attr:`mitsnerf.data.dataset.Dataset.words`: ``--format``, or ``format`` from the Python API)."""
     words = dataset.words
     if fmt is not None and fmt not in FORMATS:
         raise UsageError(words.name("format"), f"must be one of {', '.join(FORMATS)}, got {fmt!r}")
@@ -434,12 +462,13 @@ def score_renders(dataset: Dataset, folder: Path, *, density: Path | None = None
     images, paths, rule = read_renders(dataset, folder, fmt, exr_alpha=exr_alpha)
     k = footprint if footprint is not None else run.footprint if run is not None else \
         rendered_footprint(folder, paths, words) or 1
+    reference = reference or load_reference(dataset, "test")
     if oracle is None or f"footprint_{k}" not in oracle.scores:
         own = run.metrics.get("oracle_psnr_test_medium") if run is not None and k == run.footprint else None
-        oracle, oracle_source = read_oracle(dataset, k, own)
+        oracle, oracle_source = find_oracle(dataset, k, own, compute_oracle, reference, log)
     else:
         oracle_source = f"oracle {oracle.path} at footprint {k}"
-    ref, floor_of = _floor_of_format(dataset, reference or load_reference(dataset, "test"), paths)
+    ref, floor_of = _floor_of_format(dataset, reference, paths)
     fn = None if grid is None else true_density(grid, dataset.box)
     metrics, slices = score_views(images, ref, fn, oracle=None if oracle is None else oracle.metrics(k))
     metrics["noise_floor_of"], metrics["footprint"] = floor_of, k
@@ -448,6 +477,7 @@ def score_renders(dataset: Dataset, folder: Path, *, density: Path | None = None
         density_source = _density_of_run(metrics, ref, run)
     if run is not None and run.metrics:
         metrics["psnr_train"] = run.metrics.get("psnr_train")  # of training views: only the run has it
+        metrics.update(_rung_figures(run, oracle, dataset, k, ref, metrics))
     views = dataset.views("test")
     return ExternalScore(name or (run.method if run is not None else folder.resolve().name), metrics,
                          {n: str(p) for n, p in zip(views.names, paths)}, rule, density_source, oracle_source, images,
@@ -462,3 +492,33 @@ def _density_of_run(metrics: dict, ref: Reference, run: RunRenders | None) -> st
         return None
     metrics.update({key: run.metrics.get(key) for key in density_figures(None, ref)[0]})
     return f"the run's own ({run.path / 'metrics.json'})"
+
+
+def _rung_figures(run: RunRenders, oracle, dataset: Dataset, footprint: int, ref: Reference,
+                  metrics: dict) -> dict[str, Any]:
+    """What a run's row says of its rung: ``given`` and ``rung`` as its ``metrics.json`` records them, the ceiling
+    of that rung and the gap to it (:func:`mitsnerf.oracle.rungs.ceiling_figures`), as a bench cell has them."""
+    from mitsnerf.oracle.rungs import ceiling_figures
+
+    rung = run.metrics.get("rung")
+    basis = run_basis(run, dataset) if rung == "single scattering" and oracle is not None else None
+    return {"given": run.metrics.get("given"), "rung": rung,
+            **ceiling_figures(rung, basis, oracle, dataset, footprint, ref, metrics)}
+
+
+def run_basis(run: RunRenders, dataset: Dataset) -> tuple[int, int]:
+    """A single-scattering run's remainder basis ``(L_f, L_z)`` (:mod:`mitsnerf.oracle.rungs`): its ``metrics.json``'s
+    ``rung_basis``, else (a run from before it was recorded) what its method's model built from the run's settings
+    says; a malformed one is a DatasetError naming the file."""
+    recorded = run.metrics.get("rung_basis")
+    if recorded is not None:
+        if not (isinstance(recorded, list) and len(recorded) == 2
+                and all(isinstance(v, int) and not isinstance(v, bool) and v >= 0 for v in recorded)):
+            raise DatasetError(run.path / "metrics.json", "rung_basis", f"must be two whole numbers >= 0 (L_f, L_z), "
+                                                                       f"got {recorded!r:.60}")
+        return recorded[0], recorded[1]
+    from mitsnerf.runs.fit import build_model, scene_info
+
+    model, _ = build_model(run.method, run.config.get("method_config"), scene_info(dataset, dataset.views("train")),
+                           run.seed, run.path / "config.json")
+    return model.rung_basis()

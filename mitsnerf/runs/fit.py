@@ -71,6 +71,7 @@ class RunResult:
             "method": self.method,
             "given": ", ".join(("images",) + tuple(self.model.knows)),
             "rung": self.model.rung,
+            **({"rung_basis": list(self.model.rung_basis())} if self.model.rung == "single scattering" else {}),
             "footprint": self.config["eval"]["footprint"],
             "budget": from_dict(TrainConfig, self.config["train"]).budget,
             "steps": self.train.steps,

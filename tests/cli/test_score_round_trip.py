@@ -135,3 +135,52 @@ def test_a_run_of_another_dataset_is_refused(world, other, tmp_path, capsys):
     moved = tmp_path / "moved"
     shutil.copytree(world.dataset, moved)
     assert main(["score", str(moved), str(world.run), "--out", str(tmp_path / "m.json")]) == 0
+
+
+@pytest.fixture(scope="module")
+def oracled(world, tmp_path_factory):
+    """A copy of the world's dataset whose oracle ``score RUN --compute-oracle`` computed, and what the command
+    printed (stdout, stderr, its scores.json). The oracle's volpath estimate takes a few directions per point of an
+    8^3 grid, for time; the command itself takes the default settings."""
+    import contextlib
+    import io
+
+    from mitsnerf.oracle import cache
+
+    root = tmp_path_factory.mktemp("oracled")
+    dataset = root / "data"
+    shutil.copytree(world.dataset, dataset)  # the oracle is written into it
+    cheap = cache.OracleConfig(spp=8, resolution=8)
+    out, err = io.StringIO(), io.StringIO()
+    with pytest.MonkeyPatch.context() as patch, contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
+        patch.setattr(cache, "OracleConfig", lambda: cheap)
+        status = main(["score", str(dataset), str(world.run), "--compute-oracle", "--out", str(root / "s.json")])
+    assert status == 0, err.getvalue()
+    return dataset, out.getvalue(), err.getvalue(), json.loads((root / "s.json").read_text())["metrics"]
+
+
+def test_without_an_oracle_score_names_what_computes_it_and_compute_oracle_does(world, oracled, tmp_path, capsys):
+    """A dataset with no oracle cached (a user's own volume's): the line says which option computes one; with it,
+    the oracle is computed (saying so on stderr) and cached in the dataset, and the renders are held against it."""
+    assert main(["score", str(world.dataset), str(world.run), "--out", str(tmp_path / "s.json")]) == 0
+    out = capsys.readouterr().out
+    assert "no oracle (none cached in" in out and "--compute-oracle computes it" in out, out
+    dataset, out, err, scores = oracled
+    assert "(computed now)" in out and "oracle: the in-scattered light by volpath" in err, (out, err)
+    assert scores["oracle_psnr_test_medium"] is not None and list((dataset / "oracle").glob("*/oracle.json"))
+
+
+def test_a_run_scores_with_what_it_was_given_and_its_rung(world, tmp_path, capsys):
+    """score RUN fills the table's given and rung from the run's metrics.json, as the bench does."""
+    scores = _scores(capsys, world.dataset, world.run, "--out", tmp_path / "s.json")
+    assert (scores["given"], scores["rung"]) == ("images", "emission-absorption")
+    assert scores["ceiling_psnr_test_medium"] is None  # no oracle cached: no ceiling for emission-absorption
+
+
+def test_a_run_scores_with_its_rungs_ceiling(oracled):
+    """With an oracle, score RUN fills its ceiling and the gap to it too (nerf: held to the oracle)."""
+    _, out, _, scores = oracled
+    assert (scores["given"], scores["rung"]) == ("images", "emission-absorption")
+    assert scores["ceiling_psnr_test_medium"] == scores["oracle_psnr_test_medium"] is not None
+    assert scores["gap_to_ceiling"] == pytest.approx(scores["ceiling_psnr_test_medium"] - scores["psnr_test_medium"])
+    assert "| images | emission-absorption |" in out
