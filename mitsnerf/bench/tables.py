@@ -1,6 +1,6 @@
 """Result tables: cells aggregated per (scene, method) over seeds and averaged over scenes, as
-Markdown (terminal and file), CSV and JSON-ready rows; the best value per column bold (every row
-equal to it at the displayed precision: ties are all bold).
+Markdown (terminal and file), CSV and JSON-ready rows; the best value per column bold among the rows given
+the same (every row equal to it at the displayed precision: ties are all bold).
 
 Printed (:func:`compact_report`): :data:`COMPACT`, the headline medium-pixel PSNR beside the gap to
 the oracle, with one line per scene giving the agreement of its two reference renders and what a
@@ -107,7 +107,7 @@ MEANINGS: dict[str, str] = {
     "oracle medium": "the oracle row's PSNR medium on this scene",
     "gap to oracle": "oracle medium PSNR minus the row's (dB; 0: as good as the ceiling)",
     "given": "what the method was given: the images (and their cameras) alone, or also the lights and the phase "
-             "function (read from the dataset's spec): compare rows that were given the same",
+             "function (read from the dataset's spec): compare rows that were given the same (bold does)",
     "rung": "the physics its renders can represent: emission-absorption, single scattering (the delta lights' "
             "single scattering through its own medium), full transport",
     "its ceiling": "the ceiling of the row's rung, medium pixels: the oracle (emission-absorption); the oracle with "
@@ -147,16 +147,19 @@ MEANINGS: dict[str, str] = {
                         "X dB on medium pixels (measured, not decisive)",
     "note": "failed cells, the oracle's settings, why a density figure is missing",
 }
-BOLD = "bold: the column's best at the displayed precision, per scene, ties all bold; figures are means over seeds"
+BOLD = ("bold: the column's best among the rows given the same, per scene (ties at the displayed precision all bold); "
+        "figures are means over seeds")
 
 
 def legend(columns: Sequence[Column]) -> str:
     """One line per column of ``columns`` (``- header: meaning``), then what bold means.
 
     >>> print(legend([("psnr_test_medium", "PSNR medium", 2), ("gap_to_oracle", "gap to oracle", 2)]))
+    ... # doctest: +NORMALIZE_WHITESPACE
     - PSNR medium: PSNR of the test views on the pixels whose ray crosses the true medium (linear, clipped)
     - gap to oracle: oracle medium PSNR minus the row's (dB; 0: as good as the ceiling)
-    - bold: the column's best at the displayed precision, per scene, ties all bold; figures are means over seeds
+    - bold: the column's best among the rows given the same, per scene (ties at the displayed precision all
+      bold); figures are means over seeds
     """
     lines: list[str] = []
     for _, header, _ in columns:
@@ -200,28 +203,41 @@ def _cell_text(row: dict, key: str, digits: int) -> str:
     return text
 
 
-def is_best(row: dict, key: str, digits: int, marks: dict[tuple[Any, str], Any], group: str | None) -> bool:
-    """Whether ``row[key]`` is bold: equal to the column's best (:func:`best_values`) at the displayed precision,
-    so every tied row is bold whatever the rows' order.
+def bold_group(row: dict, group: str | None) -> tuple[Any, str]:
+    """The rows ``row``'s bold competes with: those of its ``group`` (a scene; None: the whole table) that were
+    given the same (the ``given`` column's rule; a row that does not say, another tool's renders, was given the
+    images).
 
-    >>> marks = {(None, "p"): 25.8712}
+    >>> bold_group({"scene": "cloud", "given": "images, lights, phase function"}, "scene")
+    ('cloud', 'images, lights, phase function')
+    >>> bold_group({"scene": "cloud"}, None)
+    (None, 'images')
+    """
+    return row.get(group) if group else None, row.get("given") or "images"
+
+
+def is_best(row: dict, key: str, digits: int, marks: dict[tuple[Any, str], Any], group: str | None) -> bool:
+    """Whether ``row[key]`` is bold: equal to its group's best (:func:`best_values`, :func:`bold_group`) at the
+    displayed precision, so every tied row is bold whatever the rows' order.
+
+    >>> marks = {((None, "images"), "p"): 25.8712}
     >>> is_best({"p": 25.8712}, "p", 2, marks, None), is_best({"p": 25.8698}, "p", 2, marks, None)
     (True, True)
     >>> is_best({"p": 25.86}, "p", 2, marks, None), is_best({"p": 25.87, "ceiling": True}, "p", 2, marks, None)
     (False, False)
     """
-    mark = marks.get((row.get(group) if group else None, key))
+    mark = marks.get((bold_group(row, group), key))
     return mark is not None and not row.get("ceiling") and _is_number(row.get(key)) \
         and _fmt(row[key], digits) == _fmt(mark, digits)
 
 
 def best_values(rows: Sequence[dict], best: dict[str, str], group: str | None = None) -> dict[tuple[Any, str], Any]:
-    """``{(group value, key): best value}`` over rows with at least two numbers in the column; the
-    "seconds to X dB" columns found in ``rows`` are best at their minimum."""
+    """``{(bold group, key): best value}`` over the rows of each :func:`bold_group` with at least two numbers in the
+    column; the "seconds to X dB" columns found in ``rows`` are best at their minimum."""
     marks: dict[tuple[Any, str], Any] = {}
     groups: dict[Any, list[dict]] = {}
     for row in rows:
-        groups.setdefault(row.get(group) if group else None, []).append(row)
+        groups.setdefault(bold_group(row, group), []).append(row)
     to_target = {k: "min" for r in rows for k in r if _TO_TARGET.fullmatch(k)}
     for g, members in groups.items():
         members = [r for r in members if not r.get("ceiling")]
@@ -236,8 +252,8 @@ def markdown_table(rows: Sequence[dict], columns: Sequence[Column], best: dict[s
                    group: str | None = None) -> str:
     """A Markdown table of ``rows``; ``columns`` are (key, header, decimals).
 
-    ``best`` maps a key to ``"max"`` or ``"min"``: the best value in that column is bold
-    (within each group of rows sharing ``row[group]`` when ``group`` is given).
+    ``best`` maps a key to ``"max"`` or ``"min"``: the best value in that column is bold among the rows given the
+    same (:func:`bold_group`; within each group of rows sharing ``row[group]`` when ``group`` is given).
 
     >>> rows, columns = [{"m": "a", "p": 30.0}, {"m": "b", "p": 31.5}], [("m", "method", 0), ("p", "PSNR", 2)]
     >>> print(markdown_table(rows, columns, {"p": "max"}))

@@ -60,7 +60,26 @@ def test_every_seconds_to_target_column_is_best_at_its_minimum():
     rows = [{"scene": "a", "seconds_to_33db": 5.0, "seconds_to_40db": 9.0},
             {"scene": "a", "seconds_to_33db": 2.0, "seconds_to_40db": 12.0}]
     marks = best_values(rows, BEST, group="scene")
-    assert marks[("a", "seconds_to_33db")] == 2.0 and marks[("a", "seconds_to_40db")] == 9.0
+    assert marks[(("a", "images"), "seconds_to_33db")] == 2.0 and marks[(("a", "images"), "seconds_to_40db")] == 9.0
+
+
+def test_bold_compares_the_rows_that_were_given_the_same():
+    """The legend says to compare rows given the same: scatter (given the lights too) is bold among such rows, not
+    over those given the images alone (it used to be bolded best against them); each group has its own best."""
+    from mitsnerf.bench.report import html_table
+    from mitsnerf.bench.tables import legend
+
+    lit = "images, lights, phase function"
+    rows = [{"scene": "a", "method": "ngp", "given": "images", "psnr_test_medium": 40.0},
+            {"scene": "a", "method": "voxel", "given": "images", "psnr_test_medium": 39.0},
+            {"scene": "a", "method": "scatter", "given": lit, "psnr_test_medium": 45.0},
+            {"scene": "a", "method": "mitsuba-inverse", "given": lit, "psnr_test_medium": 30.0},
+            {"scene": "a", "method": "tool (external)", "psnr_test_medium": 41.0}]
+    md = markdown_table(rows, QUALITY, BEST, group="scene")
+    bold = {line.split(" | ")[1] for line in md.splitlines()[2:] if "**" in line}
+    assert bold == {"tool (external)", "scatter"}, md  # another tool's renders were given the images
+    assert html_table(rows, QUALITY, "scene", BEST).count('class="best"') == 2
+    assert "among the rows given the same" in legend(QUALITY)
 
 
 def test_ties_at_the_displayed_precision_are_all_bold_whatever_the_order():
