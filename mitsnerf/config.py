@@ -340,12 +340,15 @@ def from_dict(cls, data: Mapping[str, Any] | None, *, source: Any = None, prefix
 
     Missing keys keep their defaults (a required one is "missing field"); unknown keys are
     errors with a "did you mean" hint; then the class's ``__post_init__`` runs, and a
-    ``ValueError("field: problem")`` it raises is reported at ``prefix.field``.
+    ``ValueError("field: problem")`` it raises is reported at ``prefix.field``. A nested field may be
+    given whole (``{"network": {"width": 32}}``) or by its dotted name (``{"network.width": 32}``, as
+    ``--set`` writes it), in every surface alike (:func:`_undotted`).
     """
     source = None if source is None else str(source)
     data = {} if data is None else data
     if not isinstance(data, Mapping):
         raise SpecError(source, prefix.rstrip(".") or None, f"must be a table, got {_kind(data)}")
+    data = _undotted(data, source, prefix)
     fields = [f for f in dataclasses.fields(cls) if not _is_internal(f)]
     _check_unknown(cls, data, [f.name for f in fields], source, prefix)
     hints = typing.get_type_hints(cls)
@@ -363,6 +366,22 @@ def from_dict(cls, data: Mapping[str, Any] | None, *, source: Any = None, prefix
     try:
         return cls(**kwargs)
     except ValueError as exc:
+        raise as_spec_error(exc, source, prefix) from None
+
+
+def _undotted(data: Mapping, source: str | None, prefix: str) -> Mapping:
+    """``data`` with its dotted keys put into their tables (:func:`apply_overrides`, over the tables given whole;
+    integer parts index lists), so that ``{"field.shadow_samples": 8}`` means ``{"field": {"shadow_samples": 8}}``.
+
+    >>> _undotted({"a": {"x": 1, "y": 2}, "a.y": 3, "b": 4}, None, "")
+    {'a': {'x': 1, 'y': 3}, 'b': 4}
+    """
+    dotted = {k: v for k, v in data.items() if isinstance(k, str) and "." in k}
+    if not dotted:
+        return data
+    try:
+        return apply_overrides({k: v for k, v in data.items() if k not in dotted}, dotted, source)
+    except SpecError as exc:
         raise as_spec_error(exc, source, prefix) from None
 
 

@@ -242,3 +242,14 @@ def test_a_stopped_bench_says_to_call_it_again_not_to_run_a_command(tmp_path, mo
     monkeypatch.setattr(mitsnerf.bench.executors, "run_cells", stopped)  # the sweep stopped before its first cell
     text = _raises(Interrupted, lambda: api.bench(tmp_path / "first.toml", results=tmp_path / "r", data=tmp_path / "d"))
     assert "call api.bench again with the same arguments to resume" in text
+
+
+def test_settings_take_the_dotted_keys_of_set_and_of_mitsnerf_methods(dataset):
+    """``{"network.width": 8}`` as --set and ``mitsnerf methods NAME`` write them sets what ``{"network": {"width":
+    8}}`` sets (it used to be refused: unknown field); a dotted key that names no field is refused at its full path."""
+    dotted = {"network.width": 8, "network.depth": 1, "network.head_width": 8, "network.features": 4, "n_samples": 8}
+    run = api.fit(dataset, "nerf", steps=1, batch_rays=32, settings=dotted)
+    network = run.model.config.network
+    assert (network.width, network.depth, network.head_width, network.features) == (8, 1, 8, 4)
+    text = _raises(SpecError, lambda: api.fit(dataset, "nerf", steps=1, settings={"network.widht": 8}))
+    assert text == "settings: network.widht: unknown field (did you mean 'width'?)", text

@@ -324,3 +324,8 @@ def test_a_nested_method_config_error_names_the_dotted_field():
     assert str(info.value) == "--set: network.log2_hashmap_size: must be an integer in [8, 24], got 30"
     with pytest.raises(SpecError, match=r"^--set: occupancy\.decy: unknown field \(did you mean 'decay'\?\)$"):
         from_dict(NGPMethodConfig, {"occupancy": {"decy": 0.5}}, source="--set")
+
+
+def test_a_nested_field_is_set_by_its_dotted_name_as_by_its_table():
+    assert from_dict(Outer, {"main.width": 8, "small": {"depth": 1}, "small.width": 2}) == \
+        Outer(main=Inner(width=8), small=Inner(width=2, depth=1))
