@@ -421,10 +421,40 @@ def as_spec_error(exc: ValueError, source: Any, prefix: str = "") -> SpecError:
 def _check_unknown(cls, data: Mapping, known: list[str], source, prefix: str) -> None:
     for key in data:
         if key not in known:
-            close = difflib.get_close_matches(str(key), known, n=1)
-            hint = (f" (did you mean {close[0]!r}?)" if close else f" (known: {', '.join(known)})" if known
+            close = _did_you_mean(cls, str(key), known)
+            hint = (f" (did you mean {close}?)" if close else f" (known: {', '.join(known)})" if known
                     else " (it takes none)")
             raise SpecError(source, _join(prefix, key), f"unknown {_noun(cls)}{hint}")
+
+
+def _did_you_mean(cls, key: str, known: list[str]) -> str | None:
+    """What an unknown ``key`` of ``cls`` may have meant: the fields of its nested configs of that very name
+    (``shadow_samples``: ``'field.shadow_samples'``), else the closest of ``known``, else the closest field of a
+    nested config; None when nothing is close (the quoted names, ``"'field.shadow_samples'"``)."""
+    nested = _nested_names(cls)
+    same = [name for name in nested if name.rsplit(".", 1)[-1] == key]
+    if same:
+        return " or ".join(repr(name) for name in same[:3])
+    close = difflib.get_close_matches(key, known, n=1)
+    if close:
+        return repr(close[0])
+    leaves: dict[str, str] = {}
+    for name in nested:
+        leaves.setdefault(name.rsplit(".", 1)[-1], name)
+    close = difflib.get_close_matches(key, list(leaves), n=1)
+    return repr(leaves[close[0]]) if close else None
+
+
+def _nested_names(cls, prefix: str = "") -> list[str]:
+    """The dotted names of the fields of ``cls``'s nested configs, at any depth (``field.shadow_samples``)."""
+    hints = typing.get_type_hints(cls)
+    names: list[str] = []
+    for f in dataclasses.fields(cls):
+        tp = hints[f.name]
+        if not _is_internal(f) and isinstance(tp, type) and dataclasses.is_dataclass(tp):
+            inner = [g.name for g in dataclasses.fields(tp) if not _is_internal(g)]
+            names += [f"{prefix}{f.name}.{n}" for n in inner] + _nested_names(tp, f"{prefix}{f.name}.")
+    return names
 
 
 def _convert(tp, value: Any, path: str, bounds: Bounds | None, source) -> Any:

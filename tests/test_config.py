@@ -326,6 +326,22 @@ def test_a_nested_method_config_error_names_the_dotted_field():
         from_dict(NGPMethodConfig, {"occupancy": {"decy": 0.5}}, source="--set")
 
 
+@pytest.mark.parametrize(("data", "hint"), [
+    ({"shadow_samples": 8}, "(did you mean 'field.shadow_samples'?)"),  # a nested field's name: its dotted name
+    ({"depth": 8}, "(did you mean 'main.depth' or 'small.depth'?)"),
+    ({"widht": 8}, "(did you mean 'main.width'?)"),  # nothing close at the top: the closest nested field
+])
+def test_an_unknown_field_that_a_nested_config_has_is_pointed_at_by_its_dotted_name(data, hint):
+    """``--set shadow_samples=8`` on scatter suggested ``n_samples``, a field of another meaning, rather than the
+    ``field.shadow_samples`` it names."""
+    from mitsnerf.methods.scatter import ScatterMethodConfig
+
+    cls = ScatterMethodConfig if "shadow_samples" in data else Outer
+    with pytest.raises(SpecError) as exc:
+        from_dict(cls, data, source="--set")
+    assert str(exc.value).endswith(hint), str(exc.value)
+
+
 def test_a_nested_field_is_set_by_its_dotted_name_as_by_its_table():
     assert from_dict(Outer, {"main.width": 8, "small": {"depth": 1}, "small.width": 2}) == \
         Outer(main=Inner(width=8), small=Inner(width=2, depth=1))
