@@ -124,3 +124,22 @@ def test_a_run_whose_parameters_its_config_does_not_build_is_refused_in_one_line
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "params.npz: fine.head.0.weights: has shape" in err[0] and "retrain it" in err[0]
     assert not out.exists()
+
+
+@pytest.mark.parametrize(("argv", "what"), [
+    (["render", "{run}", "--split", "test", "--out", "{dataset}/renders"], "renders there"),
+    (["export", "{run}", "--resolution", "4", "--out", "{dataset}/export"], "an export there"),
+    (["score", "{dataset}", "{run}", "--out", "{dataset}/scores.json"], "a scores file there"),
+    (["score", "{dataset}", "{dataset}/test"], "a scores file there"),  # its default, RENDERS/scores.json
+])
+def test_no_command_writes_inside_the_dataset(run_dir, capsys, argv, what):
+    """render, export and score refuse an output inside the dataset, as train does: its files would change a
+    hashed dataset (they used to write there). One line naming --out, exit 2, the dataset as it was."""
+    (dataset,) = (run_dir.parent / "data").glob("tiny-cli-*")
+    before = sorted(p.relative_to(dataset) for p in dataset.rglob("*"))
+    capsys.readouterr()
+    assert main([a.format(run=run_dir, dataset=dataset) for a in argv]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and err.startswith("mitsnerf: error: --out: ") and what in err, err
+    assert "is inside the dataset" in err and "put it outside, e.g. --out " in err, err
+    assert sorted(p.relative_to(dataset) for p in dataset.rglob("*")) == before

@@ -11,12 +11,14 @@ def run(args) -> int:
     from mitsnerf.bench.tables import QUALITY, markdown_table, scene_rows
     from mitsnerf.data.atomic import atomic_write_json
     from mitsnerf.outputs import check_output_dir, check_output_file, progress_log
+    from mitsnerf.runs.directory import check_outside_dataset
     from mitsnerf.runs.external import renders_folder, score_renders
     from mitsnerf.train.evaluate import EvalConfig
 
     renders = renders_folder(Path(args.renders))  # a run's test/
     out = Path(args.out) if args.out else renders / "scores.json"
     check_output_file(out, "--out")
+    check_outside_dataset(out, Path(args.dataset), what="a scores file", example="scores.json")
     if args.compute_oracle:  # the oracle is cached with the dataset
         check_output_dir(Path(args.dataset) / "oracle", "--compute-oracle")
     if args.footprint is not None:

@@ -105,11 +105,14 @@ def check_renamable(path: Path, words: Words = CLI, option: str | None = None) -
                           f"directory and renamed into place; name a new one, e.g. {words(out='run')}")
 
 
-def check_outside_dataset(out: Path, dataset: Path, words: Words = CLI) -> None:
-    """Refuse a run directory inside (or at) the dataset directory: its files would change a hashed dataset."""
-    if out.resolve().is_relative_to(dataset.resolve()):
-        raise UsageError(words.name("out"), f"{out} is inside the dataset {dataset}: a run there would change the "
-                                            f"dataset's files; put the run outside it, e.g. {words(out='runs/NAME')}")
+def check_outside_dataset(out: Path, dataset: Path, words: Words = CLI, what: str = "a run",
+                          example: str = "runs/NAME", option: str = "out") -> None:
+    """Refuse an output (``what``: a run, renders, an export, a scores file; set by ``option``, ``example`` a place
+    to advise) inside (or at) the dataset directory: its files would change a hashed dataset. The one rule of every
+    command that writes what it makes of a dataset."""
+    if Path(out).resolve().is_relative_to(Path(dataset).resolve()):
+        raise UsageError(words.name(option), f"{out} is inside the dataset {dataset}: {what} there would change the "
+                                             f"dataset's files; put it outside, e.g. {words(**{option: example})}")
 
 
 def lock_path(path: str | os.PathLike) -> Path:

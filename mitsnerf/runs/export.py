@@ -174,11 +174,14 @@ def _write_export(paths: dict[str, Path], sigma: np.ndarray, color: np.ndarray, 
 
 def export_run(run_dir: Path, out_dir: Path | None = None, resolution: int = 64,
                direction: Sequence[float] | None = None, n_directions: int = DEFAULT_DIRECTIONS) -> dict[str, Path]:
-    """Export the field of the run in ``run_dir`` (default ``OUT = RUN/export``)."""
+    """Export the field of the run in ``run_dir`` (default ``OUT = RUN/export``; not inside the run's dataset, which
+    its files would change)."""
+    from mitsnerf.runs.directory import check_outside_dataset
     from mitsnerf.runs.fit import load_run
 
     model, dataset, config = load_run(Path(run_dir))
     out_dir = Path(out_dir) if out_dir is not None else Path(run_dir) / "export"
+    check_outside_dataset(out_dir, Path(dataset.root), what="an export", example="export/NAME")
     if not isinstance(model, HasField):
         raise DatasetError(run_dir, None, f"method {config.get('method')!r} has no queryable field to export")
     return export_field(model.field(), out_dir, resolution, direction, n_directions, box=dataset.box,

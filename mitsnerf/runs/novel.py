@@ -284,13 +284,16 @@ def previous_calls(path: Path) -> list:
 
 
 def render_run(run_dir: Path, out_dir: Path, request: ViewRequest = ViewRequest(), progress: bool = True) -> list[Path]:
-    """Render the views of ``request`` from the run in ``run_dir`` into ``out_dir``; returns the files."""
+    """Render the views of ``request`` from the run in ``run_dir`` into ``out_dir`` (not inside the run's dataset,
+    which its files would change); returns the files."""
     from tqdm.auto import tqdm
 
     from mitsnerf.math.color import linear_to_srgb
+    from mitsnerf.runs.directory import check_outside_dataset
     from mitsnerf.runs.fit import load_run
 
     model, dataset, config = load_run(Path(run_dir))
+    check_outside_dataset(Path(out_dir), Path(dataset.root), what="renders", example="renders/NAME")
     cams, stems, pixel_center = cameras_for(request, dataset)
     footprint = request.footprint or int((config.get("eval") or {}).get("footprint", 1))
     out_dir = Path(out_dir)
