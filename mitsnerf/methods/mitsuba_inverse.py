@@ -65,7 +65,7 @@ import mitsuba as mi
 import numpy as np
 
 from mitsnerf.config import check_fields, param
-from mitsnerf.errors import DatasetError
+from mitsnerf.errors import DatasetError, SpecError
 from mitsnerf.fields.grid import GridField
 from mitsnerf.math.carve import carve_mask, unattenuated_pixels
 from mitsnerf.methods.base import MethodConfig, SceneInfo, StepLoss, ViewModel, scene_spec
@@ -100,8 +100,8 @@ class MitsubaInverseConfig(MethodConfig):
     emissive_steps: int = param(0, lo=0)
     """Steps of the emissive start (emission-absorption fit of the extinction and an emission grid) before the
     path tracer takes over (0: none)."""
-    emissive_rays: int = param(4096, lo=1)
-    """Training pixels per step of the emissive start."""
+    emissive_rays: int = param(4096, lo=1, hi=1 << 22)
+    """Training pixels per step of the emissive start (at most a training step's ``batch_rays``)."""
     init_albedo: float = param(0.6, lo=0.0, hi=1.0)
     """Initial constant albedo."""
     albedo_first: int = param(0, lo=0)
@@ -133,7 +133,8 @@ class MitsubaInverseConfig(MethodConfig):
     spp_late_at: int = param(0, lo=0)
     """The step (0-based) from which training renders use ``spp_late`` samples per pixel."""
     views_per_step: int = param(1, lo=1)
-    """Training views rendered per step; the image term is their mean squared error."""
+    """Training views rendered per step (drawn at random, with replacement); the image term is their mean squared
+    error. At most the dataset's training views (:func:`check_views_per_step`)."""
     l1: float = param(0.0, lo=0.0)
     """Weight of the sparsity prior ``l1 * mean over voxels of tau`` (0: none)."""
     tv_sigma: float = param(0.0, lo=0.0)
@@ -197,6 +198,17 @@ def _integrator(config: MitsubaInverseConfig, max_depth: int, side: float) -> di
             "majorant_floor": config.majorant_floor / side, "drt": config.estimator == "drt"}
 
 
+def check_views_per_step(config: MitsubaInverseConfig, scene: SceneInfo) -> None:
+    """Refuse ``views_per_step`` above the number of training views ``scene`` gives (each is a path-traced render
+    per step, so the work grows with it without bound, where more views than the data has only repeats them)."""
+    if scene.train_views is None:
+        return
+    n = len(scene.train_views.cameras)
+    if config.views_per_step > n:
+        raise SpecError(None, "views_per_step", f"must be at most the dataset's {n} training views (each step "
+                                                f"path-traces that many renders), got {config.views_per_step}")
+
+
 def _cube_side(box) -> float:
     """The side of the scene box, a cube (every spec's box is ``world.scale`` times the unit cube)."""
     size = [float(v) for v in box.size]
@@ -217,6 +229,7 @@ class MitsubaInverseModel(ViewModel):
     def __init__(self, config: MitsubaInverseConfig, scene: SceneInfo, seed: int = 0) -> None:
         from mitsnerf.scene.to_mitsuba import scene_dict
 
+        check_views_per_step(config, scene)
         self.spec = scene_spec(scene, self.name, "its spec gives the lights and the medium's placement")
         self.config, self.box = config, scene.box
         self.side = _cube_side(scene.box)

@@ -161,6 +161,22 @@ def test_several_views_per_step_are_rendered_and_averaged(tiny):
     assert step.rays == 3 * 12 * 12 and np.isfinite(float(step.mse[0]))
 
 
+def test_more_views_per_step_than_the_data_has_is_refused_in_one_line(tiny, monkeypatch):
+    """views_per_step=100000 on 4 training views path-traced 100000 renders a step without a word; it is refused
+    before the model builds anything, naming the field and the data's count. emissive_rays is bounded as a step's
+    batch_rays is."""
+    from mitsnerf.config import from_dict
+    from mitsnerf.errors import SpecError
+
+    _, info, _ = tiny
+    monkeypatch.setattr(mi, "load_dict", lambda *a, **k: pytest.fail("built a scene before refusing"))
+    with pytest.raises(SpecError, match=r"^views_per_step: must be at most the dataset's 4 training views .*"
+                                        r"got 100000$"):
+        MitsubaInverseModel(MitsubaInverseConfig(resolutions=(8,), upsample_at=(), views_per_step=100000), info)
+    with pytest.raises(SpecError, match=r"^emissive_rays: must be an integer in \[1, 4194304\], got 100000000$"):
+        from_dict(MitsubaInverseConfig, {"emissive_rays": 10**8})
+
+
 def _info(overrides: dict) -> SceneInfo:
     """The scene a model sees, from a spec alone (no images are needed to build one)."""
     from mitsnerf.scene.spec import parse_scene
