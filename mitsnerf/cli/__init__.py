@@ -18,10 +18,49 @@ from mitsnerf.cli import bench, check, env, export, generate, methods, render, s
 
 class _Parser(argparse.ArgumentParser):
     """argparse, with a mistake on the command line reported as every user error is: one line
-    ``mitsnerf: error: ...`` (and where to find the usage), exit status 2."""
+    ``mitsnerf: error: ...`` (and where to find the usage), exit status 2; an option or a command that is not
+    one is reported by the command it was given to, with the closest names (``--stpes``: ``--steps``)."""
 
     def error(self, message: str):
-        self.exit(2, f"mitsnerf: error: {self.prog}: {message} (see {self.prog} --help)\n")
+        where = f"{self.prog}: " if " " in self.prog else ""  # a command's parser names it; the top one is said
+        self.exit(2, f"mitsnerf: error: {where}{message}{_closest(self, message)} (see {self.prog} --help)\n")
+
+    def parse_args(self, args=None, namespace=None):  # type: ignore[override]
+        parsed, extras = self.parse_known_args(args, namespace)
+        if extras:
+            sub = _command_parser(self, getattr(parsed, "command", None))
+            sub.error(f"unrecognized arguments: {' '.join(extras)}")
+        return parsed
+
+
+def _command_parser(parser: argparse.ArgumentParser, command: str | None) -> argparse.ArgumentParser:
+    """The parser of ``command`` (a subcommand of ``parser``), else ``parser`` itself."""
+    for action in parser._actions:
+        if isinstance(action, argparse._SubParsersAction) and command in action.choices:
+            return action.choices[command]
+    return parser
+
+
+def _closest(parser: argparse.ArgumentParser, message: str) -> str:
+    """`` (did you mean --steps?)`` for an unrecognised option or an invalid command in argparse's ``message``,
+    from ``parser``'s own options and commands; "" when none is close.
+
+    >>> p = _Parser(prog="mitsnerf train"); _ = p.add_argument("--steps")
+    >>> _closest(p, "unrecognized arguments: --stpes 10")
+    ' (did you mean --steps?)'
+    """
+    import difflib
+    import re
+
+    options = [o for a in parser._actions for o in a.option_strings]
+    commands = [c for a in parser._actions if isinstance(a, argparse._SubParsersAction) for c in a.choices]
+    if message.startswith("unrecognized arguments: "):
+        wrong, known = [w.split("=")[0] for w in message.split()[2:] if w.startswith("-")], options
+    else:
+        wrong, known = re.findall(r"invalid choice: '([^']*)'", message), commands
+    bare = {k.lstrip("-"): k for k in known}  # the dashes every option shares say nothing of closeness
+    close = [bare[m] for w in wrong for m in difflib.get_close_matches(w.lstrip("-"), list(bare), n=1)]
+    return f" (did you mean {', '.join(dict.fromkeys(close))}?)" if close else ""
 
 
 def build_parser() -> argparse.ArgumentParser:

@@ -62,3 +62,21 @@ def test_a_reader_that_goes_away_stops_the_command_quietly():
     proc.stdout.close()  # long before the child has imported anything, let alone written
     _, err = proc.communicate(timeout=300)
     assert proc.returncode == 141 and b"Traceback" not in err and b"BrokenPipe" not in err, err.decode()
+
+
+@pytest.mark.parametrize(("argv", "line"), [
+    (["train", "d", "--out", "r", "--stpes", "10"],
+     "mitsnerf: error: mitsnerf train: unrecognized arguments: --stpes 10 (did you mean --steps?) "
+     "(see mitsnerf train --help)\n"),
+    (["train", "d", "--out", "r", "--bogus"],
+     "mitsnerf: error: mitsnerf train: unrecognized arguments: --bogus (see mitsnerf train --help)\n"),
+    (["trian"], "(did you mean train?) (see mitsnerf --help)\n"),
+])
+def test_a_mistyped_option_is_named_by_its_command_once_with_the_closest_name(capsys, argv, line):
+    """``train ... --stpes 10`` printed 'mitsnerf: error: mitsnerf: unrecognized arguments' (the prefix twice, the
+    command not named) and no "did you mean"."""
+    with pytest.raises(SystemExit) as exc:
+        main(argv)
+    err = capsys.readouterr().err
+    assert exc.value.code == 2 and err.endswith(line) and err.count("\n") == 1, err
+    assert "error: mitsnerf: " not in err, err
