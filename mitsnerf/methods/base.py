@@ -275,7 +275,10 @@ def scene_spec(scene: SceneInfo, method: str, why: str):
     from mitsnerf.errors import DatasetError
     from mitsnerf.scene.spec import parse_scene
 
-    spec_data = (scene.manifest or {}).get("spec")
+    if not scene.manifest:  # foreign data has no manifest.json: not one to name
+        raise DatasetError(None, None, f"{method} needs a dataset made by 'mitsnerf generate' ({why}); this one is "
+                                       "foreign data (NeRF-synthetic or instant-ngp), which holds no scene spec")
+    spec_data = scene.manifest.get("spec")
     if not spec_data:
         raise DatasetError(None, "manifest.json: spec", f"{method} needs a dataset made by 'mitsnerf generate' "
                                                         f"({why})")

@@ -34,10 +34,15 @@ def _with_spec(info: SceneInfo, overrides: dict | None = None) -> SceneInfo:
 
 
 def test_data_without_a_spec_is_refused_in_one_line(tiny_views):
+    """Foreign data (no manifest, as a NeRF-synthetic folder): the line says so and names no manifest.json, which
+    such a folder does not have (it used to); a manifest without its spec is named."""
     _, info = tiny_views(n_views=2, size=4)
-    with pytest.raises(DatasetError, match=r"scatter needs a dataset made by 'mitsnerf generate' \(its spec gives "
-                                           r"the lights and the phase function\)$"):
+    with pytest.raises(DatasetError, match=r"^scatter needs a dataset made by 'mitsnerf generate' \(its spec gives "
+                                           r"the lights and the phase function\); this one is foreign data "
+                                           r"\(NeRF-synthetic or instant-ngp\), which holds no scene spec$"):
         ScatterModel(_config(), info)
+    with pytest.raises(DatasetError, match=r"^manifest.json: spec: scatter needs a dataset made by 'mitsnerf "):
+        ScatterModel(_config(), replace(info, manifest={"name": "old"}))
 
 
 @pytest.mark.parametrize(("overrides", "channels", "basis", "k"), [
