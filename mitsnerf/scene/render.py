@@ -174,7 +174,9 @@ def compose(medium: list[np.ndarray], seen: PixelTransmittance, has_environment:
             else:
                 assert seen.t_rgb is not None, "a per-channel composition needs each channel's T"
                 zero_mean = channel_alpha[i].astype(np.float64) - (1.0 - seen.t_rgb[i])
-            full[..., :3] = (img[..., :3] + seen.through[i] - seen.env[i] * zero_mean).astype(np.float32)
+            with np.errstate(over="ignore", invalid="ignore"):  # radiance past float32 (inf, NaN) is refused
+                rgb = img[..., :3] + seen.through[i] - seen.env[i] * zero_mean  # after, in one line, by check_views
+                full[..., :3] = rgb.astype(np.float32)
         if has_environment:
             full[..., 3] = 1.0
         out.append(full)

@@ -428,3 +428,20 @@ def test_round_off_below_zero_is_no_negative_radiance_but_a_real_negative_is():
         assert verify.without_roundoff(bad)[0, 0, 0] < 0
         with pytest.raises(SpecError, match="1 negative radiance value"):
             check_views(spec, "test", [bad])
+
+
+def test_radiance_past_float32_is_refused_by_the_check_without_runtime_warnings():
+    """An environment past float32 (a light of 1e39: inf) turns a composed pixel into inf or NaN; check_views
+    refuses it in one line, and composing it printed two RuntimeWarnings on the way (make test showed them)."""
+    import warnings
+
+    from mitsnerf.scene.ground_truth import check_views
+
+    medium = [np.array([[[0.1, 0.1, 0.1, 0.5], [0.0, 0.0, 0.0, 0.0]]], np.float32)]
+    seen = tr.PixelTransmittance(np.array([[[0.5, 1.0]]]), np.full((1, 1, 2, 3), np.inf), np.full((1, 1, 2, 3), np.inf))
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        image = scene_render.compose(medium, seen, has_environment=True)[0]
+    assert not np.isfinite(image[..., :3]).all()
+    with pytest.raises(SpecError, match="non-finite"):
+        check_views(parse_scene(TINY, "t.toml"), "test", [image])
