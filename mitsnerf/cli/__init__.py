@@ -25,7 +25,7 @@ class _Parser(argparse.ArgumentParser):
         where = f"{self.prog}: " if " " in self.prog else ""  # a command's parser names it; the top one is said
         self.exit(2, f"mitsnerf: error: {where}{message}{_closest(self, message)} (see {self.prog} --help)\n")
 
-    def parse_args(self, args=None, namespace=None):  # type: ignore[override]
+    def parse_args(self, args=None, namespace=None):
         parsed, extras = self.parse_known_args(args, namespace)
         if extras:
             sub = _command_parser(self, getattr(parsed, "command", None))
