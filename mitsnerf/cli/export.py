@@ -22,7 +22,8 @@ def run(args) -> int:
         raise UsageError("--direction", "must not be 0 0 0")
     out = Path(args.out) if args.out else Path(args.run) / "export"
     check_output_dir(out, "--out")
-    paths = export_run(Path(args.run), out, args.resolution, args.direction, args.directions)
+    paths = export_run(Path(args.run), out, args.resolution, args.direction, args.directions,
+                       progress=not args.no_progress)
     print(f"{args.resolution}^3 medium -> {paths['sigma_t.vol'].parent} ({', '.join(paths)})")
     return 0
 
@@ -58,4 +59,5 @@ def add_parser(sub) -> None:
                    help="colour seen looking along this direction (default: averaged over directions)")
     p.add_argument("--directions", type=int, default=16, metavar="M",
                    help="number of view directions the colour is averaged over (default 16)")
+    p.add_argument("--no-progress", action="store_true", help="no progress lines on stderr")
     p.set_defaults(func=run)

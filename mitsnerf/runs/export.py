@@ -173,9 +173,13 @@ def _write_export(paths: dict[str, Path], sigma: np.ndarray, color: np.ndarray, 
 
 
 def export_run(run_dir: Path, out_dir: Path | None = None, resolution: int = 64,
-               direction: Sequence[float] | None = None, n_directions: int = DEFAULT_DIRECTIONS) -> dict[str, Path]:
+               direction: Sequence[float] | None = None, n_directions: int = DEFAULT_DIRECTIONS,
+               progress: bool = False) -> dict[str, Path]:
     """Export the field of the run in ``run_dir`` (default ``OUT = RUN/export``; not inside the run's dataset, which
-    its files would change)."""
+    its files would change). ``progress``: a line on stderr before and after (:func:`mitsnerf.outputs.progress_log`)."""
+    import time
+
+    from mitsnerf.outputs import progress_log
     from mitsnerf.runs.directory import check_outside_dataset
     from mitsnerf.runs.fit import load_run
 
@@ -184,5 +188,11 @@ def export_run(run_dir: Path, out_dir: Path | None = None, resolution: int = 64,
     check_outside_dataset(out_dir, Path(dataset.root), what="an export", example="export/NAME")
     if not isinstance(model, HasField):
         raise DatasetError(run_dir, None, f"method {config.get('method')!r} has no queryable field to export")
-    return export_field(model.field(), out_dir, resolution, direction, n_directions, box=dataset.box,
-                        info={"run": str(run_dir), "method": config.get("method"), "provenance": env.provenance()})
+    log, start = progress_log(progress), time.perf_counter()
+    colour = "along one direction" if direction is not None else f"averaged over {n_directions} directions"
+    log(f"[export] {config.get('method')}'s density and colour ({colour}) at the {resolution ** 3} voxel centres of "
+        f"a {resolution}^3 grid -> {out_dir} ...")
+    paths = export_field(model.field(), out_dir, resolution, direction, n_directions, box=dataset.box,
+                         info={"run": str(run_dir), "method": config.get("method"), "provenance": env.provenance()})
+    log(f"[export] written in {time.perf_counter() - start:.1f} s")
+    return paths

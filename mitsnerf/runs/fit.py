@@ -34,6 +34,7 @@ from mitsnerf.fields.protocols import DensityField
 from mitsnerf.math.box import Box
 from mitsnerf.methods import check_model, get_method, methods
 from mitsnerf.methods.base import HasField, Model, ParameterShapeError, SceneInfo, num_parameters
+from mitsnerf.outputs import progress_log
 from mitsnerf.render.background import make_background
 from mitsnerf.render.camera import Rendered
 from mitsnerf.runs.directory import RUN_FILES, remove_run_files
@@ -292,6 +293,8 @@ def fit(
             checkpointer=checkpointer,
             on_log=None if on_log is None else (lambda entry: on_log(entry, model)),
         )
+    progress_log(progress)(f"[train] {method}: {result.steps} steps in {result.seconds:.0f} s; rendering the "
+                           f"{len(ref.cameras)} test views to score them ...")
     try:
         run = evaluate_run(model, method, run_config, result, dataset, ref, eval_config, oracle)
         if out_dir is not None:

@@ -39,6 +39,7 @@ from __future__ import annotations
 import importlib.util
 import io
 import math
+import time
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -285,10 +286,12 @@ def previous_calls(path: Path) -> list:
 
 def render_run(run_dir: Path, out_dir: Path, request: ViewRequest = ViewRequest(), progress: bool = True) -> list[Path]:
     """Render the views of ``request`` from the run in ``run_dir`` into ``out_dir`` (not inside the run's dataset,
-    which its files would change); returns the files."""
+    which its files would change); returns the files. ``progress``: a bar on a terminal, and a line on stderr
+    before and after (:func:`mitsnerf.outputs.progress_log`)."""
     from tqdm.auto import tqdm
 
     from mitsnerf.math.color import linear_to_srgb
+    from mitsnerf.outputs import progress_log
     from mitsnerf.runs.directory import check_outside_dataset
     from mitsnerf.runs.fit import load_run
 
@@ -300,6 +303,9 @@ def render_run(run_dir: Path, out_dir: Path, request: ViewRequest = ViewRequest(
     calls = previous_calls(out_dir / "render.json")
     out_dir.mkdir(parents=True, exist_ok=True)
     written, frames = [], []
+    log, start = progress_log(progress), time.perf_counter()
+    log(f"[render] {len(cams)} views of {cams[0].width}x{cams[0].height} at footprint {footprint} from {run_dir} "
+        f"-> {out_dir} ...")
     for cam, stem in tqdm(
         list(zip(cams, stems)),
         desc="render",
@@ -319,6 +325,7 @@ def render_run(run_dir: Path, out_dir: Path, request: ViewRequest = ViewRequest(
         "provenance": env.provenance(),
     }])
     written.append(out_dir / "render.json")
+    log(f"[render] {len(cams)} views in {time.perf_counter() - start:.1f} s")
     if request.orbit:
         write_gif(out_dir / "orbit.gif", frames, request.fps)
         written.append(out_dir / "orbit.gif")

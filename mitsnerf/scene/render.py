@@ -69,6 +69,7 @@ import numpy as np
 
 from mitsnerf.math.box import Box
 from mitsnerf.math.camera import Camera
+from mitsnerf.outputs import progress_log
 from mitsnerf.scene.lights import bake_sky
 from mitsnerf.scene.spec import SceneSpec, SkyLight
 from mitsnerf.scene.to_mitsuba import ENVMAP_FILE, load_sensor
@@ -225,6 +226,7 @@ def render_split(scene, spec: SceneSpec, split: str, cameras: list[Camera], prog
     ``medium_alone``: the medium without the environment seen through it (module docstring).
     ``seed_split``: whose seeds (:func:`render_seed`) the views take, default ``split``; ``channel``: the colour
     channel a chromatic medium's grey ``scene`` renders (its own seeds). ``spp``: default the split's.
+    ``progress``: a bar on a terminal, and a line on stderr before and after (:func:`mitsnerf.outputs.progress_log`).
     """
     import mitsuba as mi
     from tqdm.auto import tqdm
@@ -234,6 +236,9 @@ def render_split(scene, spec: SceneSpec, split: str, cameras: list[Camera], prog
     seed_split = seed_split or split
     images, seconds = [], []
     what = seed_split if channel is None else f"{seed_split} {'RGB'[channel]}"
+    log = progress_log(progress)
+    log(f"[{spec.name}] {what}: rendering {len(cameras)} views of {cameras[0].width}x{cameras[0].height} at {spp} "
+        "spp ...")
     with tqdm(total=len(cameras), desc=f"{spec.name} {what}", unit="view", disable=None if progress else True,
               leave=False) as bar:
         for i, cam in enumerate(cameras):
@@ -245,6 +250,7 @@ def render_split(scene, spec: SceneSpec, split: str, cameras: list[Camera], prog
                                    dtype=np.float32))
             seconds.append(time.perf_counter() - start)
             bar.update()
+    log(f"[{spec.name}] {what}: {len(cameras)} views in {sum(seconds):.1f} s")
     return images, _timing(cameras, spp, float(sum(seconds)), seconds[0])
 
 
