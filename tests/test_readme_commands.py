@@ -307,3 +307,20 @@ def test_the_command_name_is_how_this_process_was_called(tmp_path, monkeypatch):
     assert command_name(str(script)) == str(script)
     monkeypatch.setenv("PATH", f"{script.parent}:/usr/bin:/bin")
     assert command_name(str(script)) == "mitsnerf"
+
+
+def test_the_readmes_file_count_of_the_default_cloud_is_what_generate_writes(tmp_path):
+    """The README gives the default cloud's size where it says what verifying costs: its file count is the number
+    of files the manifest of a dataset generated from the cloud's spec lists (the same views, made tiny in pixels
+    and samples; the MB are measured on the real one, benchmarks/README.md). It said 119 once medium/ was hashed."""
+    import json
+
+    from mitsnerf.generate import generate_dataset
+    from mitsnerf.scene.spec import load_scene
+
+    said = re.search(r"On the default cloud \((\d+) files, ([\d.]+) MB\)", README.read_text())
+    assert said, "README no longer says the default cloud's size"
+    spec = load_scene("cloud").with_overrides({"cameras.width": 4, "cameras.height": 4, "render.spp_train": 1,
+                                               "render.spp_test": 1, "volume.resolution": 8})
+    root = generate_dataset(spec, tmp_path, progress=False)
+    assert len(json.loads((root / "manifest.json").read_text())["files"]) == int(said.group(1))
