@@ -351,8 +351,8 @@ RENDER_RECORD = "render.json"
 def rendered_footprint(folder: Path, paths: Sequence[Path], words: Words = CLI) -> int | None:
     """The footprint ``mitsnerf render`` recorded for the renders ``paths`` in ``folder`` (its
     :data:`RENDER_RECORD`: of each file, the last call that wrote a view of its name), None where the folder has
-    no such record or it names none of them; renders made at several footprints are a DatasetError naming
-    ``footprint`` (which oracle they are held against is then the user's to say)."""
+    no such record or it records the footprint of none of them; renders made at several footprints are a
+    DatasetError naming ``footprint`` (which oracle they are held against is then the user's to say)."""
     from mitsnerf.runs.novel import read_calls
 
     record = Path(folder) / RENDER_RECORD
@@ -365,7 +365,7 @@ def rendered_footprint(folder: Path, paths: Sequence[Path], words: Words = CLI) 
                                          f"{words.name('footprint')}") from None
     made = {view.get("name"): call.get("footprint") for call in calls for view in call.get("views") or ()
             if isinstance(view, dict)}
-    found = {made[p.stem] for p in paths if p.stem in made}
+    found = {made[p.stem] for p in paths if made.get(p.stem) is not None}  # None: a record from before footprints
     if any(not isinstance(k, int) or isinstance(k, bool) or k < 1 for k in found):
         raise DatasetError(record, "footprint", f"must be whole numbers >= 1, got {sorted(map(str, found))}")
     if len(found) > 1:
