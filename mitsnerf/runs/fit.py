@@ -69,7 +69,7 @@ class RunResult:
         """Everything ``metrics.json`` records: scores, budget, timings."""
         return {
             "method": self.method,
-            "given": ", ".join(("images",) + tuple(self.model.knows)),
+            "given": ", ".join(("images",) + tuple(self.model.given())),
             "rung": self.model.rung,
             "footprint": self.config["eval"]["footprint"],
             "budget": from_dict(TrainConfig, self.config["train"]).budget,
