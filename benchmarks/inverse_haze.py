@@ -16,9 +16,9 @@ whole-image PSNR of the test views, the density's relative L1 error (epsilon) an
 - combinations: ``--combo '{"NAME": {FIELD: VALUE, ...}}'`` adds variants (MitsubaInverseConfig fields).
 
 Budgets are steps, so the figures do not depend on the machine's load (the train seconds do). The figures of
-benchmarks/README.md's haze section were measured before the method had its ``estimator`` setting, with
-Mitsuba's ``prbvolpath`` (today ``--combo '{"NAME": {"estimator": "prbvolpath", ...}}'`` repeats them); the
-variants now run with the method's default estimator unless they name one.
+docs/notes/mitsuba-inverse.md, "mitsuba-inverse: removing the haze", were measured before the method had its
+``estimator`` setting, with Mitsuba's ``prbvolpath`` (today ``--combo '{"NAME": {"estimator": "prbvolpath",
+...}}'`` repeats them); the variants now run with the method's default estimator unless they name one.
 
     .venv/bin/python benchmarks/inverse_haze.py [--steps 400] [--variants baseline carve ...] [--data DIR]
         [--jsonl FILE]

@@ -13,7 +13,7 @@ CPU-sized trunk of 4 x 64 instead of 8 x 256)::
 ``gamma((d + 1) / 2)`` is NeRF's ``sin(2^k pi d)`` up to sign, for ``d`` in ``[-1, 1]^3``.
 
 The defaults differ from NeRF in two settings, both measured on the default cloud (800 steps,
-benchmarks/README.md, "nerf: the view direction"): no direction input (``use_direction = False``)
+docs/notes/nerf.md, "nerf: the view direction"): no direction input (``use_direction = False``)
 and 4 position octaves instead of 10. The library's scenes but ``cloud_hg*`` have an isotropic phase
 function, so the emission ``albedo J(x)`` that every pixel integrates does not depend on the view
 direction; a colour head that takes it can explain each training view's image with a wrong

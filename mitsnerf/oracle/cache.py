@@ -50,7 +50,7 @@ ORACLE_DIR = "oracle"
 class OracleConfig:
     """How a dataset's oracle is computed (every field is part of its cache key).
 
-    The defaults, measured on the default cloud (64^3 sigma_t, benchmarks/README.md): on a 32^3
+    The defaults, measured on the default cloud (64^3 sigma_t, docs/notes/oracle.md): on a 32^3
     grid the interpolation bias of ``Lbar_mc`` is ~15x below the test views' own noise (16^3: 2x
     above it), and per volpath sample a 32^3 grid with more directions beats a 64^3 one; 128
     directions put the oracle's Monte Carlo variance at about half the test views' noise.

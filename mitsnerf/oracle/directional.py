@@ -35,10 +35,10 @@ class DirectionalConfig:
     """The directional oracle's settings (anisotropic media only); the grid resolution and seed are the oracle's
     own (:class:`mitsnerf.oracle.cache.OracleConfig`), and so are the volpath directions if ``spp`` is 0.
 
-    The defaults, measured on cloud_hg85 at library size (benchmarks/README.md, "Anisotropic media: the
-    directional oracle per order"): at 1024 directions per point the order has converged by 8 (8 -> 9: +0.05
-    dB), and the ceiling is limited by the Monte Carlo noise of the coefficients, 47% of its error; it halves
-    per doubling, so 2048 puts it at about 0.3, at 16x the isotropic oracle's volpath time.
+    The defaults, measured on cloud_hg85 at library size (docs/notes/oracle.md, "At library size: cloud_hg85 as
+    the physics table scores it, and the settings chosen"): at 1024 directions per point the order has converged
+    by 8 (8 -> 9: +0.05 dB), and the ceiling is limited by the Monte Carlo noise of the coefficients, 47% of its
+    error; it halves per doubling, so 2048 puts it at about 0.3, at 16x the isotropic oracle's volpath time.
     """
 
     spp: int = param(2048, lo=0, doc="volpath directions per grid point (0: the oracle's spp); the high orders' "
