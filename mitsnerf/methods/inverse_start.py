@@ -98,15 +98,18 @@ def resampled(grid: np.ndarray, source: Box, box: Box, resolution: int) -> np.nd
     return np.ascontiguousarray(v.reshape(resolution, resolution, resolution, c), dtype=np.float32)
 
 
-def resampled_start(path: str | Path, box: Box, resolution: int, channels: int) -> tuple[np.ndarray, np.ndarray | None]:
+def resampled_start(start: str | Path | tuple, box: Box, resolution: int,
+                    channels: int) -> tuple[np.ndarray, np.ndarray | None]:
     """``init_from``'s start on the method's grid: the extinction as optical depth per box side (``(R, R, R,
     channels)`` float32: a chromatic source averaged to one channel, a grey one repeated to three), and a
-    dataset's true albedo (R, R, R, 3) (None from an export: its colour is not an albedo)."""
-    truth = read_dataset_truth(path)
+    dataset's true albedo (R, R, R, 3) (None from an export: its colour is not an albedo). ``start``: a path, or
+    the grids themselves ``(sigma_t (R, R, R[, C]) world units, albedo, their box)``."""
+    truth = start if isinstance(start, tuple) else read_dataset_truth(start)
     if truth is None:
-        (sigma, source), albedo = read_export(path), None
+        (sigma, source), albedo = read_export(start), None
     else:
         sigma, albedo, source = truth
+        sigma = sigma[..., None] if sigma.ndim == 3 else sigma
     if channels == 1 and sigma.shape[-1] == 3:
         sigma = sigma.mean(axis=-1, keepdims=True)
     tau = resampled(sigma, source, box, resolution) * np.float32(box.size[0])

@@ -44,7 +44,8 @@ emission-absorption model whose extinction the path tracer then takes over, :mod
 and ``albedo_first`` (path-traced steps that fit the albedo alone). ``optimize_albedo = false``: the albedo is
 given, the spec's own (the tables' ``given`` column then says so).
 
-**The haze and the priors**: under a nearly uniform environment a scattering haze of the right albedo is almost
+**The haze and the priors** (docs/notes/mitsuba-inverse.md, "mitsuba-inverse: removing the haze", measures each):
+under a nearly uniform environment a scattering haze of the right albedo is almost
 invisible, so a constant start leaves one. ``carve``: the training views' emptiness mask
 (:mod:`mitsnerf.math.carve`, built from ``SceneInfo.train_views`` when the model is): a training pixel whose value
 is the environment seen straight through says the medium is empty along its ray, so every voxel its centre ray
@@ -79,6 +80,7 @@ from mitsnerf.methods.inverse_start import masked_tv, resampled_start, tv_pairs
 from mitsnerf.render.camera import Rendered, render_view
 from mitsnerf.render.path_batch import PathBatch, render_pixels
 from mitsnerf.render.volume import render_rays
+from mitsnerf.scene.to_mitsuba import volume_grids
 
 SIGMA_T_SUFFIX = "interior_medium.sigma_t.data"
 ALBEDO_SUFFIX = "interior_medium.albedo.data"
@@ -123,8 +125,9 @@ class MitsubaInverseConfig(MethodConfig):
     """Initial constant extinction as the optical depth across the box side (at most ``depth_max``)."""
     init_from: str = param("")
     """The start instead of ``init_depth``: a directory written by ``mitsnerf export`` (or a run holding one in
-    ``export/``), its density resampled to the grid; or a dataset, its true grids (extinction and albedo: the
-    "truth start") ("": none)."""
+    ``export/``), its density resampled to the grid; a dataset, its true grids (extinction and albedo); or
+    ``truth``, the true grids of the dataset trained on (the "truth start": how far a fit of these views drifts
+    from the truth) ("": none)."""
     emissive_steps: int = param(0, lo=0)
     """Steps of the emissive start (emission-absorption fit of the extinction and an emission grid) before the
     path tracer takes over (0: none)."""
@@ -245,7 +248,7 @@ class MitsubaInverseModel(PixelModel):
                              "tv_albedo": 1e-3})
 
     def __init__(self, config: MitsubaInverseConfig, scene: SceneInfo, seed: int = 0) -> None:
-        from mitsnerf.scene.to_mitsuba import scene_dict, volume_grids
+        from mitsnerf.scene.to_mitsuba import scene_dict
 
         self.spec = scene_spec(scene, self.name, "its spec gives the lights and the medium's placement")
         self.config, self.box = config, scene.box
@@ -295,7 +298,8 @@ class MitsubaInverseModel(PixelModel):
         tau = np.full((r, r, r, self.channels), c.init_depth, dtype=np.float32)
         albedo = np.full((r, r, r, 3), c.init_albedo, dtype=np.float32)
         if c.init_from:
-            tau, start_albedo = resampled_start(c.init_from, self.box, r, self.channels)
+            start = (*volume_grids(self.spec), self.box) if c.init_from == "truth" else c.init_from
+            tau, start_albedo = resampled_start(start, self.box, r, self.channels)
             tau = np.minimum(tau, np.float32(c.depth_clamp))
             albedo = albedo if start_albedo is None else start_albedo
         given = self._given_albedo(r)

@@ -243,6 +243,20 @@ def test_it_starts_from_another_runs_exported_density(tmp_path):
     np.testing.assert_array_equal(np.asarray(again.sigma_t), np.asarray(model.sigma_t))
 
 
+def test_the_truth_start_is_the_datasets_own_grids(tiny):
+    dataset, info, _ = tiny
+    by_name = MitsubaInverseModel(MitsubaInverseConfig(resolutions=(16,), upsample_at=(), init_from="truth"), info)
+    by_path = MitsubaInverseModel(MitsubaInverseConfig(resolutions=(16,), upsample_at=(), init_from=str(dataset.root)),
+                                  info)
+    sigma, albedo = volume_grids(by_name.spec)  # the tiny spec's grids are 16^3: the start is them, carved
+    keep = by_name._keep_mask(16)
+    tau = np.asarray(by_name.sigma_t)[..., 0]
+    np.testing.assert_allclose(tau, sigma * by_name.side * keep, rtol=1e-4, atol=1e-4)
+    np.testing.assert_allclose(np.asarray(by_name.albedo), albedo, atol=1e-5)
+    np.testing.assert_allclose(np.asarray(by_path.sigma_t), np.asarray(by_name.sigma_t), rtol=1e-4, atol=1e-4)
+    assert np.sum(sigma * (~keep)) < 1e-3 * np.sum(sigma)  # the mask carves none of the true mass
+
+
 def test_a_run_without_an_export_is_one_clear_error(tmp_path):
     (tmp_path / "config.json").write_text("{}")
     with pytest.raises(DatasetError, match=r"init_from: no exported density .*run 'mitsnerf export"):
