@@ -74,7 +74,7 @@ import numpy as np
 from mitsnerf.config import check_fields, param
 from mitsnerf.errors import DatasetError
 from mitsnerf.fields.grid import GridField
-from mitsnerf.math.carve import carve
+from mitsnerf.math.carve import carve_levels
 from mitsnerf.methods.base import MethodConfig, PixelModel, SceneInfo, StepLoss, scene_spec
 from mitsnerf.methods.inverse_start import masked_tv, resampled_start, tv_pairs
 from mitsnerf.render.camera import Rendered, render_view
@@ -283,13 +283,14 @@ class MitsubaInverseModel(PixelModel):
         return self.knows + (() if self.config.optimize_albedo else ("albedo",))
 
     def _emptiness_masks(self, scene: SceneInfo) -> dict[int, np.ndarray]:
-        """The training views' emptiness mask at every resolution (``carve = true``), from ``scene.train_views``."""
+            """The training views' emptiness mask at every resolution (``carve = true``), from ``scene.train_views``:
+        a coarse voxel is kept where any finer voxel is."""
         views = scene.train_views
         if views is None:
             raise ValueError("carve: needs the training views (SceneInfo.train_views), and none were given: give "
                              "them, or set carve = false")
-        return {r: carve(views.images, views.cameras, scene.background, self.box, r, self.config.carve_tol,
-                         views.pixel_center) for r in self.config.resolutions}
+        return carve_levels(views.images, views.cameras, scene.background, self.box, self.config.resolutions,
+                            self.config.carve_tol, views.pixel_center)
 
     def _start(self, r: int) -> tuple[np.ndarray, np.ndarray]:
         """The initial extinction (R, R, R, C), optical depth per side, and albedo (R, R, R, 3): ``init_from``'s
