@@ -16,7 +16,7 @@ import json
 import os
 import shutil
 from collections.abc import Callable, Mapping
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -40,7 +40,7 @@ from mitsnerf.runs.directory import RUN_FILES, remove_run_files
 from mitsnerf.scoring.images import image_scores
 from mitsnerf.scoring.reference import Reference, load_reference
 from mitsnerf.scoring.views import score_views
-from mitsnerf.train import PixelData, TrainConfig, TrainResult, TrainState, make_optimizer, train
+from mitsnerf.train import PixelData, TrainConfig, TrainResult, TrainState, make_optimizer, memory, train
 from mitsnerf.train.checkpoint import CHECKPOINT_FILE, Checkpointer, load_checkpoint, restore_optimizer
 from mitsnerf.train.checkpointing import interrupted_message
 from mitsnerf.train.evaluate import EvalConfig, render_views, stack_rgb
@@ -64,9 +64,13 @@ class RunResult:
     model: Model
     model_bytes: int = 0
     """The size of the saved model, ``params.npz`` (:func:`parameter_file`), in bytes."""
+    peaks: dict = field(default_factory=dict)
+    """The run's own peak memory (:func:`mitsnerf.train.memory.peaks`: ``peak_memory_mb``, ``peak_rss_mb``,
+    ``peak_rss_reset``), from its start to the end of its evaluation."""
 
     def metrics(self) -> dict:
-        """Everything ``metrics.json`` records: scores, budget, timings."""
+        """Everything ``metrics.json`` records: scores, budget, timings, the run's peak memory and its model's
+        size (as a benchmark cell's)."""
         return {
             "method": self.method,
             "given": ", ".join(("images",) + tuple(self.model.knows)),
@@ -80,19 +84,22 @@ class RunResult:
             "samples_per_s": self.train.samples_per_s,
             "num_parameters": self.num_parameters,
             "model_bytes": self.model_bytes,
+            **self.peaks,
             "eval_seconds": self.eval_seconds,
             **self.scores,
         }
 
     def summary(self, out: object = None) -> str:
-        """The line ``mitsnerf train`` prints: test PSNR (medium pixels), footprint, train PSNR, steps, rays/s."""
+        """The line ``mitsnerf train`` prints: test PSNR (medium pixels), footprint, train PSNR, steps, rays/s, peak
+        memory and the model's size."""
         m = self.metrics()
         medium = "" if m.get("psnr_test_medium") is None else f" ({m['psnr_test_medium']:.2f} dB on medium pixels)"
         rate = "no steps run" if m["rays_per_s"] is None else f"{m['rays_per_s']:.0f} rays/s"
+        peak = f", peak {m['peak_memory_mb']:.0f} MiB" if m.get("peak_memory_mb") is not None else ""
         k = m["footprint"]
         return (f"{self.method}: test PSNR {m['psnr_test']:.2f} dB{medium}, footprint {k}x{k}, "
                 f"train PSNR {m['psnr_train']:.2f} dB, {m['steps']} steps in {m['train_seconds']:.1f} s, "
-                f"{rate}" + ("" if out is None else f" -> {out}"))
+                f"{rate}{peak}, model {m['model_bytes'] / 1e6:.3f} MB" + ("" if out is None else f" -> {out}"))
 
 
 def scene_info(dataset: Dataset, train_views: Views) -> SceneInfo:
@@ -273,6 +280,7 @@ def fit(
     refuse_nondeterministic(deterministic)  # before _start empties or reads the run directory
     train_views = dataset.views("train")
     ref = reference or load_reference(dataset, "test")
+    rss_reset = memory.start()  # the run's own peaks from here: its scene is loaded, what ran before is freed
     model, config = build_model(method, method_overrides, scene_info(dataset, train_views), train_config.seed)
     run_config = {"method": method, "method_config": to_dict(config), "train": to_dict(train_config),
                   "eval": to_dict(eval_config), "deterministic": bool(deterministic), **dataset_config(dataset)}
@@ -293,6 +301,7 @@ def fit(
         )
     try:
         run = evaluate_run(model, method, run_config, result, dataset, ref, eval_config, oracle)
+        run.peaks = memory.peaks(rss_reset)
         if out_dir is not None:
             write_run(run, dataset, out_dir, dataset.views("test").names)
     except KeyboardInterrupt as exc:  # trained and checkpointed: a resume only evaluates
