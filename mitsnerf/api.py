@@ -233,14 +233,15 @@ def evaluate(run: PathLike, *, footprint: int | None = None) -> dict[str, Any]:
     and score them: the scores ``metrics.json`` holds, recomputed from the saved parameters."""
     from dataclasses import replace
 
-    from mitsnerf.config import from_dict
+    from mitsnerf.config import from_dict, from_saved
     from mitsnerf.runs.fit import load_run, score_model
     from mitsnerf.scoring.reference import load_reference
     from mitsnerf.train.evaluate import EvalConfig
 
     _ready()
     model, dataset, config = load_run(Path(run))
-    eval_config = from_dict(EvalConfig, dict(config.get("eval") or {}), source=Path(run) / "config.json")
+    eval_config = from_saved(EvalConfig, dict(config.get("eval") or {}), source=Path(run) / "config.json",
+                             prefix="eval.")
     if footprint is not None:
         eval_config = replace(eval_config, footprint=from_dict(EvalConfig, {"footprint": footprint}).footprint)
     scores, _, _, _ = score_model(model, load_reference(dataset, "test"), eval_config)

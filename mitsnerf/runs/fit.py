@@ -23,7 +23,7 @@ from typing import Any
 import numpy as np
 
 from mitsnerf import env
-from mitsnerf.config import from_dict, to_dict
+from mitsnerf.config import from_dict, from_saved, to_dict
 from mitsnerf.data.arrays import read_npz
 from mitsnerf.data.atomic import atomic_dir, atomic_write_json
 from mitsnerf.data.dataset import Dataset, Views, load_dataset
@@ -145,10 +145,12 @@ RESUMABLE_CHANGES = ("steps", "seconds", "log_every", "checkpoint_every", "diver
 
 
 def _check_resumable(saved: Mapping[str, Any], current: Mapping[str, Any], where: Path) -> None:
-    saved, current = (json.loads(json.dumps(c)) for c in (saved, current))  # tuples vs JSON lists
     if saved.get("method") != current["method"]:
         raise DatasetError(where, "method", f"the checkpoint is of {saved.get('method')!r}, not {current['method']!r}")
-    old = saved.get("method_config") or {}
+    saved = {**saved, "method_config": to_dict(method_config(current["method"], saved.get("method_config"), where)),
+             "train": to_dict(from_saved(TrainConfig, saved.get("train"), source=where, prefix="train."))}
+    saved, current = (json.loads(json.dumps(c)) for c in (saved, current))  # tuples vs JSON lists
+    old = saved["method_config"]
     if old != current["method_config"]:
         diff = sorted(
             k for k in set(old) | set(current["method_config"]) if old.get(k) != current["method_config"].get(k)
@@ -199,10 +201,13 @@ def run_method(config: Mapping[str, Any], where: Path) -> str:
 
 
 def method_config(method: str, overrides: Mapping[str, Any] | None, source: Path | None = None):
-    """The method's config with ``overrides``; a bad one is a SpecError at ``source`` (a run's file),
-    ``method_config.FIELD`` there."""
-    return from_dict(get_method(method).config_type, overrides or {}, source=source,
-                     prefix="method_config." if source else "")
+    """The method's config with ``overrides``; a bad one is a SpecError at ``source``, ``method_config.FIELD``
+    there. With ``source`` (the run's file that saved them), the overrides are a run's settings, read as saved
+    (:func:`mitsnerf.config.from_saved`: a setting added since takes the value the run trained with, not today's
+    default)."""
+    if source is None:
+        return from_dict(get_method(method).config_type, overrides or {})
+    return from_saved(get_method(method).config_type, overrides or {}, source=source, prefix="method_config.")
 
 
 def build_model(method: str, overrides: Mapping[str, Any] | None, info: SceneInfo, seed: int,
@@ -430,18 +435,19 @@ def resume_run(run_dir: Path, train_overrides: Mapping[str, Any] | None = None, 
     refuse_nondeterministic(bool(ckpt.config.get("deterministic")), str(path),
                             f"the run was trained with {words(deterministic=True)}, which this backend cannot "
                             "continue (resume it with MITSNERF_VARIANT=llvm_ad_rgb): ")
-    train_config = from_dict(TrainConfig, {**(ckpt.config.get("train") or {}), **dict(train_overrides or {})})
+    trained = to_dict(from_saved(TrainConfig, ckpt.config.get("train") or {}, source=path, prefix="train."))
+    train_config = from_dict(TrainConfig, {**trained, **dict(train_overrides or {})})
     if ckpt.step >= train_config.steps and (run_dir / "metrics.json").is_file():
         raise OutputError(run_dir, None, f"the run finished at step {ckpt.step} (metrics.json); nothing to resume: "
                                          f"pass {words(steps=Placeholder('N'))} (N > {ckpt.step}) to train it on")
-    eval_config = from_dict(EvalConfig, ckpt.config.get("eval") or {})
+    eval_config = from_saved(EvalConfig, ckpt.config.get("eval") or {}, source=path, prefix="eval.")
     method = run_method(ckpt.config, path)
-    method_config(method, ckpt.config.get("method_config"), path)  # its settings checked before the data loads
+    settings = to_dict(method_config(method, ckpt.config.get("method_config"), path))  # before the data loads
     if dataset is None:
         dataset = open_dataset(ckpt.config, path)
         verify_dataset(dataset, hashes=verify_hashes, words=words)
     check_same_dataset(ckpt.config, dataset, run_dir, words=words)
-    return fit(dataset, method, ckpt.config.get("method_config"), train_config, run_dir,
+    return fit(dataset, method, settings, train_config, run_dir,
                eval_config=eval_config, progress=progress, resume=True,
                deterministic=bool(ckpt.config.get("deterministic")), words=words)
 
