@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import shlex
 import sys
 from pathlib import Path
 
@@ -53,6 +54,7 @@ def run(args) -> int:
         cpus_per_cell=1 if args.deterministic else args.cpus_per_cell,
         force=args.force,
         verify_hashes=not args.no_verify,
+        command=shlex.join(["mitsnerf", *args.argv]) if getattr(args, "argv", None) else None,
     )
     check_output_dir(options.results_root, "--results")
     check_output_dir(options.data_root, "--data" if args.data else
