@@ -33,7 +33,9 @@ def run(args) -> int:
         return 0
     out = Path(args.out)
     check_output_file(out, "--out")
-    atomic_write_text(out, results_page(sweeps, title=args.title, command=command, base=out.resolve().parent))
+    page = results_page(sweeps, title=args.title, command=command, base=out.resolve().parent)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    atomic_write_text(out, page)
     print(f"{out}: {len(sweeps)} sweep{'' if len(sweeps) == 1 else 's'} "
           f"({', '.join(s.data['benchmark'] + ('-quick' if s.data['quick'] else '') for s in sweeps)})")
     return 0
