@@ -288,11 +288,12 @@ def test_bench_ends_with_where_its_dataset_is_and_next_commands_that_run(tmp_pat
     assert tail[2] == "next:"
     suggested = [shlex.split(line.split("  #")[0]) for line in tail[3:] if line.strip()]
     argvs = [words[words.index("mitsnerf") + 1:] for words in suggested]  # after "mitsnerf" or "python -m mitsnerf"
-    assert [argv[0] for argv in argvs] == ["train", "render", "--help"]
+    assert [argv[0] for argv in argvs] == ["train", "render", "results", "--help"]
     assert argvs[0][1] == str(dataset)
-    for argv in argvs[:2]:
+    for argv in argvs[:3]:
         parse(argv)
         assert main(argv) == 0, argv
+    assert (tmp_path / "RESULTS.md").read_text().startswith("# mitsnerf results\n")
 
 
 def test_the_readme_says_how_to_reach_the_command_after_make():
