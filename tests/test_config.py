@@ -324,3 +324,28 @@ def test_a_nested_method_config_error_names_the_dotted_field():
     assert str(info.value) == "--set: network.log2_hashmap_size: must be an integer in [8, 24], got 30"
     with pytest.raises(SpecError, match=r"^--set: occupancy\.decy: unknown field \(did you mean 'decay'\?\)$"):
         from_dict(NGPMethodConfig, {"occupancy": {"decy": 0.5}}, source="--set")
+
+
+# ---------------------------------------------------------------- configs read back as saved
+
+
+@dataclass(frozen=True)
+class _SavedGrid:
+    resolution: int = param(64, lo=1)
+    skip: bool = param(True, since=("0.1.0+abc1234", False))
+
+
+@dataclass(frozen=True)
+class _SavedMethod:
+    grid: _SavedGrid = param(default_factory=lambda: _SavedGrid(resolution=32))
+    lr: float = param(0.1)
+
+
+def test_a_saved_config_reads_a_missing_nested_setting_as_declared_over_the_fields_own_default():
+    from mitsnerf.config import from_saved, saved_readings
+
+    assert from_saved(_SavedMethod, {"lr": 0.2}) == _SavedMethod(grid=_SavedGrid(resolution=32, skip=False), lr=0.2)
+    assert from_saved(_SavedMethod, {"grid": {"resolution": 8, "skip": True}}).grid == _SavedGrid(8, True)  # as is
+    assert from_dict(_SavedMethod, {"lr": 0.2}).grid.skip  # a new config: today's default
+    assert saved_readings(_SavedMethod) == {"grid.resolution": 32, "grid.skip": False, "lr": 0.1}
+    assert "(added in 0.1.0+abc1234: a run saved before reads false) |" in doc_table(_SavedMethod, nested=True)

@@ -12,7 +12,8 @@
    cell is written at once, atomically (a failed one as ``error.json``, retried next time).
 5. **Outputs** from every cell on disk (:func:`write_outputs`), under ``results/<bench>[-quick]/``:
    ``table.md`` (every column; a compact table is printed), ``table.csv`` (per scene and method), ``average.csv``,
-   ``cells.csv`` (one row per cell), ``results.json`` (everything, with provenance),
+   ``cells.csv`` (one row per cell), ``results.json`` (everything, with provenance: the commit, the machine, when
+   the tables were written and the command that ran the sweep; ``mitsnerf results`` makes a page of it),
    ``plots/*.png`` and ``report.html`` (self-contained).
 
 The config's ``[[external]]`` entries (other tools' renders) are scored after step 3, before any
@@ -22,7 +23,7 @@ cell trains (:mod:`mitsnerf.bench.external`), and appear in every output as ``NA
 from __future__ import annotations
 
 import sys
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -93,6 +94,9 @@ class BenchOptions:
     """Check a cached dataset's files against its manifest's sha256 hashes (``--no-verify``: not)."""
     words: Words = CLI
     """How messages name the options: the command line's (``--force``) or the Python API's (``force=True``)."""
+    command: str | None = None
+    """The command that ran the sweep, as typed (``mitsnerf bench physics --quick``), recorded in ``results.json``
+    for the results page (:mod:`mitsnerf.bench.page`); None: not known (a caller that is not the command line)."""
 
 
 @dataclass
@@ -284,9 +288,10 @@ def collect(cells: list[Cell]) -> tuple[list[dict], list[dict]]:
     return records, failed
 
 
-def quick_sizes(cells: list[Cell]) -> str:
+def quick_sizes(cells: Sequence[Any]) -> str:
     """The sizes a quick run has, in words (for :func:`mitsnerf.bench.tables.quick_banner`): each distinct value
-    across ``cells``, ``16x16 views, 2 test views at 16 spp, 30 steps``."""
+    across ``cells`` (:class:`Cell`, or anything with its ``spec`` and ``train``), ``16x16 views, 2 test views at
+    16 spp, 30 steps``."""
     def values(get) -> str:
         return "/".join(dict.fromkeys(str(get(c)) for c in cells))
 
@@ -339,6 +344,7 @@ def write_outputs(config: BenchConfig, options: BenchOptions, cells: list[Cell],
     atomic_write_json(files["results.json"], {
         "benchmark": config.name, "description": config.description, "quick": options.quick,
         "code_version": cells[0].code_version if cells else None, "provenance": provenance,
+        "command": options.command, "written": _now(),
         "executor": options.executor, "tables": {"per_scene": per_scene, "average": average},
         "failed": failed, "cells": records, "config": config_data,
     })
@@ -349,6 +355,13 @@ def write_outputs(config: BenchConfig, options: BenchOptions, cells: list[Cell],
     result.records, result.failed = records, failed
     result.per_scene, result.average, result.markdown, result.files = per_scene, average, markdown, files
     return result
+
+
+def _now() -> str:
+    """The time now, UTC, to the second (ISO 8601): when a sweep's tables were written."""
+    from datetime import datetime, timezone
+
+    return datetime.now(timezone.utc).isoformat(timespec="seconds")
 
 
 def _write_report(out_root: Path, cells: list[Cell], result: BenchResult, records: list[dict], scenes: list[str],

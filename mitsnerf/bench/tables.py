@@ -444,57 +444,70 @@ def quick_banner(sizes: str = "") -> str:
             "model figure, an SSIM below 0); the benchmark without its quick profile gives figures to read.")
 
 
-def compact_report(per_scene: Sequence[dict], average: Sequence[dict], best: dict[str, str] | None = None,
-                   quick: str | None = None) -> str:
-    """What ``mitsnerf bench`` prints: :data:`COMPACT` per scene (and averaged), each table's reference line(s)
-    and notes, and the legend of its columns; ``quick``: the :func:`quick_banner` a quick table starts with."""
+def compact_tables(per_scene: Sequence[dict], average: Sequence[dict], best: dict[str, str] | None = None,
+                   quick: str | None = None, heading: str = "##") -> str:
+    """The tables ``mitsnerf bench`` prints, without their legend: :data:`COMPACT` per scene (and averaged over
+    scenes when there are several) under ``heading``-level titles, each with its reference line(s) and notes;
+    ``quick``: the :func:`quick_banner` first. The results page (:mod:`mitsnerf.bench.page`) shows the same."""
     best = BEST if best is None else best
     per_scene, average = mark_beaten(per_scene), mark_beaten(average)
     parts = ([quick, ""] if quick else []) + [
-        "## Per scene", "", markdown_table(per_scene, COMPACT, best, group="scene"), "",
+        f"{heading} Per scene", "", markdown_table(per_scene, COMPACT, best, group="scene"), "",
         *reference_lines(per_scene), *_notes(per_scene)]
     if len({r["scene"] for r in per_scene}) > 1:
-        parts += ["", "## Averaged over scenes", "", markdown_table(average, COMPACT, best), "",
+        parts += ["", f"{heading} Averaged over scenes", "", markdown_table(average, COMPACT, best), "",
                   *reference_lines(average), *_notes(average)]
-    parts += ["", legend(COMPACT),
-              "Every column (whole-image and sRGB scores, density and cost figures): table.md, table.csv, "
-              "results.json, report.html."]
     return "\n".join(parts)
 
 
-def markdown_report(per_scene: Sequence[dict], average: Sequence[dict], best: dict[str, str] | None = None,
-                    quick: str | None = None) -> str:
-    """The Markdown written as ``table.md``: every column, quality and cost, per scene and averaged (``quick``:
-    the :func:`quick_banner` first)."""
+def compact_report(per_scene: Sequence[dict], average: Sequence[dict], best: dict[str, str] | None = None,
+                   quick: str | None = None) -> str:
+    """What ``mitsnerf bench`` prints: :func:`compact_tables` and the legend of their columns; ``quick``: the
+    :func:`quick_banner` a quick table starts with."""
+    return "\n".join([compact_tables(per_scene, average, best, quick), "", legend(COMPACT),
+                      "Every column (whole-image and sRGB scores, density and cost figures): table.md, table.csv, "
+                      "results.json, report.html."])
+
+
+def full_tables(per_scene: Sequence[dict], average: Sequence[dict], best: dict[str, str] | None = None,
+                quick: str | None = None, heading: str = "##") -> str:
+    """Every column, quality and cost, per scene and averaged, under ``heading``-level titles, without the legend
+    (``quick``: the :func:`quick_banner` first): ``table.md``'s tables, and the results page's."""
     best = BEST if best is None else best
     per_scene, average = mark_beaten(per_scene), mark_beaten(average)
     cost = cost_columns(per_scene)
     parts = ([quick, ""] if quick else []) + [
-        "## Quality per scene",
+        f"{heading} Quality per scene",
         "",
         markdown_table(per_scene, QUALITY, best, group="scene"),
         "",
         *reference_lines(per_scene),
         "",
-        "## Cost per scene",
+        f"{heading} Cost per scene",
         "",
         markdown_table(per_scene, cost, best, group="scene"),
     ]
     if len({r["scene"] for r in per_scene}) > 1:
         parts += [
             "",
-            "## Quality averaged over scenes",
+            f"{heading} Quality averaged over scenes",
             "",
             markdown_table(average, QUALITY, best),
             "",
             *reference_lines(average),
             "",
-            "## Cost averaged over scenes",
+            f"{heading} Cost averaged over scenes",
             "",
             markdown_table(average, cost, best),
         ]
-    parts += ["", legend(QUALITY + cost)]
     return "\n".join(parts)
+
+
+def markdown_report(per_scene: Sequence[dict], average: Sequence[dict], best: dict[str, str] | None = None,
+                    quick: str | None = None) -> str:
+    """The Markdown written as ``table.md``: :func:`full_tables` and the legend of every column (``quick``: the
+    :func:`quick_banner` first)."""
+    return "\n".join([full_tables(per_scene, average, best, quick), "", legend(QUALITY + cost_columns(per_scene))])
 
 
 def csv_keys(rows: Sequence[dict]) -> list[str]:

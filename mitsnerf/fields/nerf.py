@@ -39,7 +39,7 @@ from dataclasses import dataclass
 import drjit as dr
 import drjit.nn as nn
 
-from mitsnerf.config import check_fields, param
+from mitsnerf.config import Since, check_fields, param
 from mitsnerf.fields.mlp import NETWORK_PATHS, network_path, pack_layers
 from mitsnerf.math.activations import colour_bias, sigmoid, softplus
 from mitsnerf.math.box import Box
@@ -51,7 +51,8 @@ class NeRFConfig:
 
     pos_octaves: int = param(4, lo=0, hi=20)
     """Frequencies L_x of the positional encoding of x (NeRF: 10; 4 measured better here, module docstring)."""
-    use_direction: bool = param(False)
+    use_direction: bool = param(False, since=Since("0.1.0+7225556", refuse="nerf fed every colour head the view "
+                                                    "direction then, at twice today's frequency"))
     """Feed the encoded view direction to the colour head (NeRF: True); False (the default): the colour
     depends on position only, as the emission ``albedo J(x)`` of an isotropic medium does."""
     dir_octaves: int = param(4, lo=0, hi=20)

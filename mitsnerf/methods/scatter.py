@@ -84,7 +84,7 @@ class ScatterMethodConfig(MethodConfig):
     """Grid medium: weight of the total-variation prior on the remainder grid."""
     n_samples: int = param(128, lo=1)
     """Stratified samples per ray."""
-    carve: bool = param(True)
+    carve: bool = param(True, since=("0.1.0+7e1ef78", False))
     """An emptiness mask from the training views (:mod:`mitsnerf.math.carve`): the density is 0 in every voxel that
     the ray of a pixel showing the background unattenuated crosses (``max over channels |image - background| <=
     carve_tol``), in the view rays and the shadows alike, so no haze grows where the views show none (false: none;
@@ -93,7 +93,7 @@ class ScatterMethodConfig(MethodConfig):
     """Largest ``|image - background|`` (linear radiance) of a pixel that counts as unattenuated."""
     carve_resolution: int = param(64, lo=2, hi=512)
     """Voxels per axis of the emptiness mask."""
-    init_depth: float = param(5.0, lo=0.0)
+    init_depth: float = param(5.0, lo=0.0, since=("0.1.0+28686ef", 0.0))
     """The density's start as an optical depth per box side (scale-free: ``sigma = init_depth / side``): the hash
     medium's density head starts there (its output bias ``log(sigma)``), the grid medium's grid too (for its
     ``grid.sigma_init``); 0: the medium's own start (hash: ``exp(0)``, 1 per world unit; grid: ``grid.sigma_init``).

@@ -53,7 +53,7 @@ class VoxelMethodConfig(MethodConfig):
     """Steps (0-based, increasing) after which the grids are doubled; one per doubling needed."""
     n_samples: int = param(128, lo=1)
     """Stratified samples per ray."""
-    use_occupancy: bool = param(True)
+    use_occupancy: bool = param(True, since=("0.1.0+1b73495", False))
     """Skip samples in empty cells of an occupancy grid refreshed from the voxel density (as ngp)."""
     occupancy: OccupancyConfig = param(default_factory=OccupancyConfig)
     """The occupancy grid's settings."""

@@ -114,7 +114,7 @@ class RunRenders:
 def read_run(folder: Path) -> RunRenders | None:
     """The run in ``folder`` (None when it is not one, :func:`is_run`); a malformed ``config.json`` or
     ``metrics.json`` is a DatasetError (a SpecError for a bad ``eval`` field) naming the file."""
-    from mitsnerf.config import from_dict
+    from mitsnerf.config import from_saved
     from mitsnerf.data.transforms import read_json
     from mitsnerf.train.evaluate import EvalConfig
 
@@ -128,7 +128,7 @@ def read_run(folder: Path) -> RunRenders | None:
     if not is_run(folder):
         return None
     config = json_object(folder / "config.json")
-    eval_config = from_dict(EvalConfig, dict(config.get("eval") or {}), source=folder / "config.json", prefix="eval.")
+    eval_config = from_saved(EvalConfig, dict(config.get("eval") or {}), source=folder / "config.json", prefix="eval.")
     return RunRenders(folder, config, json_object(folder / "metrics.json"), eval_config.footprint)
 
 

@@ -16,14 +16,14 @@ import json
 import os
 import shutil
 from collections.abc import Callable, Mapping
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
 from mitsnerf import env
-from mitsnerf.config import from_dict, to_dict
+from mitsnerf.config import from_dict, from_saved, to_dict
 from mitsnerf.data.arrays import read_npz
 from mitsnerf.data.atomic import atomic_dir, atomic_write_json
 from mitsnerf.data.dataset import Dataset, Views, load_dataset
@@ -40,7 +40,7 @@ from mitsnerf.runs.directory import RUN_FILES, remove_run_files
 from mitsnerf.scoring.images import image_scores
 from mitsnerf.scoring.reference import Reference, load_reference
 from mitsnerf.scoring.views import score_views
-from mitsnerf.train import PixelData, TrainConfig, TrainResult, TrainState, make_optimizer, train
+from mitsnerf.train import PixelData, TrainConfig, TrainResult, TrainState, make_optimizer, memory, train
 from mitsnerf.train.checkpoint import CHECKPOINT_FILE, Checkpointer, load_checkpoint, restore_optimizer
 from mitsnerf.train.checkpointing import interrupted_message
 from mitsnerf.train.evaluate import EvalConfig, render_views, stack_rgb
@@ -64,9 +64,13 @@ class RunResult:
     model: Model
     model_bytes: int = 0
     """The size of the saved model, ``params.npz`` (:func:`parameter_file`), in bytes."""
+    peaks: dict = field(default_factory=dict)
+    """The run's own peak memory (:func:`mitsnerf.train.memory.peaks`: ``peak_memory_mb``, ``peak_rss_mb``,
+    ``peak_rss_reset``), from its start to the end of its evaluation."""
 
     def metrics(self) -> dict:
-        """Everything ``metrics.json`` records: scores, budget, timings."""
+        """Everything ``metrics.json`` records: scores, budget, timings, the run's peak memory and its model's
+        size (as a benchmark cell's)."""
         return {
             "method": self.method,
             "given": ", ".join(("images",) + tuple(self.model.given())),
@@ -80,19 +84,22 @@ class RunResult:
             "samples_per_s": self.train.samples_per_s,
             "num_parameters": self.num_parameters,
             "model_bytes": self.model_bytes,
+            **self.peaks,
             "eval_seconds": self.eval_seconds,
             **self.scores,
         }
 
     def summary(self, out: object = None) -> str:
-        """The line ``mitsnerf train`` prints: test PSNR (medium pixels), footprint, train PSNR, steps, rays/s."""
+        """The line ``mitsnerf train`` prints: test PSNR (medium pixels), footprint, train PSNR, steps, rays/s, peak
+        memory and the model's size."""
         m = self.metrics()
         medium = "" if m.get("psnr_test_medium") is None else f" ({m['psnr_test_medium']:.2f} dB on medium pixels)"
         rate = "no steps run" if m["rays_per_s"] is None else f"{m['rays_per_s']:.0f} rays/s"
+        peak = f", peak {m['peak_memory_mb']:.0f} MiB" if m.get("peak_memory_mb") is not None else ""
         k = m["footprint"]
         return (f"{self.method}: test PSNR {m['psnr_test']:.2f} dB{medium}, footprint {k}x{k}, "
                 f"train PSNR {m['psnr_train']:.2f} dB, {m['steps']} steps in {m['train_seconds']:.1f} s, "
-                f"{rate}" + ("" if out is None else f" -> {out}"))
+                f"{rate}{peak}, model {m['model_bytes'] / 1e6:.3f} MB" + ("" if out is None else f" -> {out}"))
 
 
 def scene_info(dataset: Dataset, train_views: Views) -> SceneInfo:
@@ -138,10 +145,12 @@ RESUMABLE_CHANGES = ("steps", "seconds", "log_every", "checkpoint_every", "diver
 
 
 def _check_resumable(saved: Mapping[str, Any], current: Mapping[str, Any], where: Path) -> None:
-    saved, current = (json.loads(json.dumps(c)) for c in (saved, current))  # tuples vs JSON lists
     if saved.get("method") != current["method"]:
         raise DatasetError(where, "method", f"the checkpoint is of {saved.get('method')!r}, not {current['method']!r}")
-    old = saved.get("method_config") or {}
+    saved = {**saved, "method_config": to_dict(method_config(current["method"], saved.get("method_config"), where)),
+             "train": to_dict(from_saved(TrainConfig, saved.get("train"), source=where, prefix="train."))}
+    saved, current = (json.loads(json.dumps(c)) for c in (saved, current))  # tuples vs JSON lists
+    old = saved["method_config"]
     if old != current["method_config"]:
         diff = sorted(
             k for k in set(old) | set(current["method_config"]) if old.get(k) != current["method_config"].get(k)
@@ -192,10 +201,13 @@ def run_method(config: Mapping[str, Any], where: Path) -> str:
 
 
 def method_config(method: str, overrides: Mapping[str, Any] | None, source: Path | None = None):
-    """The method's config with ``overrides``; a bad one is a SpecError at ``source`` (a run's file),
-    ``method_config.FIELD`` there."""
-    return from_dict(get_method(method).config_type, overrides or {}, source=source,
-                     prefix="method_config." if source else "")
+    """The method's config with ``overrides``; a bad one is a SpecError at ``source``, ``method_config.FIELD``
+    there. With ``source`` (the run's file that saved them), the overrides are a run's settings, read as saved
+    (:func:`mitsnerf.config.from_saved`: a setting added since takes the value the run trained with, not today's
+    default)."""
+    if source is None:
+        return from_dict(get_method(method).config_type, overrides or {})
+    return from_saved(get_method(method).config_type, overrides or {}, source=source, prefix="method_config.")
 
 
 def build_model(method: str, overrides: Mapping[str, Any] | None, info: SceneInfo, seed: int,
@@ -273,6 +285,7 @@ def fit(
     refuse_nondeterministic(deterministic)  # before _start empties or reads the run directory
     train_views = dataset.views("train")
     ref = reference or load_reference(dataset, "test")
+    rss_reset = memory.start()  # the run's own peaks from here: its scene is loaded, what ran before is freed
     model, config = build_model(method, method_overrides, scene_info(dataset, train_views), train_config.seed)
     run_config = {"method": method, "method_config": to_dict(config), "train": to_dict(train_config),
                   "eval": to_dict(eval_config), "deterministic": bool(deterministic), **dataset_config(dataset)}
@@ -293,6 +306,7 @@ def fit(
         )
     try:
         run = evaluate_run(model, method, run_config, result, dataset, ref, eval_config, oracle)
+        run.peaks = memory.peaks(rss_reset)
         if out_dir is not None:
             write_run(run, dataset, out_dir, dataset.views("test").names)
     except KeyboardInterrupt as exc:  # trained and checkpointed: a resume only evaluates
@@ -421,18 +435,19 @@ def resume_run(run_dir: Path, train_overrides: Mapping[str, Any] | None = None, 
     refuse_nondeterministic(bool(ckpt.config.get("deterministic")), str(path),
                             f"the run was trained with {words(deterministic=True)}, which this backend cannot "
                             "continue (resume it with MITSNERF_VARIANT=llvm_ad_rgb): ")
-    train_config = from_dict(TrainConfig, {**(ckpt.config.get("train") or {}), **dict(train_overrides or {})})
+    trained = to_dict(from_saved(TrainConfig, ckpt.config.get("train") or {}, source=path, prefix="train."))
+    train_config = from_dict(TrainConfig, {**trained, **dict(train_overrides or {})})
     if ckpt.step >= train_config.steps and (run_dir / "metrics.json").is_file():
         raise OutputError(run_dir, None, f"the run finished at step {ckpt.step} (metrics.json); nothing to resume: "
                                          f"pass {words(steps=Placeholder('N'))} (N > {ckpt.step}) to train it on")
-    eval_config = from_dict(EvalConfig, ckpt.config.get("eval") or {})
+    eval_config = from_saved(EvalConfig, ckpt.config.get("eval") or {}, source=path, prefix="eval.")
     method = run_method(ckpt.config, path)
-    method_config(method, ckpt.config.get("method_config"), path)  # its settings checked before the data loads
+    settings = to_dict(method_config(method, ckpt.config.get("method_config"), path))  # before the data loads
     if dataset is None:
         dataset = open_dataset(ckpt.config, path)
         verify_dataset(dataset, hashes=verify_hashes, words=words)
     check_same_dataset(ckpt.config, dataset, run_dir, words=words)
-    return fit(dataset, method, ckpt.config.get("method_config"), train_config, run_dir,
+    return fit(dataset, method, settings, train_config, run_dir,
                eval_config=eval_config, progress=progress, resume=True,
                deterministic=bool(ckpt.config.get("deterministic")), words=words)
 
