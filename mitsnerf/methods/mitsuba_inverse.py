@@ -71,7 +71,7 @@ import drjit as dr
 import mitsuba as mi
 import numpy as np
 
-from mitsnerf.config import check_fields, param
+from mitsnerf.config import Since, check_fields, param
 from mitsnerf.errors import DatasetError
 from mitsnerf.fields.grid import GridField
 from mitsnerf.math.carve import carve_levels
@@ -99,6 +99,12 @@ def fraction_steps(fractions, budget: int) -> tuple[int, ...]:
     return tuple(max(1, round(f * budget)) for f in fractions)
 
 
+#: Runs saved before the ray batches trained one whole view per step, their schedules in steps: none of today's
+#: settings reproduces them.
+RAY_BATCHES = Since("0.1.0+a387962", refuse="it trained one whole view per step with its schedules in steps "
+                                            "(upsample_at); retrain it")
+
+
 @dataclass(frozen=True)
 class MitsubaInverseConfig(MethodConfig):
     """Configuration of the ``mitsuba-inverse`` method (extinctions in optical depth per box side)."""
@@ -107,14 +113,15 @@ class MitsubaInverseConfig(MethodConfig):
     """Grid resolution of each coarse-to-fine stage (one or more)."""
     upsample_at: tuple[float, ...] = param((0.04, 0.16, 0.36, 0.64), lo=0.0, hi=1.0, lo_open=True, hi_open=True)
     """Fractions of the step budget (increasing) after which the grids are resampled to the next resolution."""
-    lr_decay_at: tuple[float, ...] = param((0.75, 0.85, 0.95), lo=0.0, hi=1.0, lo_open=True, hi_open=True)
+    lr_decay_at: tuple[float, ...] = param((0.75, 0.85, 0.95), lo=0.0, hi=1.0, lo_open=True, hi_open=True,
+                                          since=RAY_BATCHES)
     """Fractions of the step budget at which the learning rate is multiplied by ``lr_decay``."""
-    lr_decay: float = param(0.5, lo=0.0, hi=1.0, lo_open=True)
+    lr_decay: float = param(0.5, lo=0.0, hi=1.0, lo_open=True, since=RAY_BATCHES)
     """The learning rate's factor at each of ``lr_decay_at``."""
-    batch: str = param("rays", choices=("rays", "views"))
+    batch: str = param("rays", choices=("rays", "views"), since=RAY_BATCHES)
     """A step's pixels: ``rays``, the trainer's ``batch_rays`` pixels drawn over every training view; ``views``,
     ``views_per_step`` whole training views."""
-    loss: str = param("l2", choices=("l2", "l1"))
+    loss: str = param("l2", choices=("l2", "l1"), since=RAY_BATCHES)
     """The image term: mean squared (``l2``) or absolute (``l1``) error over pixels and channels."""
     estimator: str = param("drt", choices=ESTIMATORS)
     """The gradient: ``drt`` (differential ratio tracking, majorant grid), ``free_flight`` (the same tracer, the
@@ -159,7 +166,7 @@ class MitsubaInverseConfig(MethodConfig):
     the gradient reaches voxels whose density is 0."""
     spp: int = param(4, lo=1, hi=4096)
     """Paths per pixel of the gradient (the adjoint pass)."""
-    spp_primal_factor: int = param(4, lo=1, hi=1024)
+    spp_primal_factor: int = param(4, lo=1, hi=1024, since=RAY_BATCHES)
     """The image the loss compares is rendered by this many times ``spp`` paths per pixel, independent of the
     gradient's."""
     views_per_step: int = param(1, lo=1, hi=64)
@@ -283,7 +290,7 @@ class MitsubaInverseModel(PixelModel):
         return self.knows + (() if self.config.optimize_albedo else ("albedo",))
 
     def _emptiness_masks(self, scene: SceneInfo) -> dict[int, np.ndarray]:
-            """The training views' emptiness mask at every resolution (``carve = true``), from ``scene.train_views``:
+        """The training views' emptiness mask at every resolution (``carve = true``), from ``scene.train_views``:
         a coarse voxel is kept where any finer voxel is."""
         views = scene.train_views
         if views is None:
