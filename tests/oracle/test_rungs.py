@@ -144,7 +144,7 @@ def test_the_basis_ceilings_variance_is_its_own_not_the_full_oracles(four_oracle
     spread = np.var(np.stack(renders).astype(np.float64), axis=0, ddof=1)[m].mean()
     assert 0.7 < np.mean(variances) / spread < 1.4
     found = score_on_basis(oracles[0].path, dataset, 0, 0, 1, ref)
-    assert found["psnr_test_medium_without_mc"] > found["psnr_test_medium"]
+    assert found["psnr_test_medium_without_mc"] > found["psnr_test_medium"] + 0.1     # measured +0.36 dB
     assert found["variance_of"] == "the oracle's error patterns projected on the basis"
     per_view = np.mean([v[mask].mean() for v, mask in zip(images[0], m)])   # each view's medium pixels, then views
     assert found["mc_var_test_medium"] == pytest.approx(per_view, rel=1e-4)
