@@ -55,6 +55,7 @@ from mitsnerf.bench.tables import (
     oracle_row,
     quick_banner,
     scene_rows,
+    with_ceiling_reasons,
     with_oracle_rows,
 )
 from mitsnerf.config import from_dict, to_dict
@@ -316,6 +317,7 @@ def write_outputs(config: BenchConfig, options: BenchOptions, cells: list[Cell],
     average = average_rows(per_scene, methods)
     if len(ceilings) > 1:
         average = [{**r, "ceiling": True} for r in average_rows(ceilings, [ORACLE])] + average
+    per_scene, average = with_ceiling_reasons(per_scene), with_ceiling_reasons(average)  # every output says why
     best = best_rules(records)
     quick = quick_banner(quick_sizes(cells)) if options.quick else None
     markdown = compact_report(per_scene, average, best, quick)

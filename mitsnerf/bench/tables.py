@@ -507,12 +507,13 @@ was kept; its own Monte Carlo variance, not removed, lowers it
 
 
 def with_ceiling_reasons(rows: Sequence[dict]) -> list[dict]:
-    """``rows`` with :func:`ceiling_reason` added to the note of every row above its own ceiling: no table shows a
-    row above its ceiling without the reason beside it."""
+    """``rows`` with :func:`ceiling_reason` added to the note of every row above its own ceiling (once: a row that
+    has it keeps its note): no table shows a row above its ceiling without the reason beside it."""
     out = []
     for row in rows:
         reason = ceiling_reason(row)
-        out.append({**row, "note": "; ".join(n for n in (row.get("note"), reason) if n)} if reason else row)
+        new = reason is not None and reason not in (row.get("note") or "")
+        out.append({**row, "note": "; ".join(n for n in (row.get("note"), reason) if n)} if new else row)
     return out
 
 

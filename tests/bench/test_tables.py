@@ -238,8 +238,13 @@ def test_a_row_above_a_ceiling_whose_variance_was_not_removed_says_why_in_its_no
     raw = [{k: v for k, v in r.items() if not k.endswith("_without_mc")} for r in rows]
     raw[1]["ceiling_note"] = "the oracle, raw: no estimate of its own Monte Carlo variance was kept"
     assert above_ceiling(raw[1]) is not None
-    for row in with_ceiling_reasons(raw):
+    explained = with_ceiling_reasons(raw)
+    for row in explained:
         assert above_ceiling(row) is None or "above its ceiling" in (row.get("note") or "")
+    assert with_ceiling_reasons(explained) == explained                          # applied twice, said once
+    from mitsnerf.bench.report import html_table
+
+    assert "above its ceiling" in html_table(explained, QUALITY, "scene", BEST)  # the report's note column too
     text = compact_report(raw, average_rows(raw))
     line = next(x for x in text.splitlines() if x.startswith("s m: "))
     assert f"; above its ceiling {oracle['psnr_test_medium']:.2f} by " in line
