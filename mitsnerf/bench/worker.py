@@ -128,6 +128,7 @@ def oracle_summary(oracle, footprint: int) -> dict[str, Any] | None:
     info = oracle.info
     return {"path": str(oracle.path), "key": info.get("key"), "config": info.get("config"),
             "footprint": footprint, "psnr_test_medium": info.get("psnr_test_medium"),
+            "psnr_test_medium_without_mc": oracle.metrics(footprint).get("psnr_test_medium_without_mc"),
             "psnr_test": {k: s.get("psnr_test") for k, s in oracle.scores.items()},
             "psnr_test_per_view": oracle.metrics(footprint).get("psnr_test_per_view"),
             "error_split": info.get("error_split"), "seconds": info.get("seconds")}
@@ -252,21 +253,20 @@ def run_cell(cell: Cell, *, progress: bool = False, threads: int = 0, executor: 
 
 
 def ceiling_figures(model, oracle, dataset, footprint: int, reference, metrics: dict) -> dict[str, Any]:
-    """The ceiling of the row's rung (:mod:`mitsnerf.oracle.rungs`: the oracle, the oracle on a single-scattering
-    method's basis, or the references' agreement + 3.01 dB) and the gap to it, on medium pixels."""
-    from mitsnerf.oracle.rungs import PERFECT_DB, single_scattering_ceiling
+    """The ceiling of the row's rung (:func:`mitsnerf.oracle.rungs.rung_ceiling`: the oracle, the oracle on a
+    single-scattering method's basis, or the references' agreement + 3.01 dB) on medium pixels, raw and less its own
+    Monte Carlo variance, what it is (``ceiling_note``), and the gap between the two figures compared (each less its
+    own Monte Carlo variance where that was measured: :func:`mitsnerf.scoring.variance.headline`)."""
+    from mitsnerf.oracle.rungs import rung_ceiling
+    from mitsnerf.scoring.variance import headline
 
-    ceiling = None
-    if model.rung == "emission-absorption":
-        ceiling = metrics.get("oracle_psnr_test_medium")
-    elif model.rung == "single scattering" and oracle is not None:
-        degree, zonal = model.rung_basis()
-        ceiling = single_scattering_ceiling(oracle, dataset, degree, zonal, footprint, reference)
-    elif model.rung == "full transport" and metrics.get("noise_floor_psnr_medium") is not None:
-        ceiling = metrics["noise_floor_psnr_medium"] + PERFECT_DB
-    medium = metrics.get("psnr_test_medium")
-    gap = None if ceiling is None or medium is None else ceiling - medium
-    return {"ceiling_psnr_test_medium": ceiling, "gap_to_ceiling": gap}
+    basis = model.rung_basis() if model.rung == "single scattering" else None
+    ceiling = rung_ceiling(model.rung, basis, oracle, dataset, footprint, reference, metrics)
+    top, medium = headline(ceiling), headline(metrics)
+    return {"ceiling_psnr_test_medium": ceiling.get("psnr_test_medium"),
+            "ceiling_psnr_test_medium_without_mc": ceiling.get("psnr_test_medium_without_mc"),
+            "ceiling_note": ceiling.get("note"),
+            "gap_to_ceiling": None if top is None or medium is None else top - medium}
 
 
 def _record(cell: Cell, dataset, metrics: dict, points: list, k: int, evalc, history: list) -> dict[str, Any]:

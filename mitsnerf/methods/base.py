@@ -230,6 +230,19 @@ class Model(ABC):
     def render_view(self, camera, *, pixel_center: float = 0.5, footprint: int = 1) -> Rendered:
         """A whole camera (without gradients); ``footprint``: K x K rays per pixel (1: its sample point)."""
 
+    @property
+    def monte_carlo_renders(self) -> bool:
+        """Whether :meth:`render_view` is a Monte Carlo estimate, whose own variance lowers its scores (default:
+        a full-transport method's renders are path traced, the others' are quadratures)."""
+        return self.rung == "full transport"
+
+    def render_view_independent(self, camera, *, pixel_center: float = 0.5, footprint: int = 1) -> Rendered | None:
+        """A second render of ``camera`` with samples independent of :meth:`render_view`'s (another seed), from
+        which the evaluation measures the renders' own Monte Carlo variance and scores them without it
+        (:mod:`mitsnerf.scoring.variance`); None (the default): no second render, a Monte Carlo method's scores
+        are then raw and say so."""
+        return None
+
     def samples_per_ray(self) -> int:
         """Field evaluations per ray (for samples/s figures)."""
         return 0

@@ -408,6 +408,10 @@ def score_renders(dataset: Dataset, folder: Path, *, density: Path | None = None
     else:
         oracle_source = f"oracle {oracle.path} at footprint {k}"
     ref, floor_of = _floor_of_format(dataset, reference or load_reference(dataset, "test"), paths)
+    if oracle is not None:  # its medium PSNR less its own Monte Carlo variance, once, if cached before it was kept
+        from mitsnerf.oracle.cache import variance_free
+
+        oracle = variance_free(oracle, dataset, k, ref)
     fn = None if grid is None else true_density(grid, dataset.box)
     metrics, slices = score_views(images, ref, fn, oracle=None if oracle is None else oracle.metrics(k))
     metrics["noise_floor_of"], metrics["footprint"] = floor_of, k

@@ -15,6 +15,7 @@ from __future__ import annotations
 import json
 import os
 import shutil
+import time
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -323,14 +324,42 @@ def fit(
 def score_model(model: Model, ref: Reference, eval_config: EvalConfig,
                 oracle: dict | None = None) -> tuple[dict, list[Rendered], dict, float]:
     """Render ``ref``'s views with the footprint of ``eval_config`` and score them (the density too, where the
-    model has a queryable one): ``(scores, renders, density slices, render seconds)``."""
+    model has a queryable one): ``(scores, renders, density slices, render seconds)``. A Monte Carlo model's renders
+    are also scored without their own variance where it renders them a second time independently
+    (:func:`monte_carlo_variance`)."""
     renders, seconds = render_views(model, ref.cameras, pixel_center=ref.pixel_center, footprint=eval_config.footprint)
+    images = stack_rgb(renders)
+    variance, note, again = monte_carlo_variance(model, ref, eval_config.footprint, images)
     field = model.field() if isinstance(model, HasField) else None
     density = field.density if isinstance(field, DensityField) else None
-    scores, slices = score_views(stack_rgb(renders), ref, density, oracle=oracle,
+    scores, slices = score_views(images, ref, density, oracle=oracle,
                                  density_resolution=eval_config.density_resolution,
-                                 od_samples=eval_config.od_samples)
-    return scores, renders, slices, seconds
+                                 od_samples=eval_config.od_samples, variance=variance)
+    if note is not None:
+        scores["mc_note"] = note
+    return scores, renders, slices, seconds + again
+
+
+def monte_carlo_variance(model: Model, ref: Reference, footprint: int,
+                         first: np.ndarray) -> tuple[np.ndarray | None, str | None, float]:
+    """``(Var per pixel (V, H, W, 3) or None, a note or None, seconds)`` of a model's test renders ``first``: from its
+    independent second renders (:meth:`~mitsnerf.methods.base.Model.render_view_independent`,
+    :func:`mitsnerf.scoring.variance.pair_variance`); None for a model whose renders are not Monte Carlo, and for
+    one without a second render, with the note that its scores keep their own variance."""
+    from mitsnerf.scoring.variance import pair_variance
+
+    if not model.monte_carlo_renders:
+        return None, None, 0.0
+    start = time.perf_counter()
+    again = [model.render_view_independent(cam, pixel_center=ref.pixel_center, footprint=footprint)
+             for cam in ref.cameras[:1]]
+    if again[0] is None:
+        return None, ("raw: its renders are Monte Carlo and it makes no independent second render, so its scores "
+                      "keep their own Monte Carlo variance"), 0.0
+    again += [model.render_view_independent(cam, pixel_center=ref.pixel_center, footprint=footprint)
+              for cam in ref.cameras[1:]]
+    second = np.stack([r.rgb for r in again if r is not None]).astype(np.float32)
+    return pair_variance(first, second), None, time.perf_counter() - start
 
 
 def evaluate_run(model: Model, method: str, run_config: dict, result: TrainResult, dataset: Dataset,
