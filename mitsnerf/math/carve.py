@@ -94,7 +94,7 @@ def pooled_mask(keep: np.ndarray, resolution: int) -> np.ndarray:
     if big % resolution:
         raise ValueError(f"pooled_mask: {resolution} does not divide {big}")
     k = big // resolution
-    return keep.reshape(resolution, k, resolution, k, resolution, k).any(axis=(1, 3, 5))
+    return np.asarray(keep.reshape(resolution, k, resolution, k, resolution, k).any(axis=(1, 3, 5)))
 
 
 def carve_levels(images: np.ndarray, cameras: Sequence[Any], background: Callable[[Any], Any], box: Box,

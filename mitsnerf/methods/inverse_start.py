@@ -105,10 +105,10 @@ def resampled_start(start: str | Path | tuple, box: Box, resolution: int,
     dataset's true albedo (R, R, R, 3) (None from an export: its colour is not an albedo). ``start``: a path, or
     the grids themselves ``(sigma_t (R, R, R[, C]) world units, albedo, their box)``."""
     truth = start if isinstance(start, tuple) else read_dataset_truth(start)
-    if truth is None:
-        (sigma, source), albedo = read_export(start), None
-    else:
+    if truth is not None:
         sigma, albedo, source = truth
+    elif isinstance(start, (str, Path)):
+        (sigma, source), albedo = read_export(start), None
         sigma = sigma[..., None] if sigma.ndim == 3 else sigma
     if channels == 1 and sigma.shape[-1] == 3:
         sigma = sigma.mean(axis=-1, keepdims=True)

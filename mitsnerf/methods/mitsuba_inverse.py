@@ -534,11 +534,18 @@ class MitsubaInverseModel(PixelModel):
     def render_view(self, camera, *, pixel_center: float = 0.5, footprint: int = 1) -> Rendered:
         """The path tracer at ``eval_spp`` through Mitsuba's box-filtered film for the colour; opacity and depth
         by quadrature of the extinction with ``max(footprint, 2)`` rays per pixel side."""
+        return self._render(camera, EVAL_SEED, pixel_center, footprint)
+
+    def render_view_independent(self, camera, *, pixel_center: float = 0.5, footprint: int = 1) -> Rendered:
+        """:meth:`render_view` from another seed: the pair measures the renders' own Monte Carlo variance."""
+        return self._render(camera, EVAL_SEED + 1, pixel_center, footprint)
+
+    def _render(self, camera, seed: int, pixel_center: float, footprint: int) -> Rendered:
         if abs(pixel_center - 0.5) > 1e-9:
             raise ValueError(f"mitsuba-inverse renders with Mitsuba's pixel centres (+0.5), asked for {pixel_center}")
         with dr.suspend_grad():
             img = mi.render(self.scene, sensor=_rgb_sensor(camera, self.config.eval_spp),
-                            spp=self.config.eval_spp, seed=EVAL_SEED)
+                            spp=self.config.eval_spp, seed=seed)
             rgb = np.array(img, dtype=np.float32)
             density = GridField.from_arrays(dr.detach(self.sigma_t) / self.side, self.box)
             n = 2 * self.resolution
