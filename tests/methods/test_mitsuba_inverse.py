@@ -27,8 +27,8 @@ TINY = tiny_scene({"name": "tiny-inverse", "description": "a 16^3 cloud, 12x12 v
                    "cameras.width": 12, "cameras.height": 12, "render.spp_train": 32, "render.spp_test": 32,
                    "render.max_depth": 8, "render.noise_floor": False})
 
-CONFIG = MitsubaInverseConfig(resolutions=(8, 16), upsample_at=(0.5,), lr_decay_at=(), spp=4, eval_spp=32,
-                              depth_max=40.0, lr=1.0, init_depth=1.0)
+CONFIG = MitsubaInverseConfig(resolutions=(8, 16), upsample_at=(0.5,), lr_decay_at=(0.8,), upsample_lr_factor=0.5,
+                              spp=4, eval_spp=32, depth_max=40.0, lr=1.0, init_depth=1.0)
 FLAT = TrainConfig(steps=20, log_every=5, lr_final_factor=1.0, batch_rays=512)  # no decay: 20 steps only
 
 
@@ -62,7 +62,8 @@ def test_a_few_steps_lower_the_image_error_and_upsample(tiny):
     sigma = np.asarray(model.sigma_t)
     assert sigma.min() >= 0 and sigma.max() <= CONFIG.depth_max
     assert model.lr_scales(9) == {"sigma_t": 1.0, "albedo": CONFIG.albedo_lr_factor}
-    assert model.lr_scales(10)["sigma_t"] == 0.5
+    assert model.lr_scales(10)["sigma_t"] == 0.5 and model.lr_scales(15)["sigma_t"] == 0.5
+    assert model.lr_scales(16)["sigma_t"] == 0.25  # halved at 80% of the 20 steps
 
     test = dataset.views("test")
     rendered = render_views(model, test.cameras)[0][0]
