@@ -18,7 +18,7 @@ mean of three binomials); a format-6 dataset's alpha fails it.
     .venv/bin/python -m mitsnerf generate smoke --out data        # or any spec with sigma_t_scale = [r, g, b]
     .venv/bin/python benchmarks/chromatic_alpha.py data/smoke-<hash> [--splits test test_ref]
 
-One JSON line per split. Figures: benchmarks/README.md, "Chromatic extinction".
+One JSON line per split. Figures: docs/notes/chromatic.md, "Chromatic extinction: the smoke".
 """
 
 from __future__ import annotations

@@ -34,8 +34,8 @@ the exact transmittance is timed on its second call. On a shared machine compare
 
     .venv/bin/python benchmarks/chromatic_noise.py --size 32 --views 3 --spp 256 smoke
 
-One JSON line per estimator, then a table. Figures: benchmarks/README.md, "The smoke's noise: one estimator per
-channel".
+One JSON line per estimator, then a table. Figures: docs/notes/chromatic.md, "The smoke's noise: one grey render
+per channel".
 """
 
 from __future__ import annotations

@@ -5,22 +5,23 @@ trains for the same number of steps on the default cloud; it is scored like a be
 whole-image PSNR of the test views, the density's relative L1 error (epsilon) and relative mass error
 (delta, > 0 when the learned medium holds more), and the transmittance MAE along the test rays.
 
-- ``baseline``: the settings as they are (``init_depth = 1``);
+- ``baseline``: the settings as they are;
 - ``init 0.1`` / ``init 0``: a low or zero initial extinction (``init_depth``);
 - ``l1 X``: the sparsity prior ``X * mean(sigma_t)`` added to the loss;
-- ``4 views``: four training views per step instead of one;
-- ``spp 32 late``: 32 instead of 8 samples per pixel in the last half of the steps;
-- ``carve``: the emptiness mask from training pixels that show the environment unattenuated;
+- ``4 views``: four whole training views per step instead of a batch of pixels over every view;
+- ``primal x16``: the image the loss compares at 16 instead of 4 times the gradient's paths;
+- ``no carve``: without the emptiness mask from training pixels that show the environment unattenuated;
 - ``majorant 40``: prbvolpath's delta-tracking majorant fixed at 40 (the true maximum is 30) instead of the grid's
   maximum, and ``init 0, majorant 40``: the zero start it makes possible (both with ``estimator = prbvolpath``);
 - combinations: ``--combo '{"NAME": {FIELD: VALUE, ...}}'`` adds variants (MitsubaInverseConfig fields).
 
 Budgets are steps, so the figures do not depend on the machine's load (the train seconds do). The figures of
-benchmarks/README.md's haze section were measured before the method had its ``estimator`` setting, with
-Mitsuba's ``prbvolpath`` (today ``--combo '{"NAME": {"estimator": "prbvolpath", ...}}'`` repeats them); the
-variants now run with the method's default estimator unless they name one.
+docs/notes/mitsuba-inverse.md, "mitsuba-inverse: removing the haze", were measured before the method had its
+``estimator`` setting and its ray batches (one whole view per step, the emptiness mask off by default then), with
+Mitsuba's ``prbvolpath`` (today ``--combo '{"NAME": {"estimator": "prbvolpath",
+...}}'`` repeats them); the variants now run with the method's default estimator unless they name one.
 
-    .venv/bin/python benchmarks/inverse_haze.py [--steps 400] [--variants baseline carve ...] [--data DIR]
+    .venv/bin/python benchmarks/inverse_haze.py [--steps 400] [--variants baseline "no carve" ...] [--data DIR]
         [--jsonl FILE]
 """
 
@@ -37,9 +38,9 @@ VARIANTS: dict[str, dict] = {
     "init 0": {"init_depth": 0.0},
     "l1 1e-3": {"l1": 1e-3},
     "l1 1e-2": {"l1": 1e-2},
-    "4 views": {"views_per_step": 4},
-    "spp 32 late": {"spp_late": 32, "spp_late_at": -1},  # -1: half the steps
-    "carve": {"carve": True},
+    "4 views": {"batch": "views", "views_per_step": 4},
+    "primal x16": {"spp_primal_factor": 16},
+    "no carve": {"carve": False},
     "majorant 40": {"estimator": "prbvolpath", "majorant_depth": 40.0},
     "init 0, majorant 40": {"estimator": "prbvolpath", "init_depth": 0.0, "majorant_depth": 40.0},
 }
@@ -47,10 +48,7 @@ VARIANTS: dict[str, dict] = {
 
 def settings(name: str, steps: int, combos: dict) -> dict:
     """The config overrides of variant ``name`` (one of VARIANTS or of ``combos``) at ``steps`` steps."""
-    config = dict(combos[name]) if name in combos else dict(VARIANTS[name])
-    if config.get("spp_late_at") == -1:
-        config["spp_late_at"] = steps // 2
-    return config
+    return dict(combos[name]) if name in combos else dict(VARIANTS[name])
 
 
 def run_one(name: str, config: dict, steps: int, data_root: Path, scene: str) -> dict:

@@ -17,7 +17,7 @@
    the pixel centre instead of K x K; ``pixel_centre``: the centre at the pixel's corner), and the dataset's
    ``medium.transmittance_check`` printed: it must fail.
 
-Run (figures in benchmarks/README.md, "One volpath pass per split"):
+Run (figures in docs/notes/ground-truth.md, "One volpath pass per split"):
     .venv/bin/python benchmarks/onepass_noise.py --noise --spp 128 --views 2 cloud shell nebula lattice plume
     .venv/bin/python benchmarks/onepass_noise.py --footprint --views 3 cloud shell lattice plume nebula
     .venv/bin/python benchmarks/onepass_noise.py --plant footprint --views 2 --train-views 4 lattice cloud

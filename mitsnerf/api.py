@@ -31,6 +31,7 @@ already set is kept; else ``$MITSNERF_VARIANT``, else ``cuda_ad_rgb`` where a GP
 
 from __future__ import annotations
 
+import inspect
 import os
 from collections.abc import Mapping
 from dataclasses import dataclass
@@ -233,14 +234,15 @@ def evaluate(run: PathLike, *, footprint: int | None = None) -> dict[str, Any]:
     and score them: the scores ``metrics.json`` holds, recomputed from the saved parameters."""
     from dataclasses import replace
 
-    from mitsnerf.config import from_dict
+    from mitsnerf.config import from_dict, from_saved
     from mitsnerf.runs.fit import load_run, score_model
     from mitsnerf.scoring.reference import load_reference
     from mitsnerf.train.evaluate import EvalConfig
 
     _ready()
     model, dataset, config = load_run(Path(run))
-    eval_config = from_dict(EvalConfig, dict(config.get("eval") or {}), source=Path(run) / "config.json")
+    eval_config = from_saved(EvalConfig, dict(config.get("eval") or {}), source=Path(run) / "config.json",
+                             prefix="eval.")
     if footprint is not None:
         eval_config = replace(eval_config, footprint=from_dict(EvalConfig, {"footprint": footprint}).footprint)
     scores, _, _, _ = score_model(model, load_reference(dataset, "test"), eval_config)
@@ -267,6 +269,13 @@ def score(dataset: Dataset | PathLike, renders: PathLike, *, density: PathLike |
     return dict(result.metrics)
 
 
+def _call(function, *args: Any, **given: Any) -> str:
+    """How a call of ``function`` of this module reads, the arguments left at their defaults left out (what a sweep
+    records it was run by): ``api.bench('default', quick=True)``."""
+    defaults = {k: p.default for k, p in inspect.signature(function).parameters.items()}
+    return API.command(function.__name__, *args, **{k: v for k, v in given.items() if v != defaults.get(k)})
+
+
 def bench(config: PathLike = "default", *, quick: bool = False, results: PathLike = "results",
           data: PathLike | None = None, executor: str = "sequential", workers: int = 0, force: bool = False,
           progress: bool = False) -> BenchResult:
@@ -283,7 +292,10 @@ def bench(config: PathLike = "default", *, quick: bool = False, results: PathLik
     _ready()
     options = BenchOptions(quick=quick, data_root=Path(data) if data is not None else data_cache()[0],
                            results_root=Path(results), progress=progress, executor=executor, workers=workers,
-                           force=force, words=API)
+                           force=force, words=API,
+                           command=_call(bench, os.fspath(config), quick=quick, results=os.fspath(results),
+                                         data=None if data is None else os.fspath(data), executor=executor,
+                                         workers=workers, force=force))
     check_output_dir(options.results_root, "results")
     check_output_dir(options.data_root, "data")
     return run_benchmark(load_bench_config(os.fspath(config)), options)

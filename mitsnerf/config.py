@@ -32,6 +32,14 @@ table's ``type`` key) are understood. :func:`to_dict` turns a config back into p
 data, :func:`parse_value` reads a command-line value, :func:`read_toml` reads a file, and
 :func:`search_dirs` / :func:`named_files` find files by name (the user's directories, then the package's).
 
+A config saved with what it made (a run's ``method_config``, ``train`` and ``eval``: :func:`to_dict`, every
+setting) is read back by :func:`from_saved`: a key it lacks is a setting added after it was saved, read as the
+value that reproduces what it was made with, which the field declares beside its default when that default is
+not it (``param(True, since=("0.1.0+7e1ef78", False))``: saved before that version, read as false), or as
+refused in one line (``since=Since(VERSION, refuse="why no value reproduces it")``); without a declaration, as the
+default. :func:`saved_readings` lists what each key reads as (the suite keeps a copy of the built-in methods',
+so a changed default without a declaration fails it).
+
 Every config of the package declares its fields with :func:`param`; a dataclass whose fields are
 plain (``x: int = 1``) is read too, with the wording ``expected an integer`` and ``unknown key``.
 """
@@ -99,6 +107,26 @@ class Bounds:
         return self.hi is None or (x < self.hi if self.hi_open else x <= self.hi)
 
 
+_SINCE = "mitsnerf.config.since"
+
+
+@dataclasses.dataclass(frozen=True)
+class Since:
+    """A setting that configs saved before ``version`` lack (it did not exist then), and how :func:`from_saved`
+    reads one that lacks it: as ``before``, the value that reproduces what it was made with, or, where ``refuse``
+    says why no value does, refused."""
+
+    version: str
+    """The version that added the setting: ``<mitsnerf version>+<commit>``, as a run's code version reads."""
+    before: Any = None
+    refuse: str = ""
+    """Why no value reproduces the configs saved before ``version`` (then they are refused, with this reason)."""
+
+    def reading(self) -> Any:
+        """What a saved config lacking the key reads as (:func:`saved_readings`)."""
+        return f"refused: {self.refuse}" if self.refuse else plain(self.before)
+
+
 def param(
     default: Any = dataclasses.MISSING,
     *,
@@ -110,14 +138,19 @@ def param(
     choices: tuple | None = None,
     doc: str = "",
     hi_why: str = "",
+    since: Since | tuple[str, Any] | None = None,
     **kwargs: Any,
 ) -> Any:
     """A dataclass field with its range (``[lo, hi]``, ends open on request; it applies to every
     number of a tuple), its ``choices``, its documentation and why its upper bound is what it is
-    (``hi_why``, said when a value exceeds it); no default: the field is required."""
+    (``hi_why``, said when a value exceeds it); no default: the field is required. ``since``: the version
+    that added it and the value that configs saved before then were made with (``(version, value)``, or a
+    :class:`Since`), where that is not the default: how :func:`from_saved` reads a config that lacks it."""
     bounds = Bounds(lo, hi, lo_open, hi_open, tuple(choices) if choices is not None else None, doc, hi_why)
-    return dataclasses.field(default=default, default_factory=default_factory,
-                             metadata={_BOUNDS: bounds}, **kwargs)
+    metadata: dict[str, Any] = {_BOUNDS: bounds}
+    if since is not None:
+        metadata[_SINCE] = since if isinstance(since, Since) else Since(*since)
+    return dataclasses.field(default=default, default_factory=default_factory, metadata=metadata, **kwargs)
 
 
 def source_field() -> Any:
@@ -302,6 +335,15 @@ def doc_table(cls, nested: bool = False) -> str:
     return "\n".join(rows + _doc_rows(cls, None, "", nested))
 
 
+def _since_text(since: Since | None) -> str:
+    """What a :func:`doc_table` row says of a setting added since: how a run saved before it is read."""
+    if since is None:
+        return ""
+    if since.refuse:
+        return f" (added in {since.version}: a run saved before is refused, {since.refuse})"
+    return f" (added in {since.version}: a run saved before reads {json.dumps(plain(since.before))})"
+
+
 def _doc_rows(cls, defaults: Any, prefix: str, nested: bool) -> list[str]:
     """Table rows of ``cls``'s fields named ``prefix + name``; defaults from the instance ``defaults`` if given."""
     hints = typing.get_type_hints(cls)
@@ -315,7 +357,8 @@ def _doc_rows(cls, defaults: Any, prefix: str, nested: bool) -> list[str]:
             rows += _doc_rows(hints[f.name], default, f"{prefix}{f.name}.", nested)
             continue
         shown = "required" if default is dataclasses.MISSING else json.dumps(plain(default))
-        rows.append(f"| {prefix}{f.name} | {describe(hints[f.name], _bounds(f))} | {shown} | {docs[f.name] or '...'} |")
+        rows.append(f"| {prefix}{f.name} | {describe(hints[f.name], _bounds(f))} | {shown} | {docs[f.name] or '...'}"
+                    f"{_since_text(f.metadata.get(_SINCE))} |")
     return rows
 
 
@@ -564,6 +607,104 @@ def _convert_tagged(members: list, value: Any, path: str, source) -> Any:
         raise SpecError(source, _join(path, TAG), f"{what} {value[TAG]!r} (known: {', '.join(tags)})")
     rest = {k: v for k, v in value.items() if k != TAG}
     return from_dict(tags[value[TAG]], rest, source=source, prefix=path)
+
+
+# --------------------------------------------------------------------------- saved configs
+
+
+def from_saved(cls, data: Mapping[str, Any] | None, *, source: Any = None, prefix: str = ""):
+    """Config ``cls`` from ``data`` that something made with it saved (a run's settings, :func:`to_dict` of all of
+    them), as :func:`from_dict` reads it, but each key it lacks (added since it was saved) read as the field's
+    :class:`Since` says, the default where it declares none: what the saved thing was made with, not today's
+    default. A key declared unreproducible is a SpecError naming ``source``, the field and the reason.
+
+    >>> @dataclasses.dataclass(frozen=True)
+    ... class Fit:
+    ...     steps: int = param(100, lo=1)
+    ...     carve: bool = param(True, since=("0.1.0+7e1ef78", False))
+    ...     mode: str = param("b", since=Since("0.1.0+28686ef", refuse="mode a is gone"))
+    >>> from_saved(Fit, {"steps": 5, "mode": "b"}), from_dict(Fit, {"steps": 5, "mode": "b"})
+    (Fit(steps=5, carve=False, mode='b'), Fit(steps=5, carve=True, mode='b'))
+    >>> from_saved(Fit, {"carve": True}, source="run/config.json", prefix="method_config.")
+    Traceback (most recent call last):
+    ...
+    mitsnerf.errors.SpecError: run/config.json: method_config.mode: not recorded: saved before 0.1.0+28686ef \
+added this setting, and no value reproduces it (mode a is gone)
+    """
+    return from_dict(cls, _complete_saved(cls, data, str(source) if source is not None else None, prefix),
+                     source=source, prefix=prefix)
+
+
+def _complete_saved(cls, data: Any, source: str | None, prefix: str) -> Any:
+    """``data`` with each declared key it lacks set as its :class:`Since` says, in nested tables too."""
+    if not isinstance(data, Mapping):
+        return data  # from_dict names the problem
+    hints = typing.get_type_hints(cls)
+    out = dict(data)
+    for f in dataclasses.fields(cls):
+        if _is_internal(f):
+            continue
+        path, since = _join(prefix, f.name), f.metadata.get(_SINCE)
+        if f.name not in out and since is not None:
+            if since.refuse:
+                raise SpecError(source, path, f"not recorded: saved before {since.version} added this setting, and "
+                                              f"no value reproduces it ({since.refuse})")
+            out[f.name] = plain(since.before)
+            continue
+        value = out[f.name] if f.name in out else {} if dataclasses.is_dataclass(_default(f)) else None
+        nested = _table_class(hints[f.name], value)
+        if nested is not None:
+            table = _complete_saved(nested, value, source, path)
+            if table or f.name in out:  # a table the config lacks: over the field's own default (from_dict)
+                out[f.name] = table
+    return out
+
+
+def _table_class(tp, value: Any):
+    """The dataclass a table ``value`` of a field typed ``tp`` is read as (a tagged union's by its ``type``),
+    else None."""
+    if not isinstance(value, Mapping):
+        return None
+    if isinstance(tp, type) and dataclasses.is_dataclass(tp):
+        return tp
+    if typing.get_origin(tp) not in (typing.Union, types.UnionType):
+        return None
+    members = [a for a in typing.get_args(tp) if dataclasses.is_dataclass(a)]
+    if members and all(_tag(m) for m in members):
+        return next((m for m in members if _tag(m) == value.get(TAG)), None)
+    return members[0] if len(members) == 1 else None
+
+
+def saved_readings(cls, prefix: str = "") -> dict[str, Any]:
+    """What :func:`from_saved` reads each key of ``cls`` as when a saved config lacks it, by dotted key (nested
+    configs' keys too): its :class:`Since`'s value (``"refused: REASON"`` where none reproduces it), else its
+    default.
+
+    >>> @dataclasses.dataclass(frozen=True)
+    ... class Fit:
+    ...     steps: int = param(100, lo=1)
+    ...     carve: bool = param(True, since=("0.1.0+7e1ef78", False))
+    >>> saved_readings(Fit)
+    {'steps': 100, 'carve': False}
+    """
+    return _readings(cls, None, prefix)
+
+
+def _readings(cls, defaults: Any, prefix: str) -> dict[str, Any]:
+    """:func:`saved_readings`, the defaults taken from the instance ``defaults`` where given (a nested field's own)."""
+    out: dict[str, Any] = {}
+    for f in dataclasses.fields(cls):
+        if _is_internal(f):
+            continue
+        since = f.metadata.get(_SINCE)
+        default = _default(f) if defaults is None else getattr(defaults, f.name)
+        if since is not None:
+            out[prefix + f.name] = since.reading()
+        elif dataclasses.is_dataclass(default) and not isinstance(default, type):
+            out.update(_readings(type(default), default, f"{prefix}{f.name}."))
+        else:
+            out[prefix + f.name] = "required" if default is dataclasses.MISSING else plain(default)
+    return out
 
 
 # --------------------------------------------------------------------------- plain data

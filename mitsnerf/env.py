@@ -201,6 +201,41 @@ def provenance() -> dict[str, object]:
         "libllvm_path": os.environ.get("DRJIT_LIBLLVM_PATH"),
         "numpy": np.__version__,
         "python": platform.python_version(),
-        "machine": f"{platform.system()} {platform.machine()}, {os.cpu_count()} cores, "
-        f"{platform.processor() or 'cpu'}",
+        "machine": f"{platform.system()} {platform.machine()}, {os.cpu_count()} cores, {cpu_name()}"
+        + (f", {gpu}" if (gpu := gpu_name()) else ""),
     }
+
+
+def cpu_name(cpuinfo: Path = Path("/proc/cpuinfo")) -> str:
+    """The processor's model name (``/proc/cpuinfo``'s, else the platform's), ``cpu`` where neither says.
+
+    >>> import tempfile
+    >>> f = Path(tempfile.mkdtemp()) / "cpuinfo"
+    >>> _ = f.write_text("processor\\t: 0\\nmodel name\\t: Intel(R) Xeon(R) Gold 6338 CPU @ 2.00GHz\\n")
+    >>> cpu_name(f)
+    'Intel(R) Xeon(R) Gold 6338 CPU @ 2.00GHz'
+    """
+    try:
+        for line in cpuinfo.read_text().splitlines():
+            key, _, value = line.partition(":")
+            if key.strip() == "model name" and value.strip():
+                return value.strip()
+    except OSError:
+        pass
+    return platform.processor() or "cpu"
+
+
+def gpu_name() -> str | None:
+    """The first CUDA device's name when Mitsuba runs a CUDA variant (what a run on it measured), else None."""
+    import mitsuba as mi
+
+    if not (mi.variant() or "").startswith("cuda"):
+        return None
+    try:
+        lib = ctypes.CDLL("libcuda.so.1")
+        name = ctypes.create_string_buffer(256)
+        if lib.cuInit(0) != 0 or lib.cuDeviceGetName(name, 256, 0) != 0:
+            return None
+    except (OSError, AttributeError):
+        return None
+    return name.value.decode(errors="replace") or None

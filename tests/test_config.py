@@ -345,3 +345,28 @@ def test_an_unknown_field_that_a_nested_config_has_is_pointed_at_by_its_dotted_n
 def test_a_nested_field_is_set_by_its_dotted_name_as_by_its_table():
     assert from_dict(Outer, {"main.width": 8, "small": {"depth": 1}, "small.width": 2}) == \
         Outer(main=Inner(width=8), small=Inner(width=2, depth=1))
+
+
+# ---------------------------------------------------------------- configs read back as saved
+
+
+@dataclass(frozen=True)
+class _SavedGrid:
+    resolution: int = param(64, lo=1)
+    skip: bool = param(True, since=("0.1.0+abc1234", False))
+
+
+@dataclass(frozen=True)
+class _SavedMethod:
+    grid: _SavedGrid = param(default_factory=lambda: _SavedGrid(resolution=32))
+    lr: float = param(0.1)
+
+
+def test_a_saved_config_reads_a_missing_nested_setting_as_declared_over_the_fields_own_default():
+    from mitsnerf.config import from_saved, saved_readings
+
+    assert from_saved(_SavedMethod, {"lr": 0.2}) == _SavedMethod(grid=_SavedGrid(resolution=32, skip=False), lr=0.2)
+    assert from_saved(_SavedMethod, {"grid": {"resolution": 8, "skip": True}}).grid == _SavedGrid(8, True)  # as is
+    assert from_dict(_SavedMethod, {"lr": 0.2}).grid.skip  # a new config: today's default
+    assert saved_readings(_SavedMethod) == {"grid.resolution": 32, "grid.skip": False, "lr": 0.1}
+    assert "(added in 0.1.0+abc1234: a run saved before reads false) |" in doc_table(_SavedMethod, nested=True)

@@ -226,3 +226,77 @@ def test_view_agreement_is_per_view_and_has_power():
         img[2] += 0.02  # one view biased
     check = view_agreement(noisy[0], noisy[1], *off)
     assert not check["passed"] and [v["passed"] for v in check["views"]] == [True, True, False, True]
+
+
+# --------------------------------------------------------------------------- scores less a render's own variance
+
+def _noisy_views(seed: int = 0, sigma_ref: float = 0.02):
+    """Truth ``(4, 32, 32, 3)`` in [0.2, 0.8] and references around it with noise ``sigma_ref``."""
+    rng = np.random.default_rng(seed)
+    truth = rng.uniform(0.2, 0.8, size=(4, 32, 32, 3))
+    return rng, truth, truth + rng.normal(0.0, sigma_ref, truth.shape)
+
+
+def test_two_independent_renders_give_the_variance_and_the_score_without_it():
+    """A render with noise 0.03 against references with noise 0.02: less the variance two renders measure, it scores
+    what the noise-free image scores (within 0.2 dB: the variance of 3072 values a view is known to 2.6%, and it is
+    2.25 times what is left)."""
+    from mitsnerf.scoring.variance import pair_variance, without_variance
+
+    rng, truth, refs = _noisy_views()
+    a, b = (truth + rng.normal(0.0, 0.03, truth.shape) for _ in range(2))
+    var = pair_variance(a, b)
+    assert var.mean() == pytest.approx(0.03**2, rel=0.03)
+    masks = np.ones(truth.shape[:3], bool)
+    found = without_variance(a, refs, masks, var)
+    exact = image_scores(truth, refs, masks)["psnr_test_medium"]
+    raw = image_scores(a, refs, masks)["psnr_test_medium"]
+    assert raw < exact - 5 and found["psnr_test_medium_without_mc"] == pytest.approx(exact, abs=0.2)
+    assert found["mc_var_test_medium"] == pytest.approx(var.mean()) and found["mc_note"] is None
+
+
+def test_a_variance_that_explains_all_the_error_is_unbounded_and_says_so():
+    from mitsnerf.scoring.variance import without_variance
+
+    refs = np.full((2, 4, 4, 3), 0.5)
+    found = without_variance(refs + 0.01, refs, np.ones((2, 4, 4), bool), np.full(refs.shape, 2e-4))
+    assert found["psnr_test_medium_without_mc"] is None and found["psnr_test_medium_without_mc_per_view"] == [None] * 2
+    assert found["mc_note"].startswith("unbounded without its Monte Carlo variance") and "view 1" in found["mc_note"]
+
+
+class _MonteCarloModel:
+    """A path tracer's stand-in: the truth plus seeded noise per render (a second, independent render on request)."""
+
+    rung, monte_carlo_renders, knows = "full transport", True, ()
+
+    def __init__(self, truth, sigma: float, independent: bool = True):
+        self.truth, self.sigma, self.independent, self.renders = truth, sigma, independent, 0
+
+    def render_view(self, camera, *, pixel_center: float = 0.5, footprint: int = 1, seed: int = 0):
+        from mitsnerf.render.camera import Rendered
+
+        self.renders += 1
+        noise = np.random.default_rng([camera, seed]).normal(0.0, self.sigma, self.truth[camera].shape)
+        return Rendered((self.truth[camera] + noise).astype(np.float32), np.ones(self.truth.shape[1:3]), None)
+
+    def render_view_independent(self, camera, *, pixel_center: float = 0.5, footprint: int = 1):
+        return self.render_view(camera, seed=1) if self.independent else None
+
+
+def test_a_monte_carlo_row_is_scored_without_its_own_variance_from_a_second_render():
+    """score_model renders a Monte Carlo model's views twice, independently: the row's medium PSNR less its own
+    variance is the noise-free image's; a model without a second render is scored raw and says so."""
+    from mitsnerf.runs.fit import score_model
+    from mitsnerf.scoring.reference import Reference
+    from mitsnerf.train.evaluate import EvalConfig
+
+    _, truth, refs = _noisy_views(1)
+    ref = Reference(refs, tuple(range(len(refs))), 0.5, UNIT_BOX, None, np.ones(truth.shape[:3], bool), None)
+    model = _MonteCarloModel(truth, 0.03)
+    scores = score_model(model, ref, EvalConfig(footprint=1))[0]
+    exact = image_scores(truth, refs, ref.masks)["psnr_test_medium"]
+    assert model.renders == 2 * len(refs)
+    assert scores["psnr_test_medium"] < exact - 5
+    assert scores["psnr_test_medium_without_mc"] == pytest.approx(exact, abs=0.2) and scores["mc_note"] is None
+    raw = score_model(_MonteCarloModel(truth, 0.03, independent=False), ref, EvalConfig(footprint=1))[0]
+    assert raw.get("psnr_test_medium_without_mc") is None and raw["mc_note"].startswith("raw: its renders are Monte")

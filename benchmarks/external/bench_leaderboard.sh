@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# The leaderboard (benchmarks/README.md, "The leaderboard"): every built-in method, the TensoRF-VM plugin and
+# The leaderboard (docs/notes/leaderboard.md, "The leaderboard"): every built-in method, the TensoRF-VM plugin and
 # nerfstudio's CPU-capable methods on the default cloud at the NeRF-synthetic scale, one table.
 # Runs from the repository's root wherever it is called.
 #

@@ -1,7 +1,7 @@
 #!/usr/bin/env bash
 # One of nerfstudio's methods trained on a mitsnerf dataset's medium/ view (its NeRF-synthetic folder, read
 # unchanged by nerfstudio's blender dataparser) on the CPU, its test views rendered by ns-render into RGBA EXRs
-# for `mitsnerf score` or a bench config's [[external]] entry (benchmarks/README.md, "The leaderboard").
+# for `mitsnerf score` or a bench config's [[external]] entry (docs/notes/leaderboard.md, "The leaderboard").
 #
 #   benchmarks/external/run_nerfstudio.sh METHOD DATASET OUT [STEPS] [RAYS]
 #

@@ -1,6 +1,6 @@
 #!/usr/bin/env bash
 # A throw-away venv with nerfstudio, outside the project, for the external benchmarks
-# (benchmarks/README.md, "External tools"). Nothing of nerfstudio enters the repository.
+# (docs/notes/nerfstudio.md, "External tools"). Nothing of nerfstudio enters the repository.
 #
 #   benchmarks/external/setup_nerfstudio.sh [VENV]
 #

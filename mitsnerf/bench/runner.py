@@ -12,7 +12,8 @@
    cell is written at once, atomically (a failed one as ``error.json``, retried next time).
 5. **Outputs** from every cell on disk (:func:`write_outputs`), under ``results/<bench>[-quick]/``:
    ``table.md`` (every column; a compact table is printed), ``table.csv`` (per scene and method), ``average.csv``,
-   ``cells.csv`` (one row per cell), ``results.json`` (everything, with provenance),
+   ``cells.csv`` (one row per cell), ``results.json`` (everything, with provenance: the commit, the machine, when
+   the tables were written and the command that ran the sweep; ``mitsnerf results`` makes a page of it),
    ``plots/*.png`` and ``report.html`` (self-contained).
 
 The config's ``[[external]]`` entries (other tools' renders) are scored after step 3, before any
@@ -21,7 +22,7 @@ cell trains (:mod:`mitsnerf.bench.external`), and appear in every output as ``NA
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -54,6 +55,7 @@ from mitsnerf.bench.tables import (
     oracle_row,
     quick_banner,
     scene_rows,
+    with_ceiling_reasons,
     with_oracle_rows,
 )
 from mitsnerf.config import from_dict, to_dict
@@ -92,6 +94,9 @@ class BenchOptions:
     """Check a cached dataset's files against its manifest's sha256 hashes (``--no-verify``: not)."""
     words: Words = CLI
     """How messages name the options: the command line's (``--force``) or the Python API's (``force=True``)."""
+    command: str | None = None
+    """The command that ran the sweep, as typed (``mitsnerf bench physics --quick``), recorded in ``results.json``
+    for the results page (:mod:`mitsnerf.bench.page`); None: not known (a caller that is not the command line)."""
 
 
 @dataclass
@@ -258,13 +263,17 @@ def _load_artefacts(cell: Cell) -> dict[str, np.ndarray]:
 
 def oracle_rows(records: list[dict], scenes: list[str]) -> list[dict]:
     """The ceiling row of every scene whose cells name a cached oracle (:func:`mitsnerf.bench.tables.oracle_row`)."""
-    from mitsnerf.oracle.cache import load_oracle
+    from mitsnerf.data.dataset import load_dataset
+    from mitsnerf.oracle.cache import load_oracle, variance_free
 
     rows = []
     for scene in scenes:
-        summary = next((r["oracle"] for r in records if r["scene"] == scene and r.get("oracle")), None)
+        record = next((r for r in records if r["scene"] == scene and r.get("oracle")), None)
+        summary = record["oracle"] if record is not None else None
         oracle = load_oracle(Path(summary["path"])) if summary is not None else None
-        if summary is not None and oracle is not None:
+        if record is not None and summary is not None and oracle is not None:
+            if "psnr_test_medium_without_mc" not in oracle.metrics(summary["footprint"]):  # cached before it was kept
+                oracle = variance_free(oracle, load_dataset(Path(record["dataset"])), summary["footprint"])
             rows.append(oracle_row(scene, oracle.metrics(summary["footprint"]), oracle.info))
     return rows
 
@@ -283,9 +292,10 @@ def collect(cells: list[Cell]) -> tuple[list[dict], list[dict]]:
     return records, failed
 
 
-def quick_sizes(cells: list[Cell]) -> str:
+def quick_sizes(cells: Sequence[Any]) -> str:
     """The sizes a quick run has, in words (for :func:`mitsnerf.bench.tables.quick_banner`): each distinct value
-    across ``cells``, ``16x16 views, 2 test views at 16 spp, 30 steps``."""
+    across ``cells`` (:class:`Cell`, or anything with its ``spec`` and ``train``), ``16x16 views, 2 test views at
+    16 spp, 30 steps``."""
     def values(get) -> str:
         return "/".join(dict.fromkeys(str(get(c)) for c in cells))
 
@@ -311,6 +321,7 @@ def write_outputs(config: BenchConfig, options: BenchOptions, cells: list[Cell],
     average = average_rows(per_scene, methods)
     if len(ceilings) > 1:
         average = [{**r, "ceiling": True} for r in average_rows(ceilings, [ORACLE])] + average
+    per_scene, average = with_ceiling_reasons(per_scene), with_ceiling_reasons(average)  # every output says why
     best = best_rules(records)
     quick = quick_banner(quick_sizes(cells)) if options.quick else None
     markdown = compact_report(per_scene, average, best, quick)
@@ -338,6 +349,7 @@ def write_outputs(config: BenchConfig, options: BenchOptions, cells: list[Cell],
     atomic_write_json(files["results.json"], {
         "benchmark": config.name, "description": config.description, "quick": options.quick,
         "code_version": cells[0].code_version if cells else None, "provenance": provenance,
+        "command": options.command, "written": _now(),
         "executor": options.executor, "tables": {"per_scene": per_scene, "average": average},
         "failed": failed, "cells": records, "config": config_data,
     })
@@ -348,6 +360,13 @@ def write_outputs(config: BenchConfig, options: BenchOptions, cells: list[Cell],
     result.records, result.failed = records, failed
     result.per_scene, result.average, result.markdown, result.files = per_scene, average, markdown, files
     return result
+
+
+def _now() -> str:
+    """The time now, UTC, to the second (ISO 8601): when a sweep's tables were written."""
+    from datetime import datetime, timezone
+
+    return datetime.now(timezone.utc).isoformat(timespec="seconds")
 
 
 def _write_report(out_root: Path, cells: list[Cell], result: BenchResult, records: list[dict], scenes: list[str],

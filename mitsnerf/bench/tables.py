@@ -10,6 +10,11 @@ reference agreement and the oracle next to them, density-field errors) and *cost
 time, throughput, peak memory, parameters). A legend gives one line per column (:func:`legend`).
 Each scene with an oracle (:mod:`mitsnerf.oracle`) gets an ``oracle`` row first (:func:`oracle_row`): the ceiling any
 emission-absorption method can reach on that dataset, never marked best.
+
+Every ceiling (the oracle, each row's own rung's) and every Monte Carlo row is shown less its own Monte Carlo
+variance, the raw figure beside it (``46.01 (raw 44.56)``, :data:`WITHOUT_MC_KEYS`,
+:mod:`mitsnerf.scoring.variance`), and compared on that figure; a row still above its own ceiling says why in
+its note (:func:`ceiling_reason`).
 """
 
 from __future__ import annotations
@@ -22,6 +27,7 @@ from collections.abc import Iterable, Sequence
 from typing import Any
 
 from mitsnerf.oracle.rungs import PERFECT_DB
+from mitsnerf.scoring.variance import WITHOUT_MC, headline
 
 Column = tuple[str, str, int]
 """(key, header, decimals)."""
@@ -74,6 +80,7 @@ COMPACT: tuple[Column, ...] = (
     ("train_seconds", "train s", 1),
     ("psnr_test_medium", "PSNR medium", 2),
     ("gap_to_oracle", "gap to oracle", 2),
+    ("ceiling_psnr_test_medium", "its ceiling", 2),
     ("gap_to_ceiling", "gap to its ceiling", 2),
     ("ssim_test", "SSIM", 4),
     ("density_rel_l1", "sigma rel L1", 3),
@@ -82,6 +89,9 @@ COMPACT: tuple[Column, ...] = (
 )
 """The printed table: the headline (medium-pixel PSNR) and one figure of each kind; every column is in
 ``table.md``, the CSVs, ``results.json`` and ``report.html``."""
+WITHOUT_MC_KEYS = ("psnr_test_medium", "oracle_psnr_test_medium", "ceiling_psnr_test_medium")
+"""Figures shown less their own Monte Carlo variance where it was measured (``KEY_without_mc``), the raw one
+beside it, and compared (bold, above a ceiling) on that figure."""
 _TO_TARGET = re.compile(r"seconds_to_(.+)db")
 BEST: dict[str, str] = {
     "psnr_test": "max", "psnr_test_medium": "max", "psnr_test_srgb": "max", "psnr_test_medium_srgb": "max",
@@ -99,21 +109,25 @@ MEANINGS: dict[str, str] = {
               "scored as mitsnerf score does",
     "seeds": "training seeds the row is the mean of",
     "PSNR lin": "PSNR of the test views, linear radiance clipped to [0, 1], whole image",
-    "PSNR lin medium": "the same on the pixels whose ray crosses the true medium (the headline figure)",
-    "PSNR medium": "PSNR of the test views on the pixels whose ray crosses the true medium (linear, clipped)",
+    "PSNR lin medium": "the same on the pixels whose ray crosses the true medium (the headline figure); a (raw b): a "
+                       "Monte Carlo render's (the oracle's, a path tracer's) less its own Monte Carlo variance",
+    "PSNR medium": "PSNR of the test views on the pixels whose ray crosses the true medium (linear, clipped); a (raw "
+                   "b): a Monte Carlo render's (the oracle's, a path tracer's) less its own Monte Carlo variance",
     "ref agreement": "PSNR between two independent ground-truth renders of the test views (manifest noise_floor); "
                      f"a perfect model scores {PERFECT_DB:.2f} dB above it",
     "ref agreement medium": "the same on medium pixels",
-    "oracle medium": "the oracle row's PSNR medium on this scene",
-    "gap to oracle": "oracle medium PSNR minus the row's (dB; 0: as good as the ceiling)",
+    "oracle medium": "the oracle row's PSNR medium on this scene, less its own Monte Carlo variance (raw beside it)",
+    "gap to oracle": "oracle medium PSNR minus the row's, each less its own Monte Carlo variance (dB; 0: as good as "
+                     "the ceiling)",
     "given": "what the method was given: the images (and their cameras) alone, or also the lights and the phase "
              "function (read from the dataset's spec): compare rows that were given the same (bold does)",
     "rung": "the physics its renders can represent: emission-absorption, single scattering (the delta lights' "
             "single scattering through its own medium), full transport",
-    "its ceiling": "the ceiling of the row's rung, medium pixels: the oracle (emission-absorption); the oracle with "
-                   "the remainder on the method's basis (single scattering); the references' agreement + 3.01 dB "
-                   "(full transport)",
-    "gap to its ceiling": "its ceiling minus the row's medium PSNR (dB)",
+    "its ceiling": "its rung's ceiling, medium pixels, less its own Monte Carlo variance (raw beside): the oracle "
+                   "(emission-absorption); the oracle on the method's basis (single scattering); the references' "
+                   "agreement + 3.01 dB (full transport)",
+    "gap to its ceiling": "its ceiling minus the row's medium PSNR, each less its own Monte Carlo variance (dB; < 0: "
+                          "above it, the reason in the note)",
     "PSNR sRGB": "PSNR of the clipped values sRGB-encoded, whole image",
     "PSNR sRGB medium": "the same on medium pixels",
     "SSIM lin": "SSIM of the test views, linear radiance clipped to [0, 1]",
@@ -145,7 +159,8 @@ MEANINGS: dict[str, str] = {
     "curve eval s": "seconds spent on the held-out evaluations of the PSNR curve",
     "s to X dB medium": "training seconds at the first held-out evaluation (steps k/N of the budget) reaching "
                         "X dB on medium pixels (measured, not decisive)",
-    "note": "failed cells, the oracle's settings, why a density figure is missing",
+    "note": "failed cells, the oracle's settings, why a density figure is missing, why a row is above its ceiling, "
+            "a Monte Carlo row scored raw",
 }
 BOLD = ("bold: the column's best among the rows given the same, per scene (ties at the displayed precision all bold); "
         "figures are means over seeds")
@@ -154,10 +169,10 @@ BOLD = ("bold: the column's best among the rows given the same, per scene (ties 
 def legend(columns: Sequence[Column]) -> str:
     """One line per column of ``columns`` (``- header: meaning``), then what bold means.
 
-    >>> print(legend([("psnr_test_medium", "PSNR medium", 2), ("gap_to_oracle", "gap to oracle", 2)]))
+    >>> print(legend([("ssim_test", "SSIM", 4), ("train_seconds", "train s", 1)]))
     ... # doctest: +NORMALIZE_WHITESPACE
-    - PSNR medium: PSNR of the test views on the pixels whose ray crosses the true medium (linear, clipped)
-    - gap to oracle: oracle medium PSNR minus the row's (dB; 0: as good as the ceiling)
+    - SSIM: SSIM of the test views, linear radiance clipped to [0, 1]
+    - train s: training seconds, held-out evaluation excluded
     - bold: the column's best among the rows given the same, per scene (ties at the displayed precision all
       bold); figures are means over seeds
     """
@@ -187,15 +202,26 @@ def _fmt(value: Any, digits: int) -> str:
     return str(value)
 
 
-def _cell_text(row: dict, key: str, digits: int) -> str:
-    """A table cell: the formatted value; a ceiling row's method reads ``oracle (ceiling)``; a budget reads
-    ``N steps`` (``N steps or seconds`` with a seconds cap).
+def _value(row: dict, key: str) -> Any:
+    """The figure a row is compared on in column ``key``: less its own Monte Carlo variance for
+    :data:`WITHOUT_MC_KEYS` where that was measured (:func:`mitsnerf.scoring.variance.headline`)."""
+    return headline(row, key) if key in WITHOUT_MC_KEYS else row.get(key)
 
-    >>> oracle = {"method": "oracle", "ceiling": True}
+
+def _cell_text(row: dict, key: str, digits: int) -> str:
+    """A table cell: the formatted value; a figure less its own Monte Carlo variance reads ``a (raw b)``; a ceiling
+    row's method reads ``oracle (ceiling)``; a budget reads ``N steps`` (``N steps or seconds`` with a seconds cap).
+
+    >>> oracle = {"method": "oracle", "ceiling": True, "psnr_test_medium": 44.56, "psnr_test_medium_without_mc": 46.01}
     >>> _cell_text({"budget": "steps", "steps": 800}, "budget", 0), _cell_text(oracle, "method", 0)
     ('800 steps', 'oracle (ceiling)')
+    >>> _cell_text(oracle, "psnr_test_medium", 2)
+    '46.01 (raw 44.56)'
     """
-    text = _fmt(row.get(key), digits)
+    text = _fmt(_value(row, key), digits)
+    raw = _fmt(row.get(key), digits)
+    if key in WITHOUT_MC_KEYS and text != raw:
+        return f"{text} (raw {raw})"
     if key == "budget" and isinstance(row.get("budget"), str) and _is_number(row.get("steps")):
         return f"{row['steps']:.0f} {row['budget']}"
     if key == "method" and row.get("ceiling"):
@@ -227,8 +253,8 @@ def is_best(row: dict, key: str, digits: int, marks: dict[tuple[Any, str], Any],
     (False, False)
     """
     mark = marks.get((bold_group(row, group), key))
-    return mark is not None and not row.get("ceiling") and _is_number(row.get(key)) \
-        and _fmt(row[key], digits) == _fmt(mark, digits)
+    return mark is not None and not row.get("ceiling") and _is_number(_value(row, key)) \
+        and _fmt(_value(row, key), digits) == _fmt(mark, digits)
 
 
 def best_values(rows: Sequence[dict], best: dict[str, str], group: str | None = None) -> dict[tuple[Any, str], Any]:
@@ -242,7 +268,7 @@ def best_values(rows: Sequence[dict], best: dict[str, str], group: str | None = 
     for g, members in groups.items():
         members = [r for r in members if not r.get("ceiling")]
         for key, how in {**to_target, **best}.items():
-            values = [r[key] for r in members if _is_number(r.get(key))]
+            values = [_value(r, key) for r in members if _is_number(_value(r, key))]
             if len(values) > 1:
                 marks[(g, key)] = max(values) if how == "max" else min(values)
     return marks
@@ -294,7 +320,8 @@ def cell_row(record: dict) -> dict:
 
 
 def _aggregate(rows: Sequence[dict], base: dict) -> dict:
-    """Means (and ``_std``) of the numeric columns of ``rows``; a text column kept where every row agrees."""
+    """Means (and ``_std``) of the numeric columns of ``rows``; a text column kept where every row agrees; a figure
+    less its own Monte Carlo variance only where every row has it (else a mean of some rows would read as all's)."""
     out = dict(base)
     keys: list[str] = []
     for row in rows:
@@ -305,7 +332,7 @@ def _aggregate(rows: Sequence[dict], base: dict) -> dict:
             out[key] = texts.pop() if len(texts) == 1 else "mixed"
             continue
         values = [r[key] for r in rows if _is_number(r.get(key))]
-        if not values:
+        if not values or (key.endswith(WITHOUT_MC) and len(values) < len(rows)):
             out[key] = None
             continue
         mean = sum(values) / len(values)
@@ -330,7 +357,7 @@ def scene_rows(records: Sequence[dict], failed: Iterable[dict] = (), scenes: Seq
             if not members and not n_failed:
                 continue
             row = _aggregate(members, {"scene": scene, "method": method, "seeds": len(members)})
-            notes = sorted({c["density_note"] for c in members if c.get("density_note")})
+            notes = sorted({c[k] for c in members for k in ("density_note", "mc_note") if c.get(k)})
             if n_failed:
                 notes.insert(0, f"{n_failed} failed")
             row["note"] = "; ".join(notes) or None
@@ -372,9 +399,10 @@ def cost_columns(rows: Sequence[dict]) -> tuple[Column, ...]:
 
 
 def _beats(row: dict, ceiling: float) -> bool:
-    """Whether a method row's medium PSNR is above ``ceiling`` as the table prints them (2 decimals)."""
-    return not row.get("ceiling") and _is_number(row.get("psnr_test_medium")) \
-        and round(float(row["psnr_test_medium"]), 2) > round(ceiling, 2)
+    """Whether a method row's medium PSNR (less its own Monte Carlo variance where measured) is above ``ceiling`` as
+    the table prints them (2 decimals)."""
+    medium = headline(row)
+    return not row.get("ceiling") and _is_number(medium) and round(float(medium), 2) > round(ceiling, 2)
 
 
 def mark_beaten(rows: Sequence[dict], group: str = "scene") -> list[dict]:
@@ -388,25 +416,28 @@ def mark_beaten(rows: Sequence[dict], group: str = "scene") -> list[dict]:
     """
     out = []
     for row in rows:
-        if row.get("ceiling") and _is_number(row.get("psnr_test_medium")):
-            above = [r["method"] for r in rows if r.get(group) == row.get(group) and _beats(r, row["psnr_test_medium"])]
+        if row.get("ceiling") and _is_number(headline(row)):
+            above = [r["method"] for r in rows if r.get(group) == row.get(group) and _beats(r, headline(row))]
             row = {**row, "beaten_by": above} if above else row
         out.append(row)
     return out
 
 
 def _oracle_words(members: Sequence[dict], oracle: float, perfect: float | None) -> str:
-    """What the oracle scores, and why, where it looks impossible: a method above it, or it above a perfect model."""
+    """What the oracle scores (``oracle``: less its own Monte Carlo variance where measured, the raw figure beside it),
+    and why, where it looks impossible: a method above it, or it above a perfect model."""
     ceiling = next(r for r in members if r.get("ceiling"))
     basis = ceiling.get("ceiling_basis")
     basis = basis if isinstance(basis, str) and basis != "mixed" else "see each scene's line"
     text = f"; the oracle scores {_fmt(oracle, 2)} dB"
+    if _fmt(ceiling.get("psnr_test_medium"), 2) != _fmt(oracle, 2):
+        text += f" less its own Monte Carlo variance (raw {_fmt(ceiling.get('psnr_test_medium'), 2)} dB)"
     if perfect is not None and round(oracle, 2) > round(perfect, 2):
         text += (", above that perfect-model figure: both are estimates (the oracle's in-scattered light: "
                  f"{basis}; the perfect model's: the two renders' own noise), close enough to cross")
     above = [r for r in members if _beats(r, oracle)]
     if above:
-        names = ", ".join(f"{r['method']} {_fmt(r['psnr_test_medium'], 2)}" for r in above)
+        names = ", ".join(f"{r['method']} {_fmt(headline(r), 2)}" for r in above)
         text += (f"; {names} above it: this ceiling is an estimate ({basis}), below the true one by its own error, "
                  "and a model that averages that error out can pass it")
     return text + "."
@@ -429,7 +460,7 @@ def reference_lines(rows: Sequence[dict], group: str = "scene") -> list[str]:
         members = [r for r in rows if r.get(group) == name]
         floor = next((r["noise_floor_psnr_medium"] for r in members if _is_number(r.get("noise_floor_psnr_medium"))),
                      None)
-        oracle = next((r["psnr_test_medium"] for r in members if r.get("ceiling")), None)
+        oracle = next((headline(r) for r in members if r.get("ceiling")), None)
         perfect = float(floor) + PERFECT_DB if floor is not None else None
         if perfect is not None:
             text = (f"two reference renders agree to {_fmt(floor, 2)} dB (medium pixels): a perfect model would "
@@ -444,8 +475,62 @@ def reference_lines(rows: Sequence[dict], group: str = "scene") -> list[str]:
 
 
 def _notes(rows: Sequence[dict]) -> list[str]:
-    """``scene method: note`` of every non-ceiling row with a note (failed cells, missing density)."""
+    """``scene method: note`` of every non-ceiling row with a note (failed cells, missing density, above its
+    ceiling)."""
     return [f"{r['scene']} {r['method']}: {r['note']}" for r in rows if r.get("note") and not r.get("ceiling")]
+
+
+def above_ceiling(row: dict) -> float | None:
+    """By how much (dB, > 0) a method row's medium PSNR is above its own ceiling as the table prints them (2
+    decimals), each less its own Monte Carlo variance where measured; None where it is not above it.
+
+    >>> above_ceiling({"psnr_test_medium": 45.13, "ceiling_psnr_test_medium": 44.56})
+    0.57
+    >>> above_ceiling({"psnr_test_medium": 45.13, "ceiling_psnr_test_medium": 44.56,
+    ...                "ceiling_psnr_test_medium_without_mc": 46.01}) is None
+    True
+    """
+    medium, ceiling = headline(row), headline(row, "ceiling_psnr_test_medium")
+    if row.get("ceiling") or not (_is_number(medium) and _is_number(ceiling)):
+        return None
+    gap = round(float(medium), 2) - round(float(ceiling), 2)
+    return round(gap, 2) if gap > 0.005 else None
+
+
+def ceiling_reason(row: dict) -> str | None:
+    """Why a row is above its own ceiling (:func:`above_ceiling`), from what the ceiling is (``ceiling_note``) and
+    what its figure rests on; None where it is not above it.
+
+    >>> print(ceiling_reason({"psnr_test_medium": 45.13, "ceiling_psnr_test_medium": 44.56,
+    ...                       "ceiling_note": "the oracle, raw: no estimate of its own Monte Carlo variance was kept"}))
+    above its ceiling 44.56 by 0.57 dB: the ceiling is the oracle, raw: no estimate of its own Monte Carlo variance \
+was kept; its own Monte Carlo variance, not removed, lowers it
+    """
+    by = above_ceiling(row)
+    if by is None:
+        return None
+    text = (f"above its ceiling {_cell_text(row, 'ceiling_psnr_test_medium', 2)} by {by:.2f} dB: the ceiling is "
+            f"{row.get('ceiling_note') or 'an estimate'}; ")
+    if row.get("ceiling_psnr_test_medium" + WITHOUT_MC) is None:
+        text += "its own Monte Carlo variance, not removed, lowers it"
+    else:
+        text += ("less its own Monte Carlo variance it is still an estimate, below the true ceiling by its other "
+                 "error (its bias: a grid, a quadrature, a footprint; the variance estimate's own error), which a "
+                 "model need not share")
+    if row.get("psnr_test_medium" + WITHOUT_MC) is not None:
+        text += "; the row's own Monte Carlo variance, taken off its figure, is itself an estimate from two renders"
+    return text
+
+
+def with_ceiling_reasons(rows: Sequence[dict]) -> list[dict]:
+    """``rows`` with :func:`ceiling_reason` added to the note of every row above its own ceiling (once: a row that
+    has it keeps its note): no table shows a row above its ceiling without the reason beside it."""
+    out = []
+    for row in rows:
+        reason = ceiling_reason(row)
+        new = reason is not None and reason not in (row.get("note") or "")
+        out.append({**row, "note": "; ".join(n for n in (row.get("note"), reason) if n)} if new else row)
+    return out
 
 
 def quick_banner(sizes: str = "") -> str:
@@ -460,57 +545,70 @@ def quick_banner(sizes: str = "") -> str:
             "model figure, an SSIM below 0); the benchmark without its quick profile gives figures to read.")
 
 
-def compact_report(per_scene: Sequence[dict], average: Sequence[dict], best: dict[str, str] | None = None,
-                   quick: str | None = None) -> str:
-    """What ``mitsnerf bench`` prints: :data:`COMPACT` per scene (and averaged), each table's reference line(s)
-    and notes, and the legend of its columns; ``quick``: the :func:`quick_banner` a quick table starts with."""
+def compact_tables(per_scene: Sequence[dict], average: Sequence[dict], best: dict[str, str] | None = None,
+                   quick: str | None = None, heading: str = "##") -> str:
+    """The tables ``mitsnerf bench`` prints, without their legend: :data:`COMPACT` per scene (and averaged over
+    scenes when there are several) under ``heading``-level titles, each with its reference line(s) and notes;
+    ``quick``: the :func:`quick_banner` first. The results page (:mod:`mitsnerf.bench.page`) shows the same."""
     best = BEST if best is None else best
-    per_scene, average = mark_beaten(per_scene), mark_beaten(average)
+    per_scene, average = (mark_beaten(with_ceiling_reasons(rows)) for rows in (per_scene, average))
     parts = ([quick, ""] if quick else []) + [
-        "## Per scene", "", markdown_table(per_scene, COMPACT, best, group="scene"), "",
+        f"{heading} Per scene", "", markdown_table(per_scene, COMPACT, best, group="scene"), "",
         *reference_lines(per_scene), *_notes(per_scene)]
     if len({r["scene"] for r in per_scene}) > 1:
-        parts += ["", "## Averaged over scenes", "", markdown_table(average, COMPACT, best), "",
+        parts += ["", f"{heading} Averaged over scenes", "", markdown_table(average, COMPACT, best), "",
                   *reference_lines(average), *_notes(average)]
-    parts += ["", legend(COMPACT),
-              "Every column (whole-image and sRGB scores, density and cost figures): table.md, table.csv, "
-              "results.json, report.html."]
     return "\n".join(parts)
 
 
-def markdown_report(per_scene: Sequence[dict], average: Sequence[dict], best: dict[str, str] | None = None,
-                    quick: str | None = None) -> str:
-    """The Markdown written as ``table.md``: every column, quality and cost, per scene and averaged (``quick``:
-    the :func:`quick_banner` first)."""
+def compact_report(per_scene: Sequence[dict], average: Sequence[dict], best: dict[str, str] | None = None,
+                   quick: str | None = None) -> str:
+    """What ``mitsnerf bench`` prints: :func:`compact_tables` and the legend of their columns; ``quick``: the
+    :func:`quick_banner` a quick table starts with."""
+    return "\n".join([compact_tables(per_scene, average, best, quick), "", legend(COMPACT),
+                      "Every column (whole-image and sRGB scores, density and cost figures): table.md, table.csv, "
+                      "results.json, report.html."])
+
+
+def full_tables(per_scene: Sequence[dict], average: Sequence[dict], best: dict[str, str] | None = None,
+                quick: str | None = None, heading: str = "##") -> str:
+    """Every column, quality and cost, per scene and averaged, under ``heading``-level titles, without the legend
+    (``quick``: the :func:`quick_banner` first): ``table.md``'s tables, and the results page's."""
     best = BEST if best is None else best
-    per_scene, average = mark_beaten(per_scene), mark_beaten(average)
+    per_scene, average = (mark_beaten(with_ceiling_reasons(rows)) for rows in (per_scene, average))
     cost = cost_columns(per_scene)
     parts = ([quick, ""] if quick else []) + [
-        "## Quality per scene",
+        f"{heading} Quality per scene",
         "",
         markdown_table(per_scene, QUALITY, best, group="scene"),
         "",
         *reference_lines(per_scene),
         "",
-        "## Cost per scene",
+        f"{heading} Cost per scene",
         "",
         markdown_table(per_scene, cost, best, group="scene"),
     ]
     if len({r["scene"] for r in per_scene}) > 1:
         parts += [
             "",
-            "## Quality averaged over scenes",
+            f"{heading} Quality averaged over scenes",
             "",
             markdown_table(average, QUALITY, best),
             "",
             *reference_lines(average),
             "",
-            "## Cost averaged over scenes",
+            f"{heading} Cost averaged over scenes",
             "",
             markdown_table(average, cost, best),
         ]
-    parts += ["", legend(QUALITY + cost)]
     return "\n".join(parts)
+
+
+def markdown_report(per_scene: Sequence[dict], average: Sequence[dict], best: dict[str, str] | None = None,
+                    quick: str | None = None) -> str:
+    """The Markdown written as ``table.md``: :func:`full_tables` and the legend of every column (``quick``: the
+    :func:`quick_banner` first)."""
+    return "\n".join([full_tables(per_scene, average, best, quick), "", legend(QUALITY + cost_columns(per_scene))])
 
 
 def csv_keys(rows: Sequence[dict]) -> list[str]:
@@ -569,6 +667,8 @@ def oracle_row(scene: str, metrics: dict, info: dict) -> dict:
     row["ceiling_basis"] = ceiling_basis(info)
     row["note"] = (f"ceiling: J by volpath ({cfg.get('spp')} directions, {res}^3 grid), N = {cfg.get('n_samples')}, "
                    f"footprint {info.get('footprint')}; medium at footprint 1: {_fmt(k1, 2)}")
+    if isinstance(metrics.get("mc_note"), str):
+        row["note"] += f"; {metrics['mc_note']}"
     return row
 
 

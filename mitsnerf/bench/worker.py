@@ -18,10 +18,10 @@ from typing import Any
 
 import numpy as np
 
-from mitsnerf.bench import memory
 from mitsnerf.bench.cells import IN_FLIGHT_FILE, RECORD_FORMAT, Cell, SceneData
 from mitsnerf.oracle.rungs import ceiling_figures
 from mitsnerf.scoring.images import image_scores
+from mitsnerf.train import memory
 
 
 class CurveRecorder:
@@ -129,6 +129,7 @@ def oracle_summary(oracle, footprint: int) -> dict[str, Any] | None:
     info = oracle.info
     return {"path": str(oracle.path), "key": info.get("key"), "config": info.get("config"),
             "footprint": footprint, "psnr_test_medium": info.get("psnr_test_medium"),
+            "psnr_test_medium_without_mc": oracle.metrics(footprint).get("psnr_test_medium_without_mc"),
             "psnr_test": {k: s.get("psnr_test") for k, s in oracle.scores.items()},
             "psnr_test_per_view": oracle.metrics(footprint).get("psnr_test_per_view"),
             "error_split": info.get("error_split"), "seconds": info.get("seconds")}
@@ -220,7 +221,6 @@ def run_cell(cell: Cell, *, progress: bool = False, threads: int = 0, executor: 
     evalc = from_dict(EvalConfig, dict(cell.eval))
     train_config = from_dict(TrainConfig, dict(cell.train))
     dataset, oracle, ref = (loads if loads is not None else SceneLoads()).scene(cell, progress)
-    rss_reset = memory.start()  # the cell's own peaks from here: its scene is loaded, what ran before is freed
     k = len(ref.cameras) if evalc.curve_views == 0 else min(evalc.curve_views, len(ref.cameras))
     curve_ref = replace(ref, images=ref.images[:k], cameras=ref.cameras[:k],
                         masks=None if ref.masks is None else ref.masks[:k])
@@ -228,8 +228,9 @@ def run_cell(cell: Cell, *, progress: bool = False, threads: int = 0, executor: 
     run, resumed_from = _fit(cell, dataset, train_config, evalc, curve, ref,
                              None if oracle is None else oracle.metrics(evalc.footprint), progress)
 
-    metrics = run.metrics()
+    metrics = run.metrics()  # its peaks counted by fit from its start (mitsnerf.train.memory), its scene loaded
     metrics.pop("method", None)
+    rss_reset = metrics.pop("peak_rss_reset", None)
     metrics["curve_eval_seconds"] = curve.eval_seconds
     points = list(curve.points)
     if evalc.curve_points and (not points or points[-1]["step"] != run.train.steps):
@@ -240,6 +241,7 @@ def run_cell(cell: Cell, *, progress: bool = False, threads: int = 0, executor: 
     metrics.update(time_to_targets(points, evalc.psnr_targets))
     basis = run.model.rung_basis() if run.model.rung == "single scattering" else None
     metrics.update(ceiling_figures(run.model.rung, basis, oracle, dataset, evalc.footprint, ref, metrics))
+    # the high-water marks since fit began counting, the ceiling's renders included
     metrics["peak_memory_mb"], metrics["peak_rss_mb"] = memory.peak_memory_mb(), memory.peak_rss_mb()
 
     record = _record(cell, dataset, metrics, points, k, evalc, run.train.history)

@@ -13,7 +13,7 @@ import argparse
 import errno
 import sys
 
-from mitsnerf.cli import bench, check, env, export, generate, methods, render, scenes, score, train, volumes
+from mitsnerf.cli import bench, check, env, export, generate, methods, render, results, scenes, score, train, volumes
 
 
 class _Parser(argparse.ArgumentParser):
@@ -81,7 +81,7 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
-COMMANDS = (env, scenes, volumes, methods, generate, train, score, render, export, bench, check)
+COMMANDS = (env, scenes, volumes, methods, generate, train, score, render, export, bench, results, check)
 """The command modules, each with ``add_parser(subparsers)`` and ``run(args)``; in the order ``mitsnerf --help``
 lists them."""
 
@@ -136,6 +136,7 @@ def _drop_stdout() -> None:
 def main(argv: list[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
+    args.argv = list(sys.argv[1:] if argv is None else argv)  # as typed: what a sweep records it was run by
     try:
         import mitsnerf  # noqa: F401  (finds libLLVM before drjit loads)
         from mitsnerf import env

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import shlex
 import sys
 from pathlib import Path
 
@@ -11,10 +12,8 @@ from mitsnerf.outputs import DATA_ENV
 
 def next_steps(result, command: str) -> str:
     """Where the benchmark's datasets are, and the commands a newcomer would run next on them: train one of
-    the benchmark's methods alone on its first dataset (at the cell's step budget), render that run, open the
-    report. ``command``: how to call mitsnerf (:func:`mitsnerf.cli.common.command_name`)."""
-    import shlex
-
+    the benchmark's methods alone on its first dataset (at the cell's step budget), render that run, write the
+    results page, open the report. ``command``: how to call mitsnerf (:func:`mitsnerf.cli.common.command_name`)."""
     datasets = dict.fromkeys((c.scene, c.dataset_dir) for c in result.cells)
     lines = ["datasets (ground truth and oracles, reused by every later run):"]
     lines += [f"  {scene}: {path}" for scene, path in datasets]
@@ -25,6 +24,7 @@ def next_steps(result, command: str) -> str:
                   f"  {command} train {shlex.quote(cell.dataset_dir)} --method {cell.method} "
                   f"--steps {cell.train['steps']} --out {run}      # fit one method yourself",
                   f"  {command} render {run} --orbit 36 --out renders/{cell.label}      # novel views, orbit.gif",
+                  f"  {command} results {shlex.quote(str(result.out_root))} --out RESULTS.md      # the results page",
                   f"  {command} --help      # every command; the report: {result.out_root / 'report.html'}"]
     return "\n".join(lines)
 
@@ -53,6 +53,7 @@ def run(args) -> int:
         cpus_per_cell=1 if args.deterministic else args.cpus_per_cell,
         force=args.force,
         verify_hashes=not args.no_verify,
+        command=shlex.join(["mitsnerf", *args.argv]) if getattr(args, "argv", None) else None,
     )
     check_output_dir(options.results_root, "--results")
     check_output_dir(options.data_root, "--data" if args.data else

@@ -8,7 +8,7 @@ from mitsnerf.cli.common import add_dataset_options, open_dataset, options_confi
 
 
 def run(args) -> int:
-    from mitsnerf.bench.tables import QUALITY, markdown_table, scene_rows
+    from mitsnerf.bench.tables import QUALITY, ceiling_reason, markdown_table, scene_rows
     from mitsnerf.data.atomic import atomic_write_json
     from mitsnerf.outputs import check_output_dir, check_output_file, progress_log
     from mitsnerf.runs.directory import check_outside_dataset
@@ -33,6 +33,9 @@ def run(args) -> int:
     row = scene_rows([{"scene": scene, "method": result.label, "seed": seed, "metrics": result.metrics}])
     atomic_write_json(out, record)
     print(markdown_table(row, QUALITY))
+    reason = ceiling_reason(row[0])  # a run's row above its own ceiling says why, as the bench's tables do
+    if reason is not None:
+        print(reason)
     print(f"\n{len(result.files)} renders matched by {result.matched_by}; {result.oracle}; "
           f"density: {result.density or 'none given'} -> {out}")
     if result.metrics.get("noise_floor_of"):

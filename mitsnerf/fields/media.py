@@ -30,11 +30,11 @@ from dataclasses import dataclass
 from typing import Any
 
 import drjit as dr
-import drjit.nn as nn
 import numpy as np
 
 from mitsnerf.config import check_fields, param
 from mitsnerf.fields.grid import extinction
+from mitsnerf.fields.hashgrid import HashGridConfig
 from mitsnerf.fields.mlp import column, dense_apply, dense_init, rows_tensor
 from mitsnerf.math.activations import sigmoid, softplus
 from mitsnerf.math.box import Box
@@ -193,40 +193,16 @@ class GridMedium:
 
 
 @dataclass(frozen=True)
-class HashMediumConfig:
-    """Sizes of the hash medium (the ngp field's defaults: 3 levels from 16 to 24)."""
+class HashMediumConfig(HashGridConfig):
+    """Sizes of the hash medium: its hash grid (:class:`~mitsnerf.fields.hashgrid.HashGridConfig`, the ngp field's
+    declaration and defaults: 3 levels from 16 to 24) and its two MLPs."""
 
-    n_levels: int = param(3, lo=1, hi=32)
-    """Resolution levels L of the hash grid."""
-    features_per_level: int = param(2, choices=(2, 4, 8))
-    """Features F per level."""
-    log2_hashmap_size: int = param(15, lo=8, hi=24)
-    """T: at most 2^T entries per level."""
-    base_resolution: int = param(16, lo=1)
-    """N_min, the coarsest level's resolution."""
-    max_resolution: int = param(24, lo=1)
-    """N_max, the finest level's resolution (>= ``base_resolution``)."""
     hidden: int = param(64, lo=1)
     """Width of the density MLP's hidden layer."""
     features: int = param(15, lo=1)
     """Features passed from the density MLP to the albedo-and-remainder MLP."""
     color_hidden: int = param(64, lo=1)
     """Width of the albedo-and-remainder MLP's hidden layer."""
-    init_scale: float = param(1e-4, lo=0.0, lo_open=True)
-    """Hash-table entries start uniform in ``+-init_scale``."""
-
-    def __post_init__(self) -> None:
-        check_fields(self)
-        if self.max_resolution < self.base_resolution:
-            raise ValueError(f"max_resolution: must be >= base_resolution ({self.base_resolution}), "
-                             f"got {self.max_resolution}")
-
-    @property
-    def per_level_scale(self) -> float:
-        """``b = (N_max / N_min)^(1 / (L - 1))`` (1 for a single level)."""
-        if self.n_levels == 1:
-            return 1.0
-        return math.exp(math.log(self.max_resolution / self.base_resolution) / (self.n_levels - 1))
 
 
 class HashMedium:
@@ -237,14 +213,9 @@ class HashMedium:
         self.config, self.TensorXf, self.box = config, TensorXf, box
         self._channels, self._n_rest = int(density_channels), len(rest_first)
         rng = dr.rng(seed=seed)
-        self.encoding = nn.HashGridEncoding(dr.leaf_t(TensorXf), 3, n_levels=config.n_levels,
-                                            n_features_per_level=config.features_per_level,
-                                            hashmap_size=2**config.log2_hashmap_size,
-                                            base_resolution=config.base_resolution,
-                                            per_level_scale=config.per_level_scale, init_scale=config.init_scale,
-                                            rng=rng)
+        self.encoding = config.encoding(TensorXf, rng)
         if params is None:
-            n_in = config.n_levels * config.features_per_level
+            n_in = config.n_features
             params = {"encoding.data": self.encoding.data,
                       **dense_init([n_in, config.hidden, self._channels + config.features], TensorXf, rng, "density."),
                       **dense_init([config.features, config.color_hidden, 3 + self._n_rest], TensorXf, rng,

@@ -26,10 +26,10 @@ def network_path(requested: str, TensorXf) -> str:
     """The path ``requested`` (a :data:`NETWORK_PATHS` entry) resolves to on ``TensorXf``'s backend.
 
     ``auto`` is ``tensor`` on every backend for now. On the LLVM backend tensors measured 4-5x faster
-    than cooperative vectors in fp32 on the 2-core CPU, and fp16 slower again (benchmarks/README.md,
+    than cooperative vectors in fp32 on the 2-core CPU, and fp16 slower again (docs/notes/mlp.md,
     "Cooperative vectors and a PyTorch peer"). On CUDA, Dr.Jit runs fp16 cooperative vectors on the
     tensor cores: an H200 ran the MLP's training step 64x faster on them than on tensors at 2^20 points
-    (benchmarks/README.md, "On a GPU"), but fp16 does not train: Dr.Jit 1.5 sums a layer's weight gradient
+    (docs/notes/gpu-runs.md), but fp16 does not train: Dr.Jit 1.5 sums a layer's weight gradient
     over the batch in fp16 and rounds each point's gradient to fp16, so at a training batch (2^17 points,
     each adding ~1e-6) the weight gradients come out 30-75% wrong, signs included, and the hash grid's
     27% (on LLVM as on CUDA; tests/fields/test_network_paths.py), and nerf on fp16 never left the empty box

@@ -13,7 +13,7 @@ CPU-sized trunk of 4 x 64 instead of 8 x 256)::
 ``gamma((d + 1) / 2)`` is NeRF's ``sin(2^k pi d)`` up to sign, for ``d`` in ``[-1, 1]^3``.
 
 The defaults differ from NeRF in two settings, both measured on the default cloud (800 steps,
-benchmarks/README.md, "nerf: the view direction"): no direction input (``use_direction = False``)
+docs/notes/nerf.md, "nerf: the view direction"): no direction input (``use_direction = False``)
 and 4 position octaves instead of 10. The library's scenes but ``cloud_hg*`` have an isotropic phase
 function, so the emission ``albedo J(x)`` that every pixel integrates does not depend on the view
 direction; a colour head that takes it can explain each training view's image with a wrong
@@ -39,7 +39,7 @@ from dataclasses import dataclass
 import drjit as dr
 import drjit.nn as nn
 
-from mitsnerf.config import check_fields, param
+from mitsnerf.config import Since, check_fields, param
 from mitsnerf.fields.mlp import NETWORK_PATHS, network_path, pack_layers
 from mitsnerf.math.activations import colour_bias, sigmoid, softplus
 from mitsnerf.math.box import Box
@@ -51,7 +51,8 @@ class NeRFConfig:
 
     pos_octaves: int = param(4, lo=0, hi=20)
     """Frequencies L_x of the positional encoding of x (NeRF: 10; 4 measured better here, module docstring)."""
-    use_direction: bool = param(False)
+    use_direction: bool = param(False, since=Since("0.1.0+7225556", refuse="nerf fed every colour head the view "
+                                                    "direction then, at twice today's frequency"))
     """Feed the encoded view direction to the colour head (NeRF: True); False (the default): the colour
     depends on position only, as the emission ``albedo J(x)`` of an isotropic medium does."""
     dir_octaves: int = param(4, lo=0, hi=20)

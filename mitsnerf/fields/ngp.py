@@ -38,14 +38,14 @@ gradients stop fitting in cache).
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
 
 import drjit as dr
 import drjit.nn as nn
 
-from mitsnerf.config import check_fields, param
+from mitsnerf.config import param
 from mitsnerf.fields.grid import extinction
+from mitsnerf.fields.hashgrid import HashGridConfig
 from mitsnerf.fields.mlp import (
     NETWORK_PATHS,
     column,
@@ -67,8 +67,8 @@ SIGMA_RAW_MAX = 15.0
 
 
 @dataclass(frozen=True)
-class NGPConfig:
-    """Sizes of the hash grid and the MLPs of the ngp field.
+class NGPConfig(HashGridConfig):
+    """Sizes of the hash grid (:class:`~mitsnerf.fields.hashgrid.HashGridConfig`) and the MLPs of the ngp field.
 
     The defaults suit 64-pixel views of 64^3 media trained from 64-spp images: with 8 levels up to
     64 the grid memorised the training noise (train PSNR 52 dB, test 41.6 dB on the default cloud
@@ -76,16 +76,6 @@ class NGPConfig:
     pixels) in the same steps. Finer media or larger images want a larger ``max_resolution``.
     """
 
-    n_levels: int = param(3, lo=1, hi=32)
-    """Resolution levels L."""
-    features_per_level: int = param(2, choices=(2, 4, 8))
-    """Features F per level (drjit's hash grid takes an even F dividing the table size)."""
-    log2_hashmap_size: int = param(15, lo=8, hi=24)
-    """T: at most 2^T entries per level."""
-    base_resolution: int = param(16, lo=1)
-    """N_min, the coarsest level's resolution."""
-    max_resolution: int = param(24, lo=1)
-    """N_max, the finest level's resolution (>= ``base_resolution``)."""
     hidden: int = param(64, lo=1)
     """Width of the density MLP's hidden layer."""
     geo_features: int = param(15, lo=1)
@@ -102,8 +92,6 @@ class NGPConfig:
     """1: one density for every colour; 3: one per colour channel (chromatic media, a 3-channel sigma_t)."""
     c_max: float = param(1.0, lo=0.0, lo_open=True)
     """Largest colour (radiance) the colour MLP can output."""
-    init_scale: float = param(1e-4, lo=0.0, lo_open=True)
-    """Hash-table entries start uniform in ``+-init_scale``."""
     network_path: str = param("auto", choices=NETWORK_PATHS)
     """How the MLPs are evaluated (:func:`mitsnerf.fields.mlp.network_path`): point-major tensors or
     cooperative vectors (fp32, fp16: its training gradients are wrong at batch sizes), on the same
@@ -111,20 +99,6 @@ class NGPConfig:
     split_k: int = param(-1, lo=-1)
     """Tensor path: each product's split-k batches (:func:`mitsnerf.fields.mlp.matmul_rows`); -1: the backend's
     default (:func:`mitsnerf.fields.mlp.gemm_split_k`: 64 on CUDA, one product on LLVM), 0 or 1: one product."""
-
-    def __post_init__(self) -> None:
-        check_fields(self)
-        if self.max_resolution < self.base_resolution:
-            raise ValueError(
-                f"max_resolution: must be >= base_resolution ({self.base_resolution}), got {self.max_resolution}"
-            )
-
-    @property
-    def per_level_scale(self) -> float:
-        """``b = (N_max / N_min)^(1 / (L - 1))`` (1 for a single level)."""
-        if self.n_levels == 1:
-            return 1.0
-        return math.exp(math.log(self.max_resolution / self.base_resolution) / (self.n_levels - 1))
 
 
 class NGPField:
@@ -145,18 +119,8 @@ class NGPField:
         self.TensorXf = TensorXf
         self.box = box
         rng = dr.rng(seed=seed)
-        self.encoding = nn.HashGridEncoding(
-            dr.leaf_t(TensorXf),
-            3,
-            n_levels=config.n_levels,
-            n_features_per_level=config.features_per_level,
-            hashmap_size=2**config.log2_hashmap_size,
-            base_resolution=config.base_resolution,
-            per_level_scale=config.per_level_scale,
-            init_scale=config.init_scale,
-            rng=rng,
-        )
-        n_in = config.n_levels * config.features_per_level
+        self.encoding = config.encoding(TensorXf, rng)
+        n_in = config.n_features
         n_dir = num_coefficients(config.sh_degree)
         self.params = {
             "encoding.data": self.encoding.data,

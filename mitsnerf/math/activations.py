@@ -35,7 +35,8 @@ def colour_bias(c_max: float, c_0: float = 0.5) -> float:
     Where every field's bounded colour starts (nerf's head bias, the band-0 SH coefficient of voxel's and
     primitives' colours): ``c_max`` follows the brightest training pixels
     (:func:`mitsnerf.methods.base.cover_radiance`), and a start at ``c_max / 2``, brighter than the medium, made the
-    fit clear the density, the quickest way to darken every pixel (benchmarks/README.md, "The physics table").
+    fit clear the density, the quickest way to darken every pixel (docs/notes/physics-table.md, "nerf's empty
+    medium on cloud_hg85" and "The table at 88c2ab4").
 
     >>> colour_bias(1.0), round(colour_bias(12.0), 4)
     (0.0, -3.1355)

@@ -79,3 +79,29 @@ def carve(images: np.ndarray, cameras: Sequence[Any], background: Callable[[Any]
     """The emptiness mask (R, R, R) bool of the views (:func:`unattenuated_pixels`, then :func:`carve_mask`)."""
     empty = unattenuated_pixels(images, cameras, background, tol, pixel_center)
     return carve_mask(cameras, empty, box, resolution, pixel_center)
+
+
+def pooled_mask(keep: np.ndarray, resolution: int) -> np.ndarray:
+    """A fine mask ``keep`` (R, R, R) at a coarser ``resolution`` r dividing R: a coarse voxel is kept where any
+    of its ``(R / r)^3`` fine voxels is, so no voxel a finer grid keeps is carved at the coarse one (a coarse
+    voxel crossed by one empty ray is not empty).
+
+    >>> keep = np.zeros((4, 4, 4), bool); keep[0, 0, 1] = True
+    >>> pooled_mask(keep, 2)[0, 0, 0], int(pooled_mask(keep, 2).sum())
+    (np.True_, 1)
+    """
+    big = keep.shape[0]
+    if big % resolution:
+        raise ValueError(f"pooled_mask: {resolution} does not divide {big}")
+    k = big // resolution
+    return np.asarray(keep.reshape(resolution, k, resolution, k, resolution, k).any(axis=(1, 3, 5)))
+
+
+def carve_levels(images: np.ndarray, cameras: Sequence[Any], background: Callable[[Any], Any], box: Box,
+                 resolutions: Sequence[int], tol: float, pixel_center: float = 0.5) -> dict[int, np.ndarray]:
+    """The emptiness mask of every resolution of a coarse-to-fine grid: the finest carved once (:func:`carve`),
+    each coarser one that divides it pooled from it (:func:`pooled_mask`), any other carved on its own."""
+    finest = max(resolutions)
+    keep = carve(images, cameras, background, box, finest, tol, pixel_center)
+    return {r: pooled_mask(keep, r) if finest % r == 0 else carve(images, cameras, background, box, r, tol,
+                                                                  pixel_center) for r in resolutions}

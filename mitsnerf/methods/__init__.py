@@ -32,7 +32,7 @@ from typing import Any
 import drjit as dr
 
 from mitsnerf.errors import MethodError
-from mitsnerf.methods.base import MethodConfig, Model, RendersRays, TrainsOnViews
+from mitsnerf.methods.base import MethodConfig, Model, RendersRays, TrainsOnPixels, TrainsOnViews
 from mitsnerf.plugins import Entry, Kind, PluginError, Registry, Source, load
 
 #: The environment variable that registers methods which are not installed.
@@ -84,8 +84,9 @@ def check_method(name: str, obj: Any) -> type[Model]:
     if inspect.isabstract(obj):
         missing = ", ".join(sorted(obj.__abstractmethods__))
         raise PluginError(f"{what} leaves abstract methods unwritten: {missing}")
-    if not (issubclass(obj, RendersRays) or issubclass(obj, TrainsOnViews)):
-        raise PluginError(f"{what} neither renders rays (subclass RayModel) nor trains on views (subclass ViewModel)")
+    if not any(issubclass(obj, kind) for kind in (RendersRays, TrainsOnPixels, TrainsOnViews)):
+        raise PluginError(f"{what} neither renders rays (subclass RayModel), trains on pixels (subclass PixelModel) "
+                          "nor trains on views (subclass ViewModel)")
     _check_config_type(what, getattr(obj, "config_type", None))
     if not isinstance(getattr(obj, "description", None), str) or not obj.description.strip():
         raise PluginError(f"{what}.description must be a one-line string")

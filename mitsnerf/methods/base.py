@@ -11,14 +11,17 @@ A method is a :class:`Model` subclass with three class attributes and a construc
 - ``__init__(self, config, scene: SceneInfo, seed: int)``: the model for one scene, initialised
   from ``seed`` alone (a run resumed or repeated with the same seed starts from the same values).
 
-and renders through one of two narrow capabilities:
+and renders through one of three narrow capabilities:
 
 - :class:`RendersRays` (subclass :class:`RayModel`), a per-ray model: it writes
   :meth:`RayModel.render_rays` (and says how much jitter its sampler draws). The trainer's step is a
   random batch of training pixels rendered through it; whole views are rendered ray by ray by the base class.
+- :class:`TrainsOnPixels` (subclass :class:`PixelModel`), a model with its own estimator: it writes its step's
+  loss over the trainer's ``batch_rays`` training pixels (:meth:`PixelModel.pixel_batch_loss`) and
+  :meth:`PixelModel.render_view` (``mitsuba-inverse`` traces the pixels' paths and renders whole images
+  through Mitsuba's path tracer).
 - :class:`TrainsOnViews` (subclass :class:`ViewModel`), a whole-view model: it writes its own step's loss
-  (:meth:`ViewModel.training_loss`) and :meth:`ViewModel.render_view` (``mitsuba-inverse``
-  renders whole images through Mitsuba's path tracer).
+  (:meth:`ViewModel.training_loss`) and :meth:`ViewModel.render_view`.
 
 The trainer (:mod:`mitsnerf.train`) picks the step by protocol and owns the optimiser,
 checkpoints and the schedules. Parameters are a mapping (a ``drjit.nn`` module or a plain dict)
@@ -31,7 +34,8 @@ each new row continues (primitives added and removed): the trainer then carries 
 
 A capability beyond rendering is a protocol of its own, tested with ``isinstance``: :class:`HasField`, a
 model whose learned medium can be queried (``field()``; with ``density(x)`` the density scores and
-``mitsnerf export`` read it).
+``mitsnerf export`` read it); :class:`FollowsBudget`, a model whose schedules are fractions of the run's step
+budget (the trainer calls ``set_budget(steps)`` before the first step).
 
 A method joins the registry (:mod:`mitsnerf.methods`) by declaring itself in its own module
 (``METHOD = NeRFModel``, the built-ins), by a ``mitsnerf.methods`` entry point, or by the
@@ -150,10 +154,25 @@ class RendersRays(Protocol):
 
 
 @runtime_checkable
+class TrainsOnPixels(Protocol):
+    """A model with its own estimator: it writes its step's loss over the trainer's batch of training pixels."""
+
+    def pixel_batch_loss(self, data, batch_rays: int, step: int, rng) -> StepLoss: ...
+
+
+@runtime_checkable
 class TrainsOnViews(Protocol):
     """A whole-view model: it writes its own step's loss."""
 
     def training_loss(self, data, step: int, rng) -> StepLoss: ...
+
+
+@runtime_checkable
+class FollowsBudget(Protocol):
+    """A model whose schedules are fractions of the run's step budget: ``set_budget(steps)`` is called by the
+    trainer before the first step (again, with the new budget, when a run is resumed)."""
+
+    def set_budget(self, steps: int) -> None: ...
 
 
 @runtime_checkable
@@ -186,6 +205,11 @@ class Model(ABC):
     with the remainder on the method's basis: :meth:`rung_basis`), ``full transport`` (the references' agreement
     + 3.01 dB)."""
 
+    def given(self) -> tuple[str, ...]:
+        """What this model was given besides the images (the tables' ``given`` column): :attr:`knows`, and what
+        its settings add (e.g. ``mitsuba-inverse`` given the albedo)."""
+        return self.knows
+
     def rung_basis(self) -> tuple[int, int]:
         """A single-scattering method's remainder basis ``(L_f, L_z)`` (:mod:`mitsnerf.oracle.rungs`)."""
         raise NotImplementedError(f"{type(self).__name__} is not on the single-scattering rung")
@@ -205,6 +229,19 @@ class Model(ABC):
     @abstractmethod
     def render_view(self, camera, *, pixel_center: float = 0.5, footprint: int = 1) -> Rendered:
         """A whole camera (without gradients); ``footprint``: K x K rays per pixel (1: its sample point)."""
+
+    @property
+    def monte_carlo_renders(self) -> bool:
+        """Whether :meth:`render_view` is a Monte Carlo estimate, whose own variance lowers its scores (default:
+        a full-transport method's renders are path traced, the others' are quadratures)."""
+        return self.rung == "full transport"
+
+    def render_view_independent(self, camera, *, pixel_center: float = 0.5, footprint: int = 1) -> Rendered | None:
+        """A second render of ``camera`` with samples independent of :meth:`render_view`'s (another seed), from
+        which the evaluation measures the renders' own Monte Carlo variance and scores them without it
+        (:mod:`mitsnerf.scoring.variance`); None (the default): no second render, a Monte Carlo method's scores
+        are then raw and say so."""
+        return None
 
     def samples_per_ray(self) -> int:
         """Field evaluations per ray (for samples/s figures)."""
@@ -251,6 +288,15 @@ class RayModel(Model):
     def render_view(self, camera, *, pixel_center: float = 0.5, footprint: int = 1) -> Rendered:
         return render_view(lambda o, d: self.render_rays(o, d).composite, camera,
                            pixel_center=pixel_center, footprint=footprint)
+
+
+class PixelModel(Model):
+    """A model with its own estimator over the trainer's pixel batch, and its own view renderer."""
+
+    @abstractmethod
+    def pixel_batch_loss(self, data, batch_rays: int, step: int, rng) -> StepLoss:
+        """This step's objective over ``batch_rays`` training pixels it draws with ``rng`` (the step's generator, a
+        pure function of seed and step) from ``data``, the trainer's :class:`mitsnerf.train.PixelData`."""
 
 
 class ViewModel(Model):

@@ -2,8 +2,9 @@
 loss, the total variation inside the emptiness mask.
 
 ``init_from``: a directory that ``mitsnerf export RUN`` wrote (``sigma_t.npy`` and ``export.json``, or a run
-directory holding it as ``export/``). Its extinction (world units, over the box ``export.json`` names) is looked up
-trilinearly at the voxel centres of the method's grid; points outside the exported box get 0::
+directory holding it as ``export/``), or a mitsnerf dataset (its true grids ``volume/sigma_t.npy`` and
+``volume/albedo.npy`` over the box its manifest gives: the "truth start"). Its extinction (world units, over its
+box) is looked up trilinearly at the voxel centres of the method's grid; points outside that box get 0::
 
     tau[k, j, i] = side * sigma_export(x_kji)          (optical depth per box side)
 
@@ -28,14 +29,43 @@ EXPORT_FILES = ("sigma_t.npy", "export.json")
 
 def export_dir(path: str | Path) -> Path:
     """The export directory ``path`` names: itself, or its ``export/`` (a run directory); a
-    :class:`~mitsnerf.errors.DatasetError` naming ``init_from`` when neither holds an export."""
+    :class:`~mitsnerf.errors.DatasetError` naming ``init_from`` when neither holds an export (nor is ``path`` a
+    dataset with its true grids)."""
     p = Path(path)
     for candidate in (p, p / "export"):
         if all((candidate / name).is_file() for name in EXPORT_FILES):
             return candidate
     hint = (f"it is a run: run 'mitsnerf export {p}' first" if (p / "config.json").is_file()
-            else "expected a directory written by 'mitsnerf export' (sigma_t.npy, export.json) or a run holding one")
+            else "expected a directory written by 'mitsnerf export' (sigma_t.npy, export.json), a run holding one, "
+                 "or a dataset (volume/sigma_t.npy)")
     raise DatasetError(p, "init_from", f"no exported density ({', '.join(EXPORT_FILES)}) here or in export/; {hint}")
+
+
+def _grid(path: Path, channels: tuple[int, ...]) -> np.ndarray:
+    """A finite (R, R, R) or (R, R, R, C) grid from ``path`` as (R, R, R, C) float32, C in ``channels``."""
+    try:
+        grid = np.load(path)
+    except (OSError, ValueError) as e:
+        raise DatasetError(path, None, f"not a numpy array ({e})") from None
+    grid = grid[..., None] if grid.ndim == 3 else grid
+    r = grid.shape[0]
+    if grid.shape[:3] != (r, r, r) or grid.shape[3] not in channels or not np.all(np.isfinite(grid)):
+        raise DatasetError(path, None, f"expected a finite (R, R, R) or (R, R, R, {' or '.join(map(str, channels))}) "
+                                       f"grid, got shape {grid.shape}")
+    return np.maximum(grid, 0.0).astype(np.float32)
+
+
+def read_dataset_truth(path: str | Path) -> tuple[np.ndarray, np.ndarray | None, Box] | None:
+    """``(sigma_t (R, R, R, C), albedo (R, R, R, 3) or None, box)`` of a dataset's true grids, or None when
+    ``path`` is not a dataset holding them."""
+    from mitsnerf.data.dataset import load_dataset, true_grid_path
+
+    if not true_grid_path(path).is_file():
+        return None
+    box = load_dataset(path).box
+    albedo_path = true_grid_path(path, "albedo")
+    albedo = _grid(albedo_path, (1, 3)) if albedo_path.is_file() else None
+    return _grid(true_grid_path(path), (1, 3)), albedo, box
 
 
 def read_export(path: str | Path) -> tuple[np.ndarray, Box]:
@@ -47,37 +77,47 @@ def read_export(path: str | Path) -> tuple[np.ndarray, Box]:
         box = Box((lo[0], lo[1], lo[2]), (hi[0], hi[1], hi[2]))
     except (KeyError, TypeError, ValueError) as e:
         raise DatasetError(d / "export.json", "box_min/box_max", f"unreadable ({e})") from None
-    try:
-        sigma = np.load(d / "sigma_t.npy")
-    except (OSError, ValueError) as e:
-        raise DatasetError(d / "sigma_t.npy", None, f"not a numpy array ({e})") from None
-    sigma = sigma[..., None] if sigma.ndim == 3 else sigma
-    r = sigma.shape[0]
-    if sigma.shape[:3] != (r, r, r) or sigma.shape[3] not in (1, 3) or not np.all(np.isfinite(sigma)):
-        raise DatasetError(d / "sigma_t.npy", None, f"expected a finite (R, R, R) or (R, R, R, 3) grid, got "
-                                                    f"shape {sigma.shape}")
-    return np.maximum(sigma, 0.0).astype(np.float32), box
+    return _grid(d / "sigma_t.npy", (1, 3)), box
 
 
-def resampled_depth(path: str | Path, box: Box, resolution: int, channels: int) -> np.ndarray:
-    """The exported extinction at the voxel centres of ``box`` at ``resolution``, as optical depth per box side
-    (``(R, R, R, channels)`` float32): a chromatic export averaged to one channel, a grey one repeated to three."""
+def resampled(grid: np.ndarray, source: Box, box: Box, resolution: int) -> np.ndarray:
+    """``grid`` (R', R', R', C) over ``source`` looked up trilinearly at the voxel centres of ``box`` at
+    ``resolution``: (R, R, R, C) float32, 0 outside ``source``."""
     import mitsuba as mi
 
     from mitsnerf.fields.grid import GridField
 
-    sigma, source = read_export(path)
-    if channels == 1 and sigma.shape[-1] == 3:
-        sigma = sigma.mean(axis=-1, keepdims=True)
-    field = GridField.from_arrays(sigma, source)
+    c = grid.shape[-1]
+    field = GridField.from_arrays(grid, source)
     x = box.voxel_centres(resolution).reshape(-1, 3)
     with dr.suspend_grad():
         values = field.density(mi.Array3f(*(np.ascontiguousarray(x[:, k], dtype=np.float32) for k in range(3))))
-    v = np.stack([np.asarray(c) for c in values], axis=-1) if sigma.shape[-1] == 3 else np.asarray(values)[:, None]
+    v = np.stack([np.asarray(values[k]) for k in range(3)], axis=-1) if c == 3 else np.asarray(values)[:, None]
     inside = np.all((x >= np.asarray(source.lo)) & (x <= np.asarray(source.hi)), axis=1)
-    v = np.where(inside[:, None], v, 0.0) * float(box.size[0])
-    v = np.repeat(v, channels, axis=-1) if v.shape[-1] == 1 and channels == 3 else v
-    return np.ascontiguousarray(v.reshape(resolution, resolution, resolution, channels), dtype=np.float32)
+    v = np.where(inside[:, None], v, 0.0)
+    return np.ascontiguousarray(v.reshape(resolution, resolution, resolution, c), dtype=np.float32)
+
+
+def resampled_start(start: str | Path | tuple, box: Box, resolution: int,
+                    channels: int) -> tuple[np.ndarray, np.ndarray | None]:
+    """``init_from``'s start on the method's grid: the extinction as optical depth per box side (``(R, R, R,
+    channels)`` float32: a chromatic source averaged to one channel, a grey one repeated to three), and a
+    dataset's true albedo (R, R, R, 3) (None from an export: its colour is not an albedo). ``start``: a path, or
+    the grids themselves ``(sigma_t (R, R, R[, C]) world units, albedo, their box)``."""
+    truth = start if isinstance(start, tuple) else read_dataset_truth(start)
+    if truth is not None:
+        sigma, albedo, source = truth
+    elif isinstance(start, (str, Path)):
+        (sigma, source), albedo = read_export(start), None
+    sigma = sigma[..., None] if sigma.ndim == 3 else sigma  # the grids given themselves: a grey one is (R, R, R)
+    if channels == 1 and sigma.shape[-1] == 3:
+        sigma = sigma.mean(axis=-1, keepdims=True)
+    tau = resampled(sigma, source, box, resolution) * np.float32(box.size[0])
+    tau = np.repeat(tau, channels, axis=-1) if tau.shape[-1] == 1 and channels == 3 else tau
+    if albedo is not None:
+        albedo = np.clip(resampled(np.repeat(albedo, 3, axis=-1) if albedo.shape[-1] == 1 else albedo,
+                                   source, box, resolution), 0.0, 1.0)
+    return np.ascontiguousarray(tau, dtype=np.float32), albedo
 
 
 def tv_pairs(keep: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

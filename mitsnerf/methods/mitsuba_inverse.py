@@ -2,11 +2,18 @@
 
 The physically based route: the scene is the dataset's own (its manifest's spec through
 :func:`mitsnerf.scene.to_mitsuba.scene_dict`: the same lights, the medium box, phase function) with the medium's
-grids replaced by the unknowns, and each step renders training views at low spp and minimises
+grids replaced by the unknowns, and each step minimises
 
-    L = mean over pixels and channels of (render(tau, albedo; camera_i) - image_i)^2  (+ priors)
+    L = mean over pixels and channels of |I_p(tau, albedo) - I*_p|^q  (q = 2, or 1: ``loss``)  (+ priors)
 
 with Adam on ``sigma_t`` and, unless ``optimize_albedo = false``, ``albedo`` (TensorXf (R, R, R, 3)).
+
+**The step** (``batch = "rays"``, the default): the trainer's ``batch_rays`` pixels drawn uniformly over every
+training view, each traced by ``spp_primal_factor x spp`` paths for the image the loss compares and by ``spp``
+*other* paths (their own seed) for the gradient (:func:`mitsnerf.render.path_batch.render_pixels`); every path
+through its own point of its pixel (the box-filtered film's footprint). ``batch = "views"``: ``views_per_step``
+whole views through Mitsuba's film (``mi.render``, with the same two spp and seeds), one view's worth of rays
+each.
 
 **Units: optical depth per box side.** The ``sigma_t`` grid holds ``tau = sigma_t * side`` (TensorXf (R, R, R, C),
 ``C`` = 1, or 3 for a chromatic extinction; the medium's ``scale`` is ``1 / side``), so every setting in its units
@@ -24,33 +31,33 @@ dataset's spec chromatic and ``density_channels = 0``): Mitsuba's RGB variants c
 path; ``mitsnerf_drt`` tracks under the largest channel's majorant and each channel's extinction gets its
 gradient from that channel's estimates, while ``prbvolpath`` samples one channel per path for its distances.
 
-**Starts.** ``albedo_first`` path-traced steps fit the albedo alone before the extinction moves. ``init_depth``
-(a constant), ``init_from`` (a directory ``mitsnerf export`` wrote, or a run holding
-one in ``export/``: that density resampled to the grid) and ``emissive_steps``: the first steps fit an
-emission-absorption model (this extinction and an RGB emission grid, ``emissive_rays`` random training pixels per
-step, quadrature with ``2 R`` samples per ray) whose extinction the path tracer then takes over
-(:mod:`mitsnerf.methods.inverse_start`).
-
-**Coarse to fine**: the grids start at ``resolutions[0]`` and are resampled (trilinear, ``dr.resample``) to
-``resolutions[l + 1]`` after step ``upsample_at[l]``; the optimiser's state for them restarts then and the learning
-rate is multiplied by ``upsample_lr_factor`` per upsampling so far. After every step ``sigma_t`` is clamped to
+**Schedules, as fractions of the step budget** (the trainer tells the model its budget,
+:class:`mitsnerf.methods.base.FollowsBudget`): the grids start at ``resolutions[0]`` and are resampled
+(trilinear, ``dr.resample``) to ``resolutions[l + 1]`` after step ``round(upsample_at[l] x steps)``; the
+optimiser's state for them restarts then and the learning rate is multiplied by ``upsample_lr_factor`` per
+upsampling so far, and by ``lr_decay`` at each of ``lr_decay_at``. After every step ``sigma_t`` is clamped to
 ``[0, depth_max]`` (and ``majorant_depth``), ``albedo`` to ``[0, 1]``.
 
-**The haze and the priors** (benchmarks/README.md, "mitsuba-inverse: removing the haze", measures each): under a
-nearly uniform environment a scattering haze of the right albedo is almost invisible, so a constant start leaves
-one. ``carve``: an emptiness mask: a training pixel whose value is the environment seen straight through
-(``max over channels |image - background(d)| <= carve_tol``) says the medium is empty along its ray, so every voxel
-its centre ray crosses is held at 0 (and the majorant grid gets no floor there); ``l1``: ``l1 * mean(tau)``;
-``tv_sigma``, ``tv_albedo``: total variation, the mean squared difference of neighbouring voxels that are both
-inside the mask; ``views_per_step`` and ``spp_late`` / ``spp_late_at``: less noise per step.
+**Starts.** ``init_depth`` (a constant), ``init_from`` (a directory ``mitsnerf export`` wrote, a run holding one in
+``export/``, or a dataset: its true grids, the "truth start"), ``emissive_steps`` (the first steps fit an
+emission-absorption model whose extinction the path tracer then takes over, :mod:`mitsnerf.methods.inverse_start`)
+and ``albedo_first`` (path-traced steps that fit the albedo alone). ``optimize_albedo = false``: the albedo is
+given, the spec's own (the tables' ``given`` column then says so).
+
+**The haze and the priors** (docs/notes/mitsuba-inverse.md, "mitsuba-inverse: removing the haze", measures each):
+under a nearly uniform environment a scattering haze of the right albedo is almost
+invisible, so a constant start leaves one. ``carve``: the training views' emptiness mask
+(:mod:`mitsnerf.math.carve`, built from ``SceneInfo.train_views`` when the model is): a training pixel whose value
+is the environment seen straight through says the medium is empty along its ray, so every voxel its centre ray
+crosses is held at 0 (and the majorant grid gets no floor there); ``l1``: ``l1 * mean(tau)``; ``tv_sigma``,
+``tv_albedo``: total variation, the mean squared difference of neighbouring voxels that are both inside the mask.
 
 What it knows that the emission-absorption methods do not: the dataset's spec gives it the lights, the phase
 function, the medium's box and the path length, so it fits only the extinction and the albedo.
 
 Not supported: foreign datasets (no manifest spec: the lights are unknown), pixel centres other than Mitsuba's
-``+0.5``, per-ray rendering: it is a whole-view model (:class:`mitsnerf.methods.base.ViewModel`). Evaluation
-renders whole cameras through Mitsuba's film (box-filtered pixels); the opacity and depth maps come from
-emission-absorption quadrature of the current extinction over the same footprint.
+``+0.5``. Evaluation renders whole cameras through Mitsuba's film (box-filtered pixels) at ``eval_spp``; the
+opacity and depth maps come from emission-absorption quadrature of the current extinction over the same footprint.
 """
 
 from __future__ import annotations
@@ -64,14 +71,16 @@ import drjit as dr
 import mitsuba as mi
 import numpy as np
 
-from mitsnerf.config import check_fields, param
+from mitsnerf.config import Since, check_fields, param
 from mitsnerf.errors import DatasetError, SpecError
 from mitsnerf.fields.grid import GridField
-from mitsnerf.math.carve import carve_mask, unattenuated_pixels
-from mitsnerf.methods.base import MethodConfig, SceneInfo, StepLoss, ViewModel, scene_spec
-from mitsnerf.methods.inverse_start import masked_tv, resampled_depth, tv_pairs
+from mitsnerf.math.carve import carve_levels
+from mitsnerf.methods.base import MethodConfig, PixelModel, SceneInfo, StepLoss, scene_spec
+from mitsnerf.methods.inverse_start import masked_tv, resampled_start, tv_pairs
 from mitsnerf.render.camera import Rendered, render_view
+from mitsnerf.render.path_batch import PathBatch, render_pixels
 from mitsnerf.render.volume import render_rays
+from mitsnerf.scene.to_mitsuba import volume_grids
 
 SIGMA_T_SUFFIX = "interior_medium.sigma_t.data"
 ALBEDO_SUFFIX = "interior_medium.albedo.data"
@@ -79,43 +88,73 @@ EVAL_SEED = 0x5EED
 ESTIMATORS = ("drt", "free_flight", "prbvolpath")
 
 
+def fraction_steps(fractions, budget: int) -> tuple[int, ...]:
+    """The steps after which a schedule given as fractions of the step budget acts: ``max(1, round(f x budget))``.
+
+    >>> fraction_steps((0.04, 0.16, 0.36, 0.64), 2000)
+    (80, 320, 720, 1280)
+    >>> fraction_steps((0.04, 0.16), 10)          # a tiny budget: two upsamplings after step 1, one after step 2
+    (1, 2)
+    """
+    return tuple(max(1, round(f * budget)) for f in fractions)
+
+
+#: Runs saved before the ray batches trained one whole view per step, their schedules in steps: none of today's
+#: settings reproduces them.
+RAY_BATCHES = Since("0.1.0+a387962", refuse="it trained one whole view per step with its schedules in steps "
+                                            "(upsample_at); retrain it")
+
+
 @dataclass(frozen=True)
 class MitsubaInverseConfig(MethodConfig):
     """Configuration of the ``mitsuba-inverse`` method (extinctions in optical depth per box side)."""
 
-    resolutions: tuple[int, ...] = param((16, 32, 64), lo=2, hi=512)
+    resolutions: tuple[int, ...] = param((4, 8, 16, 32, 64), lo=2, hi=512)
     """Grid resolution of each coarse-to-fine stage (one or more)."""
-    upsample_at: tuple[int, ...] = param((100, 250), lo=1)
-    """Step counts (increasing) after which the grids are resampled to the next resolution."""
+    upsample_at: tuple[float, ...] = param((0.04, 0.16, 0.36, 0.64), lo=0.0, hi=1.0, lo_open=True, hi_open=True)
+    """Fractions of the step budget (increasing) after which the grids are resampled to the next resolution."""
+    lr_decay_at: tuple[float, ...] = param((0.75, 0.85, 0.95), lo=0.0, hi=1.0, lo_open=True, hi_open=True,
+                                          since=RAY_BATCHES)
+    """Fractions of the step budget at which the learning rate is multiplied by ``lr_decay``."""
+    lr_decay: float = param(0.5, lo=0.0, hi=1.0, lo_open=True, since=RAY_BATCHES)
+    """The learning rate's factor at each of ``lr_decay_at``."""
+    batch: str = param("rays", choices=("rays", "views"), since=RAY_BATCHES)
+    """A step's pixels: ``rays``, the trainer's ``batch_rays`` pixels drawn over every training view; ``views``,
+    ``views_per_step`` whole training views."""
+    loss: str = param("l2", choices=("l2", "l1"), since=RAY_BATCHES)
+    """The image term: mean squared (``l2``) or absolute (``l1``) error over pixels and channels."""
     estimator: str = param("drt", choices=ESTIMATORS)
     """The gradient: ``drt`` (differential ratio tracking, majorant grid), ``free_flight`` (the same tracer, the
     in-scattering gradient at the path's collisions), ``prbvolpath`` (Mitsuba's, one global majorant)."""
     density_channels: int = param(0, choices=(0, 1, 3))
     """Extinction channels: 1 grey, 3 one per colour (chromatic), 0 as the dataset's spec."""
-    init_depth: float = param(1.0, lo=0.0)
+    init_depth: float = param(10.0, lo=0.0)
     """Initial constant extinction as the optical depth across the box side (at most ``depth_max``)."""
     init_from: str = param("")
-    """A directory written by ``mitsnerf export`` (or a run holding one in ``export/``): its density, resampled to
-    the grid, is the start instead of ``init_depth`` ("": none)."""
+    """The start instead of ``init_depth``: a directory written by ``mitsnerf export`` (or a run holding one in
+    ``export/``), its density resampled to the grid; a dataset, its true grids (extinction and albedo); or
+    ``truth``, the true grids of the dataset trained on (the "truth start": how far a fit of these views drifts
+    from the truth) ("": none)."""
     emissive_steps: int = param(0, lo=0)
     """Steps of the emissive start (emission-absorption fit of the extinction and an emission grid) before the
     path tracer takes over (0: none)."""
     emissive_rays: int = param(4096, lo=1, hi=1 << 22)
     """Training pixels per step of the emissive start (at most a training step's ``batch_rays``)."""
     init_albedo: float = param(0.6, lo=0.0, hi=1.0)
-    """Initial constant albedo."""
+    """Initial constant albedo (when learned)."""
     albedo_first: int = param(0, lo=0)
     """Path-traced steps (after the emissive start) in which the albedo alone is fitted, the start's extinction
     held: a start too dark for its albedo is otherwise matched by thinning the medium, mass the images do not
     give back."""
     optimize_albedo: bool = param(True)
-    """Optimise the albedo grid too (else it stays ``init_albedo``)."""
+    """Learn the albedo grid; false: the albedo is given, the dataset spec's own (resampled to the grid)."""
     lr: float = param(0.5, lo=0.0, lo_open=True)
     """Adam learning rate of the extinction (optical depth per box side, per step)."""
     albedo_lr_factor: float = param(0.04, lo=0.0, lo_open=True)
     """The albedo's (and the emissive start's emission's) learning rate relative to the extinction's."""
-    upsample_lr_factor: float = param(0.5, lo=0.0, lo_open=True)
-    """Learning-rate factor applied once per upsampling."""
+    upsample_lr_factor: float = param(1.0, lo=0.0, lo_open=True, since=("0.1.0+7377ecc", 0.5))
+    """Learning-rate factor applied once per upsampling (1: the recipe's; 0.5 cost 2.8 dB at 300 steps on the
+    default cloud, docs/notes/mitsuba-inverse.md, "The published recipe")."""
     depth_max: float = param(200.0, lo=0.0, lo_open=True)
     """Clamp of the extinction after each step (optical depth per box side)."""
     majorant_depth: float = param(0.0, lo=0.0)
@@ -126,15 +165,14 @@ class MitsubaInverseConfig(MethodConfig):
     majorant_floor: float = param(2.0, lo=0.0)
     """``drt``, ``free_flight``: the least majorant (optical depth per side) outside the emptiness mask, so that
     the gradient reaches voxels whose density is 0."""
-    spp: int = param(8, lo=1)
-    """Samples per pixel of each training render."""
-    spp_late: int = param(0, lo=0)
-    """Samples per pixel of the training renders from step ``spp_late_at`` on (0: ``spp`` throughout)."""
-    spp_late_at: int = param(0, lo=0)
-    """The step (0-based) from which training renders use ``spp_late`` samples per pixel."""
-    views_per_step: int = param(1, lo=1)
-    """Training views rendered per step (drawn at random, with replacement); the image term is their mean squared
-    error. At most the dataset's training views (:func:`check_views_per_step`)."""
+    spp: int = param(4, lo=1, hi=4096)
+    """Paths per pixel of the gradient (the adjoint pass)."""
+    spp_primal_factor: int = param(4, lo=1, hi=1024, since=RAY_BATCHES)
+    """The image the loss compares is rendered by this many times ``spp`` paths per pixel, independent of the
+    gradient's."""
+    views_per_step: int = param(1, lo=1, hi=64)
+    """``batch = "views"``: training views rendered per step (drawn at random, with replacement); the image term
+    is their mean. At most the training views the data has (:func:`check_views_per_step`)."""
     l1: float = param(0.0, lo=0.0)
     """Weight of the sparsity prior ``l1 * mean over voxels of tau`` (0: none)."""
     tv_sigma: float = param(0.0, lo=0.0)
@@ -142,28 +180,29 @@ class MitsubaInverseConfig(MethodConfig):
     neighbouring kept voxels, in optical depth per side; 0: none)."""
     tv_albedo: float = param(0.0, lo=0.0)
     """Weight of the albedo's total variation inside the emptiness mask (0: none)."""
-    carve: bool = param(False)
+    carve: bool = param(True)
     """Emptiness mask: the extinction is held at 0 in every voxel that a training pixel's centre ray crosses
     when that pixel shows the environment unattenuated (``max over channels |image - background(d)| <=
-    carve_tol``), at every resolution."""
+    carve_tol``), at every resolution (needs the training views, ``SceneInfo.train_views``)."""
     carve_tol: float = param(1e-4, lo=0.0)
     """Largest ``|image - background|`` (linear radiance) of a pixel that counts as unattenuated."""
     max_depth: int = param(0, lo=-1)
     """Path length: 0 takes the dataset's ``render.max_depth`` (-1: unlimited)."""
-    eval_spp: int = param(128, lo=1)
-    """Samples per pixel of evaluation renders."""
+    eval_spp: int = param(2048, lo=1)
+    """Samples per pixel of evaluation renders (their Monte Carlo noise lowers the PSNR: at 128 spp the true
+    medium scores about 35 dB on the default cloud's medium pixels, at 2048 about 44)."""
 
     def __post_init__(self) -> None:
         check_fields(self)
         if not self.resolutions:
             raise ValueError("resolutions: must be one or more sizes, got []")
         if len(self.upsample_at) != len(self.resolutions) - 1:
-            raise ValueError(f"upsample_at: needs {len(self.resolutions) - 1} steps (one per later resolution), "
-                             f"got {list(self.upsample_at)}")
-        if any(b <= a for a, b in zip(self.upsample_at, self.upsample_at[1:])):
-            raise ValueError(f"upsample_at: must be increasing, got {list(self.upsample_at)}")
-        if self.spp_late and not self.spp_late_at:
-            raise ValueError("spp_late_at: needs the step from which spp_late applies (> 0), got 0")
+            raise ValueError(f"upsample_at: needs {len(self.resolutions) - 1} fractions of the budget (one per later "
+                             f"resolution), got {list(self.upsample_at)}")
+        for name in ("upsample_at", "lr_decay_at"):
+            v = getattr(self, name)
+            if any(b <= a for a, b in zip(v, v[1:])):
+                raise ValueError(f"{name}: must be increasing, got {list(v)}")
         if self.majorant_depth and self.estimator != "prbvolpath":
             raise ValueError(f"majorant_depth: fixes prbvolpath's one majorant; estimator {self.estimator!r} uses a "
                              "majorant grid (majorant_cell, majorant_floor)")
@@ -199,9 +238,10 @@ def _integrator(config: MitsubaInverseConfig, max_depth: int, side: float) -> di
 
 
 def check_views_per_step(config: MitsubaInverseConfig, scene: SceneInfo) -> None:
-    """Refuse ``views_per_step`` above the number of training views ``scene`` gives (each is a path-traced render
-    per step, so the work grows with it without bound, where more views than the data has only repeats them)."""
-    if scene.train_views is None:
+    """Refuse ``views_per_step`` above the number of training views ``scene`` gives when a step renders whole views
+    (``batch = "views"``: each is a path-traced render per step, where more views than the data has only repeats
+    them); a SpecError naming the field and the data's count."""
+    if config.batch != "views" or scene.train_views is None:
         return
     n = len(scene.train_views.cameras)
     if config.views_per_step > n:
@@ -217,28 +257,31 @@ def _cube_side(box) -> float:
     return size[0]
 
 
-class MitsubaInverseModel(ViewModel):
+class MitsubaInverseModel(PixelModel):
     name = "mitsuba-inverse"
     config_type = MitsubaInverseConfig
     description = "extinction/albedo grids through a differentiable path tracer (differential ratio tracking)"
     knows = ("lights", "phase function")
     rung = "full transport"
-    tiny = MappingProxyType({"resolutions": [4, 8], "upsample_at": [3], "spp": 2, "eval_spp": 4, "emissive_steps": 4,
-                             "emissive_rays": 64, "albedo_first": 1, "tv_sigma": 1e-3, "tv_albedo": 1e-3})
+    tiny = MappingProxyType({"resolutions": [4, 8], "upsample_at": [0.5], "spp": 2, "eval_spp": 4,
+                             "emissive_steps": 4, "emissive_rays": 64, "albedo_first": 1, "tv_sigma": 1e-3,
+                             "tv_albedo": 1e-3})
 
     def __init__(self, config: MitsubaInverseConfig, scene: SceneInfo, seed: int = 0) -> None:
         from mitsnerf.scene.to_mitsuba import scene_dict
 
-        check_views_per_step(config, scene)
+        check_views_per_step(config, scene)  # before anything is built
         self.spec = scene_spec(scene, self.name, "its spec gives the lights and the medium's placement")
         self.config, self.box = config, scene.box
         self.side = _cube_side(scene.box)
         self.channels = config.density_channels or (3 if self.spec.volume.chromatic else 1)
         self.max_depth = config.max_depth or self.spec.render.max_depth
+        self.budget: int | None = None
+        self._keep = self._emptiness_masks(scene) if config.carve else None  # resolution -> (R, R, R) bool
+        self._true_albedo = None if config.optimize_albedo else volume_grids(self.spec)[1]
         r = config.resolutions[0]
-        tau = self._start(r)
-        desc = scene_dict(self.spec, tau[..., 0] if self.channels == 1 else tau,
-                          np.full((r, r, r, 3), config.init_albedo, dtype=np.float32))
+        tau, albedo = self._start(r)
+        desc = scene_dict(self.spec, tau[..., 0] if self.channels == 1 else tau, albedo)
         desc["integrator"] = _integrator(config, self.max_depth, self.side)
         desc["medium_box"]["interior"]["scale"] = 1.0 / self.side
         if config.majorant_depth:
@@ -246,21 +289,50 @@ class MitsubaInverseModel(ViewModel):
         self.scene = mi.load_dict(desc)
         self.params = mi.traverse(self.scene)
         self._key_sigma, self._key_albedo = self._find_key(SIGMA_T_SUFFIX), self._find_key(ALBEDO_SUFFIX)
-        self.sigma_t = mi.TensorXf(self.params[self._key_sigma])
+        self.sigma_t = self._carved(mi.TensorXf(self.params[self._key_sigma]))
+        self.params[self._key_sigma] = self.sigma_t
+        self.params.update()
         self.albedo = mi.TensorXf(self.params[self._key_albedo])
         self.emission = dr.full(mi.TensorXf, 0.5, (r, r, r, 3)) if config.emissive_steps else None
         self._sensors: dict[int, Any] = {}
         self._targets: dict[int, Any] = {}
         self._background = scene.background
-        self._keep: dict[int, np.ndarray] | None = None  # resolution -> (R, R, R) bool (carve)
         self._pairs: dict[int, tuple] = {}
 
-    def _start(self, r: int) -> np.ndarray:
-        """The initial extinction (R, R, R, C), optical depth per side: ``init_from``'s density, or ``init_depth``."""
-        if self.config.init_from:
-            start = resampled_depth(self.config.init_from, self.box, r, self.channels)
-            return np.minimum(start, np.float32(self.config.depth_clamp))
-        return np.full((r, r, r, self.channels), self.config.init_depth, dtype=np.float32)
+    def given(self) -> tuple[str, ...]:
+        """The lights and the phase function, and the albedo where it is given (``optimize_albedo = false``)."""
+        return self.knows + (() if self.config.optimize_albedo else ("albedo",))
+
+    def _emptiness_masks(self, scene: SceneInfo) -> dict[int, np.ndarray]:
+        """The training views' emptiness mask at every resolution (``carve = true``), from ``scene.train_views``:
+        a coarse voxel is kept where any finer voxel is."""
+        views = scene.train_views
+        if views is None:
+            raise ValueError("carve: needs the training views (SceneInfo.train_views), and none were given: give "
+                             "them, or set carve = false")
+        return carve_levels(views.images, views.cameras, scene.background, self.box, self.config.resolutions,
+                            self.config.carve_tol, views.pixel_center)
+
+    def _start(self, r: int) -> tuple[np.ndarray, np.ndarray]:
+        """The initial extinction (R, R, R, C), optical depth per side, and albedo (R, R, R, 3): ``init_from``'s
+        (its albedo where it has one, the given albedo where it is given), or ``init_depth`` and ``init_albedo``."""
+        c = self.config
+        tau = np.full((r, r, r, self.channels), c.init_depth, dtype=np.float32)
+        albedo = np.full((r, r, r, 3), c.init_albedo, dtype=np.float32)
+        if c.init_from:
+            start = (*volume_grids(self.spec), self.box) if c.init_from == "truth" else c.init_from
+            tau, start_albedo = resampled_start(start, self.box, r, self.channels)
+            tau = np.minimum(tau, np.float32(c.depth_clamp))
+            albedo = albedo if start_albedo is None else start_albedo
+        given = self._given_albedo(r)
+        return tau, albedo if given is None else given
+
+    def _given_albedo(self, r: int) -> np.ndarray | None:
+        """The spec's albedo resampled to (r, r, r, 3) where it is given (``optimize_albedo = false``)."""
+        if self._true_albedo is None:
+            return None
+        truth = mi.TensorXf(self._true_albedo)
+        return np.asarray(dr.resample(truth, (r, r, r, 3), filter="linear", boundary="nearest"), dtype=np.float32)
 
     def _find_key(self, suffix: str) -> str:
         keys = [k for k in self.params.keys() if k.endswith(suffix)]
@@ -282,6 +354,10 @@ class MitsubaInverseModel(ViewModel):
         if "sigma_t" in values:
             self.sigma_t = values["sigma_t"]
             self.params[self._key_sigma] = self.sigma_t
+            given = self._given_albedo(self.resolution)
+            if given is not None and tuple(self.albedo.shape[:3]) != tuple(self.sigma_t.shape[:3]):
+                self.albedo = mi.TensorXf(given)
+                self.params[self._key_albedo] = self.albedo
         if "albedo" in values:
             self.albedo = values["albedo"]
             self.params[self._key_albedo] = self.albedo
@@ -293,18 +369,31 @@ class MitsubaInverseModel(ViewModel):
     def resolution(self) -> int:
         return int(self.sigma_t.shape[0])
 
+    # ------------------------------------------------------------------ schedules
+
+    def set_budget(self, steps: int) -> None:
+        """The run's step budget, which the schedules' fractions are of (the trainer calls this first)."""
+        self.budget = int(steps)
+
+    def _steps(self, fractions) -> tuple[int, ...]:
+        if self.budget is None:
+            raise RuntimeError("mitsuba-inverse: its schedules are fractions of the step budget: call "
+                               "set_budget(steps) before stepping (the trainer does)")
+        return fraction_steps(fractions, self.budget)
+
     def level(self, step: int) -> int:
         """Upsamplings done before step ``step`` (0-based) starts."""
-        return sum(1 for s in self.config.upsample_at if s <= step)
+        return sum(1 for s in self._steps(self.config.upsample_at) if s <= step)
 
     def lr_scales(self, step: int) -> Mapping[str, float]:
-        factor = self.config.upsample_lr_factor ** self.level(step)
         c = self.config
+        decays = sum(1 for s in self._steps(c.lr_decay_at) if s <= step)
+        factor = c.upsample_lr_factor ** self.level(step) * c.lr_decay ** decays
         held = c.emissive_steps <= step < c.emissive_steps + c.albedo_first
         scales = {"sigma_t": 0.0 if held else factor}
         for key in ("albedo", "emission"):
             if key in self.parameters():
-                scales[key] = factor * self.config.albedo_lr_factor
+                scales[key] = factor * c.albedo_lr_factor
         return scales
 
     def objective_stage(self, step: int) -> int:
@@ -312,12 +401,11 @@ class MitsubaInverseModel(ViewModel):
         return int(step >= self.config.emissive_steps)
 
     def after_step(self, step: int, params: Mapping[str, Any]) -> Mapping[str, Any]:
-        """The grids resampled after ``upsample_at`` steps; the extinction clamped to [0, depth_clamp] and carved,
-        the albedo clamped to [0, 1], the emission to >= 0."""
-        done = step + 1
+        """The grids resampled to the resolution of the next step's level; the extinction clamped to
+        [0, depth_clamp] and carved, the albedo clamped to [0, 1], the emission to >= 0."""
         new = {key: params[key] for key in ("sigma_t", "albedo", "emission") if key in params}
-        if done in self.config.upsample_at:
-            r = self.config.resolutions[self.config.upsample_at.index(done) + 1]
+        r = self.config.resolutions[self.level(step + 1)]
+        if r != self.resolution:
             new = {key: dr.resample(v, (r, r, r, v.shape[-1]), filter="linear", boundary="nearest")
                    for key, v in new.items()}
         new["sigma_t"] = self._carved(dr.clip(new["sigma_t"], 0.0, self.config.depth_clamp))
@@ -331,18 +419,8 @@ class MitsubaInverseModel(ViewModel):
     # ------------------------------------------------------------------ training
 
     def samples_per_ray(self) -> int:
-        return self.config.spp
-
-    def spp_at(self, step: int) -> int:
-        """Samples per pixel of the training renders at step ``step`` (0-based)."""
-        c = self.config
-        return c.spp_late if c.spp_late and step >= c.spp_late_at else c.spp
-
-    def carve(self, data) -> None:
-        """Build the emptiness masks of every resolution from the training views (``carve = true``)."""
-        empty = unattenuated_pixels(data.images, data.cameras, self._background, self.config.carve_tol,
-                                    data.pixel_center)
-        self._keep = {r: carve_mask(data.cameras, empty, self.box, r) for r in self.config.resolutions}
+        """Paths per pixel of a step: the primal's and the gradient's."""
+        return self.config.spp * (self.config.spp_primal_factor + 1)
 
     def _keep_mask(self, r: int) -> np.ndarray | None:
         return None if self._keep is None else self._keep[r]
@@ -377,24 +455,26 @@ class MitsubaInverseModel(ViewModel):
                 total += c.tv_albedo * masked_tv(self.albedo, self._pairs[r], 3)
         return total
 
-    def training_loss(self, data, step: int, rng) -> StepLoss:
-        """The emissive start's loss for its first ``emissive_steps`` steps, then the path tracer's
-        (:meth:`rendered_mse`), each plus :meth:`priors`, of the extinction times the emptiness mask (``carve``,
-        built from the training views on the first call)."""
+    def pixel_batch_loss(self, data, batch_rays: int, step: int, rng) -> StepLoss:
+        """The emissive start's loss for its first ``emissive_steps`` steps, then the path tracer's over
+        ``batch_rays`` pixels of every view (:meth:`rays_error`) or over whole views (:meth:`views_error`), each
+        plus :meth:`priors`, of the extinction times the emptiness mask (``carve``)."""
         if data is None or data.images is None or not data.cameras:
-            raise ValueError("mitsuba-inverse trains on whole views: PixelData.from_views gives them")
+            raise ValueError("mitsuba-inverse trains on views: PixelData.from_views gives them")
         if abs(data.pixel_center - 0.5) > 1e-9:
             raise ValueError(
                 f"mitsuba-inverse renders with Mitsuba's pixel centres (+0.5), the data has {data.pixel_center}"
             )
-        if self.config.carve and self._keep is None:
-            self.carve(data)
         sigma_t = self._carved(self.sigma_t)
         if step < self.config.emissive_steps:
-            mse, rays = self.emissive_mse(data, sigma_t, rng), self.config.emissive_rays
+            term, mse, rays = *[self.emissive_mse(data, sigma_t, rng)] * 2, self.config.emissive_rays
         else:
-            mse, rays = self.rendered_mse(data, sigma_t, step, rng)
-        loss = mse + self.priors(sigma_t) if (self.config.l1 or self.config.tv_sigma or self.config.tv_albedo) else mse
+            self.params[self._key_sigma] = sigma_t
+            self.params.update()
+            errors = self.rays_error if self.config.batch == "rays" else self.views_error
+            term, mse, rays = errors(data, sigma_t, batch_rays, rng)
+        c = self.config
+        loss = term + self.priors(sigma_t) if (c.l1 or c.tv_sigma or c.tv_albedo) else term
         return StepLoss(loss, dr.detach(mse), rays)
 
     def emissive_mse(self, data, sigma_t, rng):
@@ -407,26 +487,57 @@ class MitsubaInverseModel(ViewModel):
                           background=self._background)
         return mi.Float(dr.mean(dr.square(out.rgb - target), axis=None))
 
-    def rendered_mse(self, data, sigma_t, step: int, rng) -> tuple[Any, int]:
-        """``views_per_step`` random training views through the path tracer at :meth:`spp_at` samples per pixel:
-        their mean squared error and the camera rays traced."""
-        self.params[self._key_sigma] = sigma_t
-        self.params.update()
-        spp = self.spp_at(step)
-        n_views, v = len(data.cameras), self.config.views_per_step
-        u = np.asarray(rng.random(mi.Float, 2 * v), dtype=np.float64)
-        loss: Any = None
+    def _image_term(self, image, target):
+        """``(loss term, mse)`` of an estimate against its target (Float of width 1 each)."""
+        diff = image - target
+        mse = mi.Float(dr.mean(dr.square(diff), axis=None))
+        return (mi.Float(dr.mean(dr.abs(diff), axis=None)) if self.config.loss == "l1" else mse), mse
+
+    def _seeds(self, rng, n: int) -> list[int]:
+        """``2 n`` distinct seeds drawn with the step's ``rng`` (a primal's and its gradient's, ``n`` times)."""
+        u = np.asarray(rng.random(mi.Float, 2 * n), dtype=np.float64)
+        return [int(v * 2**31) * 2 + (k % 2) for k, v in enumerate(u)]
+
+    def rays_error(self, data, sigma_t, batch_rays: int, rng) -> tuple[Any, Any, int]:
+        """``batch_rays`` pixels drawn uniformly over every training view, each at ``spp_primal_factor x spp``
+        paths for the image and ``spp`` others for the gradient (:func:`~mitsnerf.render.path_batch.render_pixels`):
+        ``(loss term, mse, camera rays)``."""
+        c = self.config
+        index = dr.minimum(mi.UInt32(rng.random(mi.Float, batch_rays) * data.size), data.size - 1)
+        seed, seed_grad = self._seeds(rng, 1)
+        batch = PathBatch(self.scene, self.scene.integrator(), index, data.pixels.rays)
+        image = render_pixels(batch, self._attached(sigma_t), spp=c.spp * c.spp_primal_factor, spp_grad=c.spp,
+                              seed=seed, seed_grad=seed_grad)
+        term, mse = self._image_term(image, dr.gather(mi.Array3f, data.rgb, index))
+        return term, mse, batch_rays
+
+    def _attached(self, sigma_t) -> dict[str, Any]:
+        params = {"sigma_t": sigma_t}
+        if self.config.optimize_albedo:
+            params["albedo"] = self.albedo
+        return params
+
+    def views_error(self, data, sigma_t, batch_rays: int, rng) -> tuple[Any, Any, int]:
+        """``views_per_step`` random training views through Mitsuba's film, each at ``spp_primal_factor x spp``
+        samples per pixel for the image and ``spp`` others for the gradient: their mean ``(loss term, mse,
+        camera rays)``."""
+        c = self.config
+        n_views, v = len(data.cameras), min(c.views_per_step, len(data.cameras))
+        u = np.asarray(rng.random(mi.Float, v), dtype=np.float64)
+        seeds = self._seeds(rng, v)
+        term = mse = None
         rays = 0
         for k in range(v):
             i = min(int(u[k] * n_views), n_views - 1)
             if i not in self._sensors:
-                self._sensors[i] = _rgb_sensor(data.cameras[i], self.config.spp)
+                self._sensors[i] = _rgb_sensor(data.cameras[i], c.spp)
                 self._targets[i] = mi.TensorXf(np.ascontiguousarray(data.images[i], dtype=np.float32))
-            img = mi.render(self.scene, self.params, sensor=self._sensors[i], spp=spp, seed=int(u[v + k] * 2**31))
-            err = mi.Float(dr.mean(dr.square(img - self._targets[i]), axis=None).array)
-            loss = err if loss is None else loss + err
+            img = mi.render(self.scene, self.params, sensor=self._sensors[i], spp=c.spp * c.spp_primal_factor,
+                            spp_grad=c.spp, seed=seeds[2 * k], seed_grad=seeds[2 * k + 1])
+            t, m = self._image_term(img.array, self._targets[i].array)
+            term, mse = (t, m) if term is None else (term + t, mse + m)
             rays += data.cameras[i].width * data.cameras[i].height
-        return loss / v, rays
+        return term / v, mse / v, rays
 
     # ------------------------------------------------------------------ rendering
 
@@ -437,11 +548,18 @@ class MitsubaInverseModel(ViewModel):
     def render_view(self, camera, *, pixel_center: float = 0.5, footprint: int = 1) -> Rendered:
         """The path tracer at ``eval_spp`` through Mitsuba's box-filtered film for the colour; opacity and depth
         by quadrature of the extinction with ``max(footprint, 2)`` rays per pixel side."""
+        return self._render(camera, EVAL_SEED, pixel_center, footprint)
+
+    def render_view_independent(self, camera, *, pixel_center: float = 0.5, footprint: int = 1) -> Rendered:
+        """:meth:`render_view` from another seed: the pair measures the renders' own Monte Carlo variance."""
+        return self._render(camera, EVAL_SEED + 1, pixel_center, footprint)
+
+    def _render(self, camera, seed: int, pixel_center: float, footprint: int) -> Rendered:
         if abs(pixel_center - 0.5) > 1e-9:
             raise ValueError(f"mitsuba-inverse renders with Mitsuba's pixel centres (+0.5), asked for {pixel_center}")
         with dr.suspend_grad():
             img = mi.render(self.scene, sensor=_rgb_sensor(camera, self.config.eval_spp),
-                            spp=self.config.eval_spp, seed=EVAL_SEED)
+                            spp=self.config.eval_spp, seed=seed)
             rgb = np.array(img, dtype=np.float32)
             density = GridField.from_arrays(dr.detach(self.sigma_t) / self.side, self.box)
             n = 2 * self.resolution

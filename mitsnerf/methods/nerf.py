@@ -66,7 +66,7 @@ class NeRFMethodConfig(MethodConfig):
     """The coarse network's sizes (it only has to place the fine samples); None: the same as ``network``."""
     n_samples: int = param(32, lo=1, hi=4096)
     """Stratified (coarse) samples per ray N_c."""
-    n_importance: int = param(32, lo=0, hi=4096)
+    n_importance: int = param(32, lo=0, hi=4096, since=("0.1.0+a7bf3fe", 0))
     """Importance samples per ray N_f drawn from the coarse weights; 0: single pass, one network."""
     sampler: Literal["hierarchical", "proposal"] = param("hierarchical", choices=("hierarchical", "proposal"))
     """How the N_f samples are placed: NeRF's coarse network (``hierarchical``) or a density-only
@@ -75,7 +75,7 @@ class NeRFMethodConfig(MethodConfig):
     """The proposal network's trunk (``sampler = "proposal"``; its colour-head sizes are unused)."""
     proposal_loss_weight: float = param(1.0, lo=0.0)
     """Weight of the interlevel loss that trains the proposal network."""
-    use_occupancy: bool = param(True)
+    use_occupancy: bool = param(True, since=("0.1.0+c0fcb9e", False))
     """Skip samples in empty cells of an occupancy grid, and behind an estimated transmittance of
     ``occupancy.early_stop_T`` (the networks are not evaluated there)."""
     occupancy: OccupancyConfig = param(default_factory=OccupancyConfig)

@@ -8,7 +8,7 @@ everything. The colour of a sample is then ``albedo(x) [sum_l p(w_l . d) E_l T_l
 learned, so the density answers for the shadows it casts as well as for what the view rays cross, and the
 remainder (the environment and all light scattered more than once) is smooth and acts through the phase
 function's bands. With the true medium and the remainder at its best this is the oracle's colour at the
-remainder's orders: the ceiling of this rung (benchmarks/README.md).
+remainder's orders: the ceiling of this rung (docs/notes/scatter.md, "Its ceiling by basis").
 
 The medium (``medium``): a hash grid and two small MLPs (``hash``, the ngp field's encoding) or dense grids
 (``grid``, as ``voxel``: the density and albedo coarse to fine, the remainder on its own coarser grid, total
@@ -84,7 +84,7 @@ class ScatterMethodConfig(MethodConfig):
     """Grid medium: weight of the total-variation prior on the remainder grid."""
     n_samples: int = param(128, lo=1)
     """Stratified samples per ray."""
-    carve: bool = param(True)
+    carve: bool = param(True, since=("0.1.0+7e1ef78", False))
     """An emptiness mask from the training views (:mod:`mitsnerf.math.carve`): the density is 0 in every voxel that
     the ray of a pixel showing the background unattenuated crosses (``max over channels |image - background| <=
     carve_tol``), in the view rays and the shadows alike, so no haze grows where the views show none (false: none;
@@ -93,11 +93,12 @@ class ScatterMethodConfig(MethodConfig):
     """Largest ``|image - background|`` (linear radiance) of a pixel that counts as unattenuated."""
     carve_resolution: int = param(64, lo=2, hi=512)
     """Voxels per axis of the emptiness mask."""
-    init_depth: float = param(5.0, lo=0.0)
+    init_depth: float = param(5.0, lo=0.0, since=("0.1.0+28686ef", 0.0))
     """The density's start as an optical depth per box side (scale-free: ``sigma = init_depth / side``): the hash
     medium's density head starts there (its output bias ``log(sigma)``), the grid medium's grid too (for its
     ``grid.sigma_init``); 0: the medium's own start (hash: ``exp(0)``, 1 per world unit; grid: ``grid.sigma_init``).
-    Carved to the views' hull, a thin start stays thin (benchmarks/README.md, "The middle rung")."""
+    Carved to the views' hull, a thin start stays thin (docs/notes/scatter.md, "The emptiness mask and a scale-free
+    start")."""
     use_occupancy: bool = param(True)
     """Skip samples in empty cells of an occupancy grid refreshed from the density."""
     occupancy: OccupancyConfig = param(default_factory=OccupancyConfig)

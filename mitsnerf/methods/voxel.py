@@ -53,7 +53,7 @@ class VoxelMethodConfig(MethodConfig):
     """Steps (0-based, increasing) after which the grids are doubled; one per doubling needed."""
     n_samples: int = param(128, lo=1)
     """Stratified samples per ray."""
-    use_occupancy: bool = param(True)
+    use_occupancy: bool = param(True, since=("0.1.0+1b73495", False))
     """Skip samples in empty cells of an occupancy grid refreshed from the voxel density (as ngp)."""
     occupancy: OccupancyConfig = param(default_factory=OccupancyConfig)
     """The occupancy grid's settings."""
@@ -62,7 +62,8 @@ class VoxelMethodConfig(MethodConfig):
     skipping and compositing as one loop per ray, its gradient replayed and scattered into the grids, nothing of
     size rays x samples stored; the same losses to float round-off (4e-7 over 300 steps), 1.07x the steps per
     second at 64^3 and 1.01x at 32^3 on the default cloud, more where more samples reach the field (1.35x at
-    64^3 with 16% of them) (benchmarks/README.md, "Throughput"). False: the shared renderer's R x N arrays."""
+    64^3 with 16% of them) (docs/notes/throughput.md, "Training at the march's pace: the replayed gradient").
+    False: the shared renderer's R x N arrays."""
     tv_sigma: float = param(1e-3, lo=0.0)
     """Weight of the total-variation prior on the raw density grid."""
     tv_sh: float = param(1e-3, lo=0.0)

@@ -7,22 +7,28 @@ into place (:func:`mitsnerf.data.atomic.atomic_dir`) under a lock (one writer at
 ``oracle.json`` as its index::
 
     oracle.json        settings, key, timings, Monte Carlo error, scores summary, provenance
-    scores.json        {"footprint_1": metrics, "footprint_K": metrics}  (mitsnerf.scoring.views.score_views)
+    scores.json        {"footprint_1": metrics, "footprint_K": metrics}  (mitsnerf.scoring.views.score_views; at K
+                       also the medium PSNR less its own Monte Carlo variance, psnr_test_medium_without_mc)
     lbar_mc.npy        Lbar_mc (R, R, R, 3) and its standard error lbar_mc_se.npy
     lbar_delta.npy     the delta lights' term (R_d, R_d, R_d, 3)
     test_k1.npy        the oracle's test views (V, H, W, 3) at footprint 1, test_kK.npy at K
     var_kK.npy         their Monte Carlo variance at K (:func:`mitsnerf.oracle.field.image_variance`)
 
 An anisotropic medium's oracle (:mod:`mitsnerf.oracle.directional`) keeps ``lbar_sh.npy`` (R, R, R, (L+1)^2, 3),
-its standard error ``lbar_sh_se.npy`` and ``delta_irradiance.npy`` (R_d, R_d, R_d, lights, 3) instead of the
-``lbar_*`` grids, and ``oracle.json``'s ``directional`` holds the medium PSNR at each order scored.
+its standard error ``lbar_sh_se.npy``, its error patterns ``lbar_sh_errors.npy`` (replicas, R, R, R, (L+1)^2, 3:
+what a projection of the coefficients, a rung's ceiling, takes its own variance from) and ``delta_irradiance.npy``
+(R_d, R_d, R_d, lights, 3) instead of the ``lbar_*`` grids, and ``oracle.json``'s ``directional`` holds the medium
+PSNR at each order scored.
 
 The error of the oracle against ``test`` splits into what it cannot help and what it adds::
 
     MSE(oracle, test) = s_ref^2 + Var_mc + bias^2,   s_ref^2 = MSE(test, test_ref) / 2
 
 (``s_ref^2``: the test views' own noise; ``Var_mc``: the oracle's from ``Lbar_mc``; ``bias^2``:
-grid interpolation, quadrature and footprint), each a mean over medium pixels in ``oracle.json``.
+grid interpolation, quadrature and footprint), each a mean over medium pixels in ``oracle.json``. The oracle's
+ceiling is its medium PSNR without ``Var_mc`` (:mod:`mitsnerf.scoring.variance`, per view from ``var_kK.npy``),
+the raw figure beside it; an oracle cached before that figure was kept gets it once, from its cached renders
+(:func:`variance_free`).
 """
 
 from __future__ import annotations
@@ -50,7 +56,7 @@ ORACLE_DIR = "oracle"
 class OracleConfig:
     """How a dataset's oracle is computed (every field is part of its cache key).
 
-    The defaults, measured on the default cloud (64^3 sigma_t, benchmarks/README.md): on a 32^3
+    The defaults, measured on the default cloud (64^3 sigma_t, docs/notes/oracle.md): on a 32^3
     grid the interpolation bias of ``Lbar_mc`` is ~15x below the test views' own noise (16^3: 2x
     above it), and per volpath sample a 32^3 grid with more directions beats a 64^3 one; 128
     directions put the oracle's Monte Carlo variance at about half the test views' noise.
@@ -194,7 +200,8 @@ def _directional(spec, sigma_t: np.ndarray, albedo: np.ndarray, box, config: Ora
             "directional": {"g": grids.g, "order": dc.order, "window": dc.window,
                             "rule": "mitsnerf.oracle.directional: L(x, w) in real spherical harmonics up to order, "
                                     "times g^l and the window per band, clamped at 0; the delta lights exact"}}
-    arrays = {"lbar_sh": grids.sh, "lbar_sh_se": grids.sh_se, "delta_irradiance": grids.irradiance}
+    arrays = {"lbar_sh": grids.sh, "lbar_sh_se": grids.sh_se, "lbar_sh_errors": grids.sh_errors,
+              "delta_irradiance": grids.irradiance}
     return _Estimate(by_order[dc.order], by_order, variance, arrays, info)
 
 
@@ -256,7 +263,8 @@ def compute_oracle(dataset, config: OracleConfig, footprint: int, log: Callable[
     var = est.variance(ref.cameras, int(footprint), ref.pixel_center)
     seconds["variance"] = time.perf_counter() - start - seconds["render"]
     density = true_density(sigma_t, dataset.box)
-    scores = {f"footprint_{k}": score_views(img, ref, density)[0] for k, img in renders.items()}
+    scores = {f"footprint_{k}": score_views(img, ref, density, variance=var if k == int(footprint) else None)[0]
+              for k, img in renders.items()}
     if est.by_order:
         est.info["directional"]["psnr_test_medium_by_order"] = {
             str(o): score_views(render(f, int(footprint)), ref, None)[0].get("psnr_test_medium")
@@ -306,9 +314,9 @@ def ensure_oracle(dataset, config: OracleConfig, footprint: int, log: Callable[[
     ``reference``: its test views' :class:`~mitsnerf.scoring.reference.Reference`, if the caller has it.
 
     One writer at a time (a lock next to the directory); ``oracle.json`` is written last inside
-    a temporary directory renamed into place, so an interrupted run leaves no complete-looking oracle.
+    a temporary directory renamed into place, so an interrupted run leaves no complete-looking oracle. Returned
+    with its medium PSNR less its own Monte Carlo variance (:func:`variance_free`).
     """
-    from mitsnerf.data.atomic import atomic_dir, atomic_write_json, clean_stale_temps
     from mitsnerf.data.cache import dataset_lock
 
     inputs = _grids(dataset)
@@ -317,21 +325,55 @@ def ensure_oracle(dataset, config: OracleConfig, footprint: int, log: Callable[[
     config = resolved(config, inputs[0])
     path = oracle_path(dataset, config, footprint)
     found = load_oracle(path)
-    if found is not None:
-        return found
+    if found is None:
+        with dataset_lock(path, progress=False):
+            found = load_oracle(path) or _computed(dataset, config, footprint, log, reference, path)
+    return variance_free(found, dataset, footprint, reference)
+
+
+def _computed(dataset, config: OracleConfig, footprint: int, log: Callable[[str], None], reference,
+              path: Path) -> Oracle:
+    """The oracle computed and written at ``path`` (under the caller's lock): ``oracle.json`` last."""
+    from mitsnerf.data.atomic import atomic_dir, atomic_write_json, clean_stale_temps
+
+    clean_stale_temps(path.parent, min_age_s=0.0)
+    computed = compute_oracle(dataset, config, footprint, log, reference)
+    if computed is None:  # checked by the caller: the dataset has its grids
+        raise AssertionError(f"{dataset.root}: grids found, yet no oracle computed")
+    info, scores, arrays = computed
+    info["key"] = oracle_key(str(dataset.manifest.get("hash")), config, footprint)
+    with atomic_dir(path, overwrite=True) as tmp:
+        for name, array in arrays.items():
+            np.save(tmp / f"{name}.npy", np.ascontiguousarray(array))
+        atomic_write_json(tmp / "scores.json", scores)
+        atomic_write_json(tmp / "oracle.json", info)
+    found = load_oracle(path)
+    if found is None:
+        raise AssertionError(f"{path}: written, yet not read back")
+    return found
+
+
+def variance_free(oracle: Oracle, dataset, footprint: int, reference: Reference | None = None) -> Oracle:
+    """``oracle`` with its medium PSNR at ``footprint`` less its own Monte Carlo variance
+    (:func:`mitsnerf.scoring.variance.without_variance` of its cached ``test_kK.npy`` and ``var_kK.npy`` against
+    ``reference``, the test views', loaded if None): an oracle cached before that figure was kept gets it once,
+    written into its ``scores.json`` (under its lock); as it was where it has it or no variance was cached."""
+    import json
+
+    from mitsnerf.data.atomic import atomic_write_json
+    from mitsnerf.data.cache import dataset_lock
+    from mitsnerf.scoring.reference import load_reference
+    from mitsnerf.scoring.variance import WITHOUT_MC, without_variance
+
+    key, path = f"footprint_{int(footprint)}", oracle.path
+    if path is None or "psnr_test_medium" + WITHOUT_MC in oracle.scores.get(key, {}) \
+            or not (path / f"var_k{footprint}.npy").is_file() or not (path / f"test_k{footprint}.npy").is_file():
+        return oracle
+    ref = reference or load_reference(dataset, "test")
+    found = without_variance(np.load(path / f"test_k{footprint}.npy"), ref.images, ref.masks,
+                             np.load(path / f"var_k{footprint}.npy"))
     with dataset_lock(path, progress=False):
-        found = load_oracle(path)
-        if found is not None:
-            return found
-        clean_stale_temps(path.parent, min_age_s=0.0)
-        computed = compute_oracle(dataset, config, footprint, log, reference)
-        if computed is None:  # checked above: the dataset has its grids
-            raise AssertionError(f"{dataset.root}: grids found, yet no oracle computed")
-        info, scores, arrays = computed
-        info["key"] = oracle_key(str(dataset.manifest.get("hash")), config, footprint)
-        with atomic_dir(path, overwrite=True) as tmp:
-            for name, array in arrays.items():
-                np.save(tmp / f"{name}.npy", np.ascontiguousarray(array))
-            atomic_write_json(tmp / "scores.json", scores)
-            atomic_write_json(tmp / "oracle.json", info)
-    return load_oracle(path)
+        scores = json.loads((path / "scores.json").read_text(encoding="utf-8"))
+        scores[key] = {**scores.get(key, {}), **found}
+        atomic_write_json(path / "scores.json", scores)
+    return load_oracle(path) or oracle

@@ -35,10 +35,10 @@ class DirectionalConfig:
     """The directional oracle's settings (anisotropic media only); the grid resolution and seed are the oracle's
     own (:class:`mitsnerf.oracle.cache.OracleConfig`), and so are the volpath directions if ``spp`` is 0.
 
-    The defaults, measured on cloud_hg85 at library size (benchmarks/README.md, "Anisotropic media: the
-    directional oracle per order"): at 1024 directions per point the order has converged by 8 (8 -> 9: +0.05
-    dB), and the ceiling is limited by the Monte Carlo noise of the coefficients, 47% of its error; it halves
-    per doubling, so 2048 puts it at about 0.3, at 16x the isotropic oracle's volpath time.
+    The defaults, measured on cloud_hg85 at library size (docs/notes/oracle.md, "At library size: cloud_hg85 as
+    the physics table scores it, and the settings chosen"): at 1024 directions per point the order has converged
+    by 8 (8 -> 9: +0.05 dB), and the ceiling is limited by the Monte Carlo noise of the coefficients, 47% of its
+    error; it halves per doubling, so 2048 puts it at about 0.3, at 16x the isotropic oracle's volpath time.
     """
 
     spp: int = param(2048, lo=0, doc="volpath directions per grid point (0: the oracle's spp); the high orders' "
@@ -119,15 +119,24 @@ def oracle_field(grids: DirectionalGrids, sigma_t: np.ndarray, albedo, box: Box,
 
 def image_variance(grids: DirectionalGrids, sigma_t: np.ndarray, albedo, cameras, box: Box, n_samples: int,
                    config: DirectionalConfig, *, pixel_center: float = 0.5, footprint: int = 1) -> np.ndarray:
-    """The oracle image's Monte Carlo variance (V, H, W, 3): the mean square of its unclamped renders from the
-    error patterns (the image is linear in the coefficients; the patterns carry their covariance, as
-    :func:`mitsnerf.oracle.field.image_variance`'s random signs carry the isotropic oracle's voxel variances)."""
+    """The oracle image's Monte Carlo variance (V, H, W, 3): :func:`pattern_variance` of its error patterns."""
+    return pattern_variance(grids.sh_errors, sigma_t, albedo, grids.g, cameras, box, n_samples, config.order,
+                            config.window, pixel_center=pixel_center, footprint=footprint)
+
+
+def pattern_variance(patterns: np.ndarray, sigma_t: np.ndarray, albedo, g: float, cameras, box: Box, n_samples: int,
+                     order: int, window: str, *, pixel_center: float = 0.5, footprint: int = 1) -> np.ndarray:
+    """The Monte Carlo variance (V, H, W, 3) of an image of the coefficients whose error ``patterns`` (replicas, R, R,
+    R, K, 3) are: the mean square of the unclamped renders of the patterns, without the lights. The image is linear
+    in the coefficients, and the patterns carry their covariance, as :func:`mitsnerf.oracle.field.image_variance`'s
+    random signs carry the isotropic oracle's voxel variances: ``E[C_e^2] = Var(C)``."""
     from mitsnerf.oracle.field import DirectionalOracleField, render_field
 
+    no_lights = np.zeros((1, 1, 1, 0, 3), np.float32)
     total = np.zeros((len(cameras), cameras[0].height, cameras[0].width, 3))
-    for pattern in grids.sh_errors:
-        f = DirectionalOracleField.from_grids(sigma_t, albedo, pattern, grids.g, (), grids.irradiance[..., :0, :], box,
-                                              order=config.order, window=config.window, clamp=False)
+    for pattern in patterns:
+        f = DirectionalOracleField.from_grids(sigma_t, albedo, pattern, g, (), no_lights, box, order=order,
+                                              window=window, clamp=False)
         image = render_field(f, cameras, box, n_samples, pixel_center=pixel_center, footprint=footprint)
         total += np.square(image.astype(np.float64))
-    return total / len(grids.sh_errors)
+    return total / len(patterns)

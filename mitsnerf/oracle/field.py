@@ -169,7 +169,7 @@ def render_field(field, cameras: Sequence[Any], box: Box, n_samples: int, *, bac
     """Linear RGB ``(V, H, W, 3)`` float32 of ``field`` seen by ``cameras`` (midpoints, ``footprint^2`` rays a pixel).
 
     The march (:func:`mitsnerf.render.march.march_rays`) equals ``render_rays`` at the midpoints and
-    stores nothing per sample: 3.5x faster at the oracle's N = 128 (benchmarks/README.md, "Throughput")."""
+    stores nothing per sample: 3.5x faster at the oracle's N = 128 (docs/notes/throughput.md, "Throughput")."""
     def renderer(o, d):
         return march_rays(field, o, d, n_samples, box=box, background=background)
 

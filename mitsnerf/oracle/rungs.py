@@ -102,19 +102,72 @@ def single_scattering_field(oracle_dir: Path, dataset, degree: int, zonal: int):
 
 
 def _key(degree: int, zonal: int, footprint: int) -> str:
-    return f"single scattering, L_f {degree}, L_z {zonal}, footprint {footprint}"
+    return f"single scattering, L_f {degree}, L_z {zonal}, footprint {footprint}, with its Monte Carlo variance"
 
 
-def single_scattering_ceiling(oracle, dataset, degree: int, zonal: int, footprint: int, reference) -> float | None:
-    """Medium PSNR of the single-scattering rung's ceiling (:func:`score_on_basis`); the oracle's own for an
-    isotropic medium (only order 0 scatters). Computed once and kept in the oracle's directory (``rungs.json``)."""
+CEILING_KEYS = ("psnr_test_medium", "psnr_test_medium_without_mc", "mc_var_test_medium", "mc_note")
+"""What a ceiling's figures hold (:func:`rung_ceiling`): its medium PSNR raw and less its own Monte Carlo variance
+(:mod:`mitsnerf.scoring.variance`), that variance, and why the second is missing where it is."""
+
+
+def rung_ceiling(rung: str | None, basis: tuple[int, int] | None, oracle, dataset, footprint: int, reference,
+                 metrics: Mapping[str, Any]) -> dict[str, Any]:
+    """The ceiling of a row on ``rung`` (module docstring): :data:`CEILING_KEYS` and ``note`` (what it is and what
+    its variance-free figure rests on); ``metrics``: the row's own (its oracle's figures, the references'
+    agreement). Empty where the rung has none here (no oracle; no references' agreement)."""
+    if rung == "emission-absorption" and metrics.get("oracle_psnr_test_medium") is not None:
+        found = {k: metrics.get(f"oracle_{k}") for k in CEILING_KEYS[:2]}
+        found["mc_note"] = None if oracle is None else oracle.metrics(footprint).get("mc_note")
+        return {**found, "note": "the oracle" + _variance_words(found, "its error patterns")}
+    if rung == "single scattering" and oracle is not None and basis is not None:
+        found = single_scattering_ceiling(oracle, dataset, *basis, footprint, reference)
+        return {**found, "note": f"the oracle on the basis L_f {basis[0]}, L_z {basis[1]}"
+                                 + _variance_words(found, found.get("variance_of") or "")}
+    floor = metrics.get("noise_floor_psnr_medium")
+    if rung == "full transport" and floor is not None:
+        return {"psnr_test_medium": floor + PERFECT_DB, "psnr_test_medium_without_mc": floor + PERFECT_DB,
+                "mc_var_test_medium": 0.0, "note": "a noise-free model's: the references' agreement + 3.01 dB, "
+                                                   "no Monte Carlo of its own"}
+    return {}
+
+
+def ceiling_figures(rung: str | None, basis: tuple[int, int] | None, oracle, dataset, footprint: int, reference,
+                    metrics: Mapping[str, Any]) -> dict[str, Any]:
+    """What a row's table says of its ``rung``'s ceiling (:func:`rung_ceiling`; ``basis``: a single-scattering
+    method's ``(L_f, L_z)``), as a bench cell and ``mitsnerf score RUN`` both record it: the ceiling's medium PSNR raw
+    (``ceiling_psnr_test_medium``) and less its own Monte Carlo variance (``..._without_mc``), what it is
+    (``ceiling_note``), and the gap between the two figures compared (``gap_to_ceiling``, each less its own Monte
+    Carlo variance where that was measured: :func:`mitsnerf.scoring.variance.headline`); None where there is no
+    ceiling. ``metrics``: the row's scores (``psnr_test_medium``, the oracle's, ``noise_floor_psnr_medium``)."""
+    from mitsnerf.scoring.variance import headline
+
+    ceiling = rung_ceiling(rung, basis, oracle, dataset, footprint, reference, metrics)
+    top, medium = headline(ceiling), headline(dict(metrics))
+    return {"ceiling_psnr_test_medium": ceiling.get("psnr_test_medium"),
+            "ceiling_psnr_test_medium_without_mc": ceiling.get("psnr_test_medium_without_mc"),
+            "ceiling_note": ceiling.get("note"),
+            "gap_to_ceiling": None if top is None or medium is None else top - medium}
+
+
+def _variance_words(found: dict, source: str) -> str:
+    """How a ceiling's figure without its Monte Carlo variance was had, or why it is missing."""
+    if found.get("psnr_test_medium_without_mc") is not None:
+        return f", less its own Monte Carlo variance ({source})"
+    return f", raw: {found.get('mc_note') or 'no estimate of its own Monte Carlo variance was kept'}"
+
+
+def single_scattering_ceiling(oracle, dataset, degree: int, zonal: int, footprint: int, reference) -> dict[str, Any]:
+    """The single-scattering rung's ceiling (:func:`score_on_basis`: :data:`CEILING_KEYS` and ``variance_of``); the
+    oracle's own for an isotropic medium (only order 0 scatters). Computed once and kept in the oracle's directory
+    (``rungs.json``)."""
     import json
 
     from mitsnerf.data.atomic import atomic_write_json
     from mitsnerf.data.cache import dataset_lock
 
     if "directional" not in oracle.info:
-        return oracle.metrics(footprint).get("psnr_test_medium")
+        return {**{k: oracle.metrics(footprint).get(k) for k in CEILING_KEYS},
+                "variance_of": "the oracle's: isotropic, only order 0 scatters"}
     path = Path(oracle.path) / "rungs.json"
     key = _key(degree, zonal, footprint)
     with dataset_lock(path, progress=False):  # one writer at a time (a pool's workers share the oracle)
@@ -125,10 +178,10 @@ def single_scattering_ceiling(oracle, dataset, degree: int, zonal: int, footprin
     return found[key]
 
 
-def score_on_basis(oracle_dir, dataset, degree: int, zonal: int, footprint: int, reference) -> float | None:
-    """Medium PSNR of :func:`single_scattering_field` (the directional oracle in ``oracle_dir`` with its remainder
-    on the basis ``degree``/``zonal``) rendered at ``footprint`` and scored against ``reference`` (the test
-    views'); not cached."""
+def score_on_basis(oracle_dir, dataset, degree: int, zonal: int, footprint: int, reference) -> dict[str, Any]:
+    """:data:`CEILING_KEYS` of :func:`single_scattering_field` (the directional oracle in ``oracle_dir`` with its
+    remainder on the basis ``degree``/``zonal``) rendered at ``footprint`` and scored against ``reference`` (the test
+    views'), its variance from :func:`basis_variance`, and ``variance_of`` (what that rests on); not cached."""
     from mitsnerf.oracle.field import render_field
     from mitsnerf.render.background import make_background
     from mitsnerf.scoring.views import score_views
@@ -137,24 +190,39 @@ def score_on_basis(oracle_dir, dataset, degree: int, zonal: int, footprint: int,
     image = render_field(field, reference.cameras, dataset.box, int(info["config"]["n_samples"]),
                          background=make_background(dataset.background, dataset.root), footprint=footprint,
                          pixel_center=reference.pixel_center)
-    return score_views(image, reference, None)[0].get("psnr_test_medium")
+    variance, variance_of = basis_variance(oracle_dir, dataset, degree, zonal, footprint, reference)
+    scores = score_views(image, reference, None, variance=variance)[0]
+    return {**{k: scores.get(k) for k in CEILING_KEYS}, "variance_of": variance_of}
 
 
-def ceiling_figures(rung: str | None, basis: tuple[int, int] | None, oracle, dataset, footprint: int, reference,
-                    metrics: Mapping[str, Any]) -> dict[str, Any]:
-    """The ceiling of a row's ``rung`` on medium pixels and the gap to it, ``{"ceiling_psnr_test_medium": C,
-    "gap_to_ceiling": C - metrics["psnr_test_medium"]}`` (None where there is no ceiling): the oracle's medium PSNR
-    in ``metrics`` (emission-absorption); the oracle with its remainder on the method's basis ``(L_f, L_z)``
-    (single scattering, :func:`single_scattering_ceiling`); the references' agreement + :data:`PERFECT_DB`
-    (full transport). ``metrics``: the row's scores (``psnr_test_medium``, ``oracle_psnr_test_medium``,
-    ``noise_floor_psnr_medium``)."""
-    ceiling = None
-    if rung == "emission-absorption":
-        ceiling = metrics.get("oracle_psnr_test_medium")
-    elif rung == "single scattering" and oracle is not None and basis is not None:
-        ceiling = single_scattering_ceiling(oracle, dataset, basis[0], basis[1], footprint, reference)
-    elif rung == "full transport" and metrics.get("noise_floor_psnr_medium") is not None:
-        ceiling = metrics["noise_floor_psnr_medium"] + PERFECT_DB
-    medium = metrics.get("psnr_test_medium")
-    gap = None if ceiling is None or medium is None else ceiling - medium
-    return {"ceiling_psnr_test_medium": ceiling, "gap_to_ceiling": gap}
+def basis_variance(oracle_dir, dataset, degree: int, zonal: int, footprint: int,
+                   reference) -> tuple[np.ndarray | None, str]:
+    """``(Var (V, H, W, 3) of the basis ceiling's render, what it rests on)``: the oracle's error patterns
+    (``lbar_sh_errors.npy``) projected on the basis (:func:`project_remainder`, linear) and rendered
+    (:func:`mitsnerf.oracle.directional.pattern_variance`); an oracle cached without them gives its own image's
+    variance (``var_kK.npy``), which assumes the projection keeps all of it (and says so); None without either."""
+    import json
+
+    from mitsnerf.oracle.cache import _grids
+    from mitsnerf.oracle.directional import pattern_variance
+    from mitsnerf.scene.lights import delta_lights
+
+    oracle_dir = Path(oracle_dir)
+    if not (oracle_dir / "lbar_sh_errors.npy").is_file():
+        full = oracle_dir / f"var_k{footprint}.npy"
+        if not full.is_file():
+            return None, "no variance of it kept"
+        return np.load(full), "the full oracle's, assumed kept by the projection: its error patterns were not kept"
+    grids = _grids(dataset)
+    if grids is None:
+        raise ValueError(f"{dataset.root}: no spec or true grids, so no oracle")
+    spec, sigma_t, albedo = grids
+    info = json.loads((oracle_dir / "oracle.json").read_text())
+    patterns = np.load(oracle_dir / "lbar_sh_errors.npy")
+    axes = light_axes(delta_lights(spec.lights), dataset.box, patterns.shape[1])
+    projected = np.stack([project_remainder(p, axes, degree, zonal) for p in patterns]).astype(np.float32)
+    window = (info["config"].get("directional") or {}).get("window", "lanczos")
+    var = pattern_variance(projected, sigma_t, albedo, spec.volume.phase.g, reference.cameras, dataset.box,
+                           int(info["config"]["n_samples"]), math.isqrt(projected.shape[-2]) - 1, window,
+                           pixel_center=reference.pixel_center, footprint=footprint)
+    return var, "the oracle's error patterns projected on the basis"

@@ -50,7 +50,7 @@ def range_max(a: np.ndarray, axis: int, cells: int) -> np.ndarray:
 #: is its maximum) they are ~1e-5, the transmittance of a shadow ray is ~0 unless it meets no tentative point,
 #: and its derivative ``-sum_i (1 / sigma_bar_i) prod_{j != i} (1 - r_j)`` is carried by the rare rays with a
 #: single point: unbiased, but one camera seed in 16 held the gradient's whole variance on the default cloud
-#: (benchmarks/README.md, "mitsuba-inverse: differential ratio tracking and its starts"). The cost: 10% more
+#: (docs/notes/mitsuba-inverse.md, "The estimators' gradient variance and time per step"). The cost: 10% more
 #: tentative collisions where the majorant is tight.
 MAJORANT_MARGIN = 1.1
 

@@ -116,7 +116,7 @@ class RunRenders:
 def read_run(folder: Path) -> RunRenders | None:
     """The run in ``folder`` (None when it is not one, :func:`is_run`); a malformed ``config.json`` or
     ``metrics.json`` is a DatasetError (a SpecError for a bad ``eval`` field) naming the file."""
-    from mitsnerf.config import from_dict
+    from mitsnerf.config import from_saved
     from mitsnerf.data.transforms import read_json
     from mitsnerf.train.evaluate import EvalConfig
 
@@ -130,7 +130,7 @@ def read_run(folder: Path) -> RunRenders | None:
     if not is_run(folder):
         return None
     config = json_object(folder / "config.json")
-    eval_config = from_dict(EvalConfig, dict(config.get("eval") or {}), source=folder / "config.json", prefix="eval.")
+    eval_config = from_saved(EvalConfig, dict(config.get("eval") or {}), source=folder / "config.json", prefix="eval.")
     return RunRenders(folder, config, json_object(folder / "metrics.json"), eval_config.footprint)
 
 
@@ -469,6 +469,10 @@ def score_renders(dataset: Dataset, folder: Path, *, density: Path | None = None
     else:
         oracle_source = f"oracle {oracle.path} at footprint {k}"
     ref, floor_of = _floor_of_format(dataset, reference, paths)
+    if oracle is not None:  # its medium PSNR less its own Monte Carlo variance, once, if cached before it was kept
+        from mitsnerf.oracle.cache import variance_free
+
+        oracle = variance_free(oracle, dataset, k, ref)
     fn = None if grid is None else true_density(grid, dataset.box)
     metrics, slices = score_views(images, ref, fn, oracle=None if oracle is None else oracle.metrics(k))
     metrics["noise_floor_of"], metrics["footprint"] = floor_of, k

@@ -15,15 +15,16 @@ from __future__ import annotations
 import json
 import os
 import shutil
+import time
 from collections.abc import Callable, Mapping
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
 from mitsnerf import env
-from mitsnerf.config import from_dict, to_dict
+from mitsnerf.config import from_dict, from_saved, to_dict
 from mitsnerf.data.arrays import read_npz
 from mitsnerf.data.atomic import atomic_dir, atomic_write_json
 from mitsnerf.data.dataset import Dataset, Views, load_dataset
@@ -41,7 +42,7 @@ from mitsnerf.runs.directory import RUN_FILES, remove_run_files
 from mitsnerf.scoring.images import image_scores
 from mitsnerf.scoring.reference import Reference, load_reference
 from mitsnerf.scoring.views import score_views
-from mitsnerf.train import PixelData, TrainConfig, TrainResult, TrainState, make_optimizer, train
+from mitsnerf.train import PixelData, TrainConfig, TrainResult, TrainState, make_optimizer, memory, train
 from mitsnerf.train.checkpoint import CHECKPOINT_FILE, Checkpointer, load_checkpoint, restore_optimizer
 from mitsnerf.train.checkpointing import interrupted_message
 from mitsnerf.train.evaluate import EvalConfig, render_views, stack_rgb
@@ -65,12 +66,16 @@ class RunResult:
     model: Model
     model_bytes: int = 0
     """The size of the saved model, ``params.npz`` (:func:`parameter_file`), in bytes."""
+    peaks: dict = field(default_factory=dict)
+    """The run's own peak memory (:func:`mitsnerf.train.memory.peaks`: ``peak_memory_mb``, ``peak_rss_mb``,
+    ``peak_rss_reset``), from its start to the end of its evaluation."""
 
     def metrics(self) -> dict:
-        """Everything ``metrics.json`` records: scores, budget, timings."""
+        """Everything ``metrics.json`` records: scores, budget, timings, the run's peak memory and its model's
+        size (as a benchmark cell's)."""
         return {
             "method": self.method,
-            "given": ", ".join(("images",) + tuple(self.model.knows)),
+            "given": ", ".join(("images",) + tuple(self.model.given())),
             "rung": self.model.rung,
             **({"rung_basis": list(self.model.rung_basis())} if self.model.rung == "single scattering" else {}),
             "footprint": self.config["eval"]["footprint"],
@@ -82,19 +87,22 @@ class RunResult:
             "samples_per_s": self.train.samples_per_s,
             "num_parameters": self.num_parameters,
             "model_bytes": self.model_bytes,
+            **self.peaks,
             "eval_seconds": self.eval_seconds,
             **self.scores,
         }
 
     def summary(self, out: object = None) -> str:
-        """The line ``mitsnerf train`` prints: test PSNR (medium pixels), footprint, train PSNR, steps, rays/s."""
+        """The line ``mitsnerf train`` prints: test PSNR (medium pixels), footprint, train PSNR, steps, rays/s, peak
+        memory and the model's size."""
         m = self.metrics()
         medium = "" if m.get("psnr_test_medium") is None else f" ({m['psnr_test_medium']:.2f} dB on medium pixels)"
         rate = "no steps run" if m["rays_per_s"] is None else f"{m['rays_per_s']:.0f} rays/s"
+        peak = f", peak {m['peak_memory_mb']:.0f} MiB" if m.get("peak_memory_mb") is not None else ""
         k = m["footprint"]
         return (f"{self.method}: test PSNR {m['psnr_test']:.2f} dB{medium}, footprint {k}x{k}, "
                 f"train PSNR {m['psnr_train']:.2f} dB, {m['steps']} steps in {m['train_seconds']:.1f} s, "
-                f"{rate}" + ("" if out is None else f" -> {out}"))
+                f"{rate}{peak}, model {m['model_bytes'] / 1e6:.3f} MB" + ("" if out is None else f" -> {out}"))
 
 
 def scene_info(dataset: Dataset, train_views: Views) -> SceneInfo:
@@ -140,10 +148,12 @@ RESUMABLE_CHANGES = ("steps", "seconds", "log_every", "checkpoint_every", "diver
 
 
 def _check_resumable(saved: Mapping[str, Any], current: Mapping[str, Any], where: Path) -> None:
-    saved, current = (json.loads(json.dumps(c)) for c in (saved, current))  # tuples vs JSON lists
     if saved.get("method") != current["method"]:
         raise DatasetError(where, "method", f"the checkpoint is of {saved.get('method')!r}, not {current['method']!r}")
-    old = saved.get("method_config") or {}
+    saved = {**saved, "method_config": to_dict(method_config(current["method"], saved.get("method_config"), where)),
+             "train": to_dict(from_saved(TrainConfig, saved.get("train"), source=where, prefix="train."))}
+    saved, current = (json.loads(json.dumps(c)) for c in (saved, current))  # tuples vs JSON lists
+    old = saved["method_config"]
     if old != current["method_config"]:
         diff = sorted(
             k for k in set(old) | set(current["method_config"]) if old.get(k) != current["method_config"].get(k)
@@ -194,10 +204,13 @@ def run_method(config: Mapping[str, Any], where: Path) -> str:
 
 
 def method_config(method: str, overrides: Mapping[str, Any] | None, source: Path | None = None):
-    """The method's config with ``overrides``; a bad one is a SpecError at ``source`` (a run's file),
-    ``method_config.FIELD`` there."""
-    return from_dict(get_method(method).config_type, overrides or {}, source=source,
-                     prefix="method_config." if source else "")
+    """The method's config with ``overrides``; a bad one is a SpecError at ``source``, ``method_config.FIELD``
+    there. With ``source`` (the run's file that saved them), the overrides are a run's settings, read as saved
+    (:func:`mitsnerf.config.from_saved`: a setting added since takes the value the run trained with, not today's
+    default)."""
+    if source is None:
+        return from_dict(get_method(method).config_type, overrides or {})
+    return from_saved(get_method(method).config_type, overrides or {}, source=source, prefix="method_config.")
 
 
 def build_model(method: str, overrides: Mapping[str, Any] | None, info: SceneInfo, seed: int,
@@ -275,6 +288,7 @@ def fit(
     refuse_nondeterministic(deterministic)  # before _start empties or reads the run directory
     train_views = dataset.views("train")
     ref = reference or load_reference(dataset, "test")
+    rss_reset = memory.start()  # the run's own peaks from here: its scene is loaded, what ran before is freed
     model, config = build_model(method, method_overrides, scene_info(dataset, train_views), train_config.seed)
     run_config = {"method": method, "method_config": to_dict(config), "train": to_dict(train_config),
                   "eval": to_dict(eval_config), "deterministic": bool(deterministic), **dataset_config(dataset)}
@@ -297,6 +311,7 @@ def fit(
                            f"{len(ref.cameras)} test views to score them ...")
     try:
         run = evaluate_run(model, method, run_config, result, dataset, ref, eval_config, oracle)
+        run.peaks = memory.peaks(rss_reset)
         if out_dir is not None:
             write_run(run, dataset, out_dir, dataset.views("test").names)
     except KeyboardInterrupt as exc:  # trained and checkpointed: a resume only evaluates
@@ -313,14 +328,42 @@ def fit(
 def score_model(model: Model, ref: Reference, eval_config: EvalConfig,
                 oracle: dict | None = None) -> tuple[dict, list[Rendered], dict, float]:
     """Render ``ref``'s views with the footprint of ``eval_config`` and score them (the density too, where the
-    model has a queryable one): ``(scores, renders, density slices, render seconds)``."""
+    model has a queryable one): ``(scores, renders, density slices, render seconds)``. A Monte Carlo model's renders
+    are also scored without their own variance where it renders them a second time independently
+    (:func:`monte_carlo_variance`)."""
     renders, seconds = render_views(model, ref.cameras, pixel_center=ref.pixel_center, footprint=eval_config.footprint)
+    images = stack_rgb(renders)
+    variance, note, again = monte_carlo_variance(model, ref, eval_config.footprint, images)
     field = model.field() if isinstance(model, HasField) else None
     density = field.density if isinstance(field, DensityField) else None
-    scores, slices = score_views(stack_rgb(renders), ref, density, oracle=oracle,
+    scores, slices = score_views(images, ref, density, oracle=oracle,
                                  density_resolution=eval_config.density_resolution,
-                                 od_samples=eval_config.od_samples)
-    return scores, renders, slices, seconds
+                                 od_samples=eval_config.od_samples, variance=variance)
+    if note is not None:
+        scores["mc_note"] = note
+    return scores, renders, slices, seconds + again
+
+
+def monte_carlo_variance(model: Model, ref: Reference, footprint: int,
+                         first: np.ndarray) -> tuple[np.ndarray | None, str | None, float]:
+    """``(Var per pixel (V, H, W, 3) or None, a note or None, seconds)`` of a model's test renders ``first``: from its
+    independent second renders (:meth:`~mitsnerf.methods.base.Model.render_view_independent`,
+    :func:`mitsnerf.scoring.variance.pair_variance`); None for a model whose renders are not Monte Carlo, and for
+    one without a second render, with the note that its scores keep their own variance."""
+    from mitsnerf.scoring.variance import pair_variance
+
+    if not model.monte_carlo_renders:
+        return None, None, 0.0
+    start = time.perf_counter()
+    again = [model.render_view_independent(cam, pixel_center=ref.pixel_center, footprint=footprint)
+             for cam in ref.cameras[:1]]
+    if again[0] is None:
+        return None, ("raw: its renders are Monte Carlo and it makes no independent second render, so its scores "
+                      "keep their own Monte Carlo variance"), 0.0
+    again += [model.render_view_independent(cam, pixel_center=ref.pixel_center, footprint=footprint)
+              for cam in ref.cameras[1:]]
+    second = np.stack([r.rgb for r in again if r is not None]).astype(np.float32)
+    return pair_variance(first, second), None, time.perf_counter() - start
 
 
 def evaluate_run(model: Model, method: str, run_config: dict, result: TrainResult, dataset: Dataset,
@@ -425,18 +468,19 @@ def resume_run(run_dir: Path, train_overrides: Mapping[str, Any] | None = None, 
     refuse_nondeterministic(bool(ckpt.config.get("deterministic")), str(path),
                             f"the run was trained with {words(deterministic=True)}, which this backend cannot "
                             "continue (resume it with MITSNERF_VARIANT=llvm_ad_rgb): ")
-    train_config = from_dict(TrainConfig, {**(ckpt.config.get("train") or {}), **dict(train_overrides or {})})
+    trained = to_dict(from_saved(TrainConfig, ckpt.config.get("train") or {}, source=path, prefix="train."))
+    train_config = from_dict(TrainConfig, {**trained, **dict(train_overrides or {})})
     if ckpt.step >= train_config.steps and (run_dir / "metrics.json").is_file():
         raise OutputError(run_dir, None, f"the run finished at step {ckpt.step} (metrics.json); nothing to resume: "
                                          f"pass {words(steps=Placeholder('N'))} (N > {ckpt.step}) to train it on")
-    eval_config = from_dict(EvalConfig, ckpt.config.get("eval") or {})
+    eval_config = from_saved(EvalConfig, ckpt.config.get("eval") or {}, source=path, prefix="eval.")
     method = run_method(ckpt.config, path)
-    method_config(method, ckpt.config.get("method_config"), path)  # its settings checked before the data loads
+    settings = to_dict(method_config(method, ckpt.config.get("method_config"), path))  # before the data loads
     if dataset is None:
         dataset = open_dataset(ckpt.config, path)
         verify_dataset(dataset, hashes=verify_hashes, words=words)
     check_same_dataset(ckpt.config, dataset, run_dir, words=words)
-    return fit(dataset, method, ckpt.config.get("method_config"), train_config, run_dir,
+    return fit(dataset, method, settings, train_config, run_dir,
                eval_config=eval_config, progress=progress, resume=True,
                deterministic=bool(ckpt.config.get("deterministic")), words=words)
 

@@ -32,7 +32,7 @@ alone) the image is *noisier* than a direct render wherever the medium is bright
 background: per sample ``Var(direct) - Var(M + T B) = p (1 - p) B (B - 2 mu)``, ``mu`` the mean radiance
 of a collided sample. Coefficient ``mu`` is the optimum; ``B`` beats 0 on every library scene with an
 environment, by 0.17-4.41 dB of medium noise floor, and is within 0.1 dB of the optimum on four of the
-seven, 0.84 dB on lattice (benchmarks/README.md, "One volpath pass per split"). Under a constant
+seven, 0.84 dB on lattice (docs/notes/ground-truth.md, "One volpath pass per split"). Under a constant
 environment the image is then ``M + (1 - alpha) B``, which is the direct render with the same seed,
 sample for sample (the paths are the same); under a sky the escaped samples' ``L_env(d_k)`` is replaced
 by the pixel's mean and the exact covariance term ``mean(T L) - mean(T) B`` restores the expectation.
@@ -56,7 +56,7 @@ others by ratios of extinctions; its alpha agrees with no channel's ``1 - T`` no
 times a direct render's variance in R, G and B, against 1.0, 1.3 and 0.21 for the per-channel renders, at 1.5
 and 2.7 times the direct render's seconds (variance x seconds: 3.6 / 7.6 / 2.7 against 2.7 / 3.6 / 0.57; a
 direct render, 1, would need a second pass for ``medium/``: 2.5; ``benchmarks/chromatic_noise.py``,
-benchmarks/README.md "The smoke's noise: one grey render per channel").
+docs/notes/chromatic.md, "The smoke's noise: one grey render per channel").
 """
 
 from __future__ import annotations

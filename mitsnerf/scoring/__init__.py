@@ -10,6 +10,9 @@ the oracle and ``mitsnerf score`` all score through this package; each module an
   (:func:`~mitsnerf.scoring.views.score_views`), what a run and a benchmark cell record;
 - :mod:`~mitsnerf.scoring.images`: how close are renders to their references? PSNR/SSIM linear and sRGB,
   on the medium pixels, the noise floor, the error budget against the oracle;
+- :mod:`~mitsnerf.scoring.variance`: what would a Monte Carlo render score without its own variance? (the
+  variance from two independent renders, or the estimate's own error patterns, taken off its MSE): every
+  ceiling and every Monte Carlo row is compared on that figure, with the raw one beside it;
 - :mod:`~mitsnerf.scoring.medium`: which pixels see the medium (the medium masks), and how much of its
   optical depth a fixed near/far keeps;
 - :mod:`~mitsnerf.scoring.density`: how close is a learned density to the true one? On the voxel centres

@@ -24,7 +24,7 @@ class TrainConfig:
     """Optional wall-clock cap in seconds (0: none); training then stops at the first limit reached."""
     batch_rays: int = param(2048, lo=1, hi=1 << 22)
     """Rays per step (per-ray models)."""
-    pixel_jitter: bool = param(True)
+    pixel_jitter: bool = param(True, since=("0.1.0+d886bdb", False))
     """Cast each training ray through a uniformly random point of its pixel (instant-ngp's rule),
     matching a box-filtered film; false: every ray through the pixel's sample point."""
     lr_final_factor: float = param(0.1, lo=0.0, hi=1.0, lo_open=True)

@@ -10,7 +10,7 @@ from __future__ import annotations
 import drjit as dr
 import mitsuba as mi
 
-from mitsnerf.methods.base import Model, RendersRays, Rows, StepLoss, TrainsOnViews
+from mitsnerf.methods.base import FollowsBudget, Model, RendersRays, Rows, StepLoss, TrainsOnPixels, TrainsOnViews
 from mitsnerf.train.config import TrainConfig
 from mitsnerf.train.data import PixelData
 from mitsnerf.train.schedule import learning_rate, step_rng
@@ -32,20 +32,27 @@ def ray_batch_loss(model: RendersRays, data: PixelData, config: TrainConfig, rng
 
 
 def step_loss(model: Model, data: PixelData, config: TrainConfig, step: int, rng) -> StepLoss:
-    """The step of ``model``'s capability (:class:`~mitsnerf.methods.base.RendersRays` or
+    """The step of ``model``'s capability (:class:`~mitsnerf.methods.base.RendersRays`,
+    :class:`~mitsnerf.methods.base.TrainsOnPixels` with ``config.batch_rays`` pixels, or
     :class:`~mitsnerf.methods.base.TrainsOnViews`)."""
     if isinstance(model, RendersRays):
         return ray_batch_loss(model, data, config, rng)
+    if isinstance(model, TrainsOnPixels):
+        return model.pixel_batch_loss(data, config.batch_rays, step, rng)
     if isinstance(model, TrainsOnViews):
         return model.training_loss(data, step, rng)
-    raise TypeError(f"{type(model).__name__}: a Model must render rays (RendersRays: subclass RayModel) or "
-                    "train on views (TrainsOnViews: subclass ViewModel)")
+    raise TypeError(f"{type(model).__name__}: a Model must render rays (RendersRays: subclass RayModel), train on "
+                    "pixels (TrainsOnPixels: subclass PixelModel) or train on views (TrainsOnViews: subclass "
+                    "ViewModel)")
 
 
 def set_step_learning_rate(model: Model, opt, base_lr: float, step: int, config: TrainConfig) -> float:
     """Set ``opt``'s learning rate for ``step``: ``lr`` = :func:`~mitsnerf.train.schedule.learning_rate` of
-    ``base_lr``, and ``lr * f`` for each parameter the model scales by ``f`` (``model.lr_scales(step)``).
+    ``base_lr``, and ``lr * f`` for each parameter the model scales by ``f`` (``model.lr_scales(step)``; a
+    :class:`~mitsnerf.methods.base.FollowsBudget` model is told the budget, ``config.steps``, first).
     Returns ``lr``."""
+    if isinstance(model, FollowsBudget):
+        model.set_budget(config.steps)
     lr = learning_rate(base_lr, step, config.steps, config.lr_final_factor)
     opt.set_learning_rate(lr)
     scales = {k: lr * float(f) for k, f in model.lr_scales(step).items() if k in opt}

@@ -6,9 +6,9 @@ import drjit as dr
 import mitsuba as mi
 import pytest
 
-from mitsnerf.bench import memory
 from mitsnerf.bench.config import parse_bench_config
 from mitsnerf.bench.runner import run_benchmark
+from mitsnerf.train import memory
 
 NERF = {"network": {"width": 16, "depth": 1, "features": 4, "head_width": 8, "pos_octaves": 4, "dir_octaves": 2},
         "n_samples": 16, "n_importance": 0}

@@ -113,8 +113,8 @@ def test_the_printed_table_is_compact_and_says_what_a_perfect_model_scores():
     ceiling = oracle_row("a", {"psnr_test_medium": 41.5}, {})
     text = compact_report(with_oracle_rows(rows, [ceiling]), average_rows(rows))
     header = next(line for line in text.splitlines() if line.startswith("| scene"))
-    assert header == ("| scene | method | given | budget | train s | PSNR medium | gap to oracle | gap to its ceiling | "
-                      "SSIM | sigma rel L1 | peak MiB | model MB |")
+    assert header == ("| scene | method | given | budget | train s | PSNR medium | gap to oracle | its ceiling | "
+                      "gap to its ceiling | SSIM | sigma rel L1 | peak MiB | model MB |")
     assert f"a: two reference renders agree to 40.00 dB (medium pixels): a perfect model would score about " \
            f"{40 + PERFECT_DB:.2f} dB; the oracle scores 41.50 dB." in text
     assert PERFECT_DB == pytest.approx(3.0103, abs=1e-4)
@@ -194,3 +194,77 @@ def test_every_table_shows_each_cells_own_peak_memory_and_its_models_size():
     a_m1, a_m2 = (next(line for line in lines if f"| a | {m} |" in line) for m in ("m1", "m2"))
     assert a_m1.endswith("| **100** | **0.336** |") and a_m2.endswith("| 102 | 0.672 |")  # the least of a scene: bold
     assert ("peak_memory_mb", "peak MiB", 0) in COMPACT
+
+
+# --------------------------------------------------------------------------- ceilings that are ceilings
+
+def _noisy_ceiling_table(mc: float):
+    """A scene whose oracle is a Monte Carlo estimate with noise ``mc`` per pixel (two independent renders of it),
+    the references with noise 0.02, and a method whose renders miss the truth by a deterministic 0.015: the rows as
+    the bench builds them, through the shared scoring (score_views, the rung's ceiling)."""
+    import numpy as np
+
+    from mitsnerf.bench.tables import oracle_row, with_oracle_rows
+    from mitsnerf.math.box import UNIT_BOX
+    from mitsnerf.oracle.rungs import ceiling_figures
+    from mitsnerf.scoring.images import image_scores
+    from mitsnerf.scoring.reference import Reference
+    from mitsnerf.scoring.variance import pair_variance
+    from mitsnerf.scoring.views import score_views
+
+    rng = np.random.default_rng(3)
+    truth = rng.uniform(0.2, 0.8, size=(4, 32, 32, 3))
+    refs = truth + rng.normal(0.0, 0.02, truth.shape)
+    ref = Reference(refs, (), 0.5, UNIT_BOX, None, np.ones(truth.shape[:3], bool), {"psnr_medium": 31.0})
+    a, b = (truth + rng.normal(0.0, mc, truth.shape) for _ in range(2))
+    oracle = score_views(a, ref, variance=pair_variance(a, b))[0]
+    method = score_views(truth + 0.015 * rng.choice([-1.0, 1.0], truth.shape), ref, oracle=oracle)[0]
+    method.update(ceiling_figures("emission-absorption", None, None, None, 1, ref, method))
+    rows = scene_rows([{"scene": "s", "method": "m", "seed": 0, "metrics": method}])
+    truth_psnr = image_scores(truth, refs, ref.masks)["psnr_test_medium"]
+    return with_oracle_rows(rows, [oracle_row("s", oracle, {})]), oracle, method, truth_psnr
+
+
+def test_a_noisy_ceiling_is_no_longer_under_the_row_it_caps():
+    """The oracle's own Monte Carlo noise (0.03 a pixel, above the method's 0.015 error) puts its raw PSNR under a
+    method it caps: less that variance (two independent renders) it is the noise-free truth's score, the table shows
+    it above the row, beside its raw figure, and no row is above its ceiling."""
+    from mitsnerf.bench.tables import above_ceiling, compact_report, markdown_report
+
+    rows, oracle, method, truth_psnr = _noisy_ceiling_table(0.03)
+    assert oracle["psnr_test_medium"] < method["psnr_test_medium"] - 1.0        # the planted noisy ceiling
+    assert oracle["psnr_test_medium_without_mc"] == pytest.approx(truth_psnr, abs=0.2)
+    assert method["gap_to_oracle"] == pytest.approx(oracle["psnr_test_medium_without_mc"] - method["psnr_test_medium"])
+    assert method["gap_to_ceiling"] > 0.5 and all(above_ceiling(r) is None for r in rows)
+    shown = f"{oracle['psnr_test_medium_without_mc']:.2f} (raw {oracle['psnr_test_medium']:.2f})"
+    for text in (compact_report(rows, average_rows(rows)), markdown_report(rows, average_rows(rows))):
+        rows_and_notes = [line for line in text.splitlines() if line.startswith(("s m: ", "| s | m |"))]
+        assert "| s | oracle (ceiling) |" in text and "beaten" not in text
+        assert rows_and_notes and not [line for line in rows_and_notes if "above its ceiling" in line]
+        assert shown in next(line for line in text.splitlines() if line.startswith("| s | m |"))  # its ceiling
+        assert shown in next(line for line in text.splitlines() if line.startswith("| s | oracle (ceiling) |"))
+        assert f"the oracle scores {oracle['psnr_test_medium_without_mc']:.2f} dB less its own Monte Carlo " \
+               f"variance (raw {oracle['psnr_test_medium']:.2f} dB)" in text
+
+
+def test_a_row_above_a_ceiling_whose_variance_was_not_removed_says_why_in_its_note():
+    """The same noisy ceiling cached without its variance (an older oracle): the row is above it, and its note (the
+    lines under the printed table) says by how much and why; every row above its ceiling has a reason."""
+    from mitsnerf.bench.tables import above_ceiling, compact_report, with_ceiling_reasons
+
+    rows, oracle, _, _ = _noisy_ceiling_table(0.03)
+    raw = [{k: v for k, v in r.items() if not k.endswith("_without_mc")} for r in rows]
+    raw[1]["ceiling_note"] = "the oracle, raw: no estimate of its own Monte Carlo variance was kept"
+    assert above_ceiling(raw[1]) is not None
+    explained = with_ceiling_reasons(raw)
+    for row in explained:
+        assert above_ceiling(row) is None or "above its ceiling" in (row.get("note") or "")
+    assert with_ceiling_reasons(explained) == explained                          # applied twice, said once
+    from mitsnerf.bench.report import html_table
+
+    assert "above its ceiling" in html_table(explained, QUALITY, "scene", BEST)  # the report's note column too
+    text = compact_report(raw, average_rows(raw))
+    line = next(x for x in text.splitlines() if x.startswith("s m: "))
+    assert f"; above its ceiling {oracle['psnr_test_medium']:.2f} by " in line
+    assert "no estimate of its own Monte Carlo variance was kept; its own Monte Carlo variance, not removed, " \
+           "lowers it" in line

@@ -196,7 +196,7 @@ def test_kernels_kept_by_a_densification_keep_their_adam_moments(tiny_views):
 def test_a_bright_colour_range_starts_the_kernels_grey(sh_degree):
     """Bright training views raise ``c_max`` (``cover_radiance``: 12.5 here); every kernel's colour starts at 0.5 in
     every direction, not at ``c_max / 2``, a start brighter than the medium that the fit answered by clearing the
-    density on cloud_hg85 (benchmarks/README.md, "The physics table")."""
+    density on cloud_hg85 (docs/notes/physics-table.md, "The table at 88c2ab4")."""
     from dataclasses import replace
 
     from mitsnerf.fields.primitives import kernel_colour

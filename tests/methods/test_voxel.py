@@ -172,7 +172,7 @@ def test_a_per_colour_model_trains(tiny_views):
 def test_a_bright_colour_range_starts_the_colour_grey(tiny_views, sh_degree):
     """Bright training views (cloud_hg85's sun seen through the cloud) raise ``c_max`` (``cover_radiance``); the SH
     colour starts at 0.5 in every direction whatever ``c_max`` is, not at ``c_max / 2``, a start brighter than the
-    medium that the fit answered by clearing the density (benchmarks/README.md, "The physics table")."""
+    medium that the fit answered by clearing the density (docs/notes/physics-table.md, "The table at 88c2ab4")."""
     from dataclasses import replace
 
     _, info = tiny_views()

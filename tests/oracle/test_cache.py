@@ -106,3 +106,28 @@ def test_an_anisotropic_mediums_key_spells_out_the_directional_defaults():
     assert resolved(CONFIG, hg).directional == DirectionalConfig()
     custom = OracleConfig(directional=DirectionalConfig(spp=64, order=3))
     assert resolved(custom, hg) is custom
+
+
+def test_the_oracle_is_scored_less_its_own_monte_carlo_variance_and_an_older_one_gets_it_once(dataset, monkeypatch):
+    """At its footprint the oracle's medium PSNR less its own variance (its cached renders and their variance) is
+    kept beside the raw one, above it; an oracle cached before that figure was kept gets it from its cached arrays
+    (not computed again), written once into its scores.json."""
+    from mitsnerf.scoring.reference import load_reference
+    from mitsnerf.scoring.variance import without_variance
+
+    oracle = ensure_oracle(dataset, CONFIG, 2)
+    ref = load_reference(dataset)
+    expected = without_variance(np.load(oracle.path / "test_k2.npy"), ref.images, ref.masks,
+                                np.load(oracle.path / "var_k2.npy"))
+    kept = oracle.metrics(2)
+    assert kept["psnr_test_medium_without_mc"] == pytest.approx(expected["psnr_test_medium_without_mc"])
+    assert kept["psnr_test_medium_without_mc"] > kept["psnr_test_medium"] and kept["mc_var_test_medium"] > 0
+    assert "psnr_test_medium_without_mc" not in oracle.metrics(1)   # its variance is computed at its footprint
+    scores = json.loads((oracle.path / "scores.json").read_text())
+    scores["footprint_2"] = {k: v for k, v in scores["footprint_2"].items() if k not in expected}
+    (oracle.path / "scores.json").write_text(json.dumps(scores))
+    monkeypatch.setattr(cache, "compute_oracle", lambda *a, **k: pytest.fail("the cached oracle was computed again"))
+    older = ensure_oracle(dataset, CONFIG, 2)
+    assert older.metrics(2)["psnr_test_medium_without_mc"] == pytest.approx(kept["psnr_test_medium_without_mc"])
+    assert json.loads((oracle.path / "scores.json").read_text())["footprint_2"]["psnr_test_medium_without_mc"] \
+        == pytest.approx(kept["psnr_test_medium_without_mc"])

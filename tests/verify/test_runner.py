@@ -108,7 +108,7 @@ def test_the_words_of_the_notes_are_explained_under_them():
     assert "Words in the notes" not in format_table(rows[:0] + [CaseResult("c", "f", "r", "e", None, "-", True, 0.1)])
 
 
-# Rows as wide as the thorough run's in benchmarks/README.md: a 70-character reference, a 110-character error.
+# Rows as wide as the thorough run's in docs/notes/verification.md: a 70-character reference, a 110-character error.
 WIDE_ROWS = [
     CaseResult("exit_single_scatter", "integrator", "volpath 16384 spp, max_depth 2 " + "x" * 40,
                "rel. mean 4.2e-04 (<= 0.02), mean z -0.75; " + "a measured figure, " * 4, 4.30, "0/1731", True, 1224.2,
