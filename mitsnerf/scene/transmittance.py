@@ -128,6 +128,7 @@ def pixel_transmittance(density: Callable[[Any], Any], resolution: int, box: Box
         o, d = rays.rays(pixel, dr.gather(mi.Float, du_all, k), dr.gather(mi.Float, dv_all, k))
         tau = optical_depths(density, resolution, box, o, d, channels=channels)
         t, p = dr.exp(-tau), absorbed(tau)
+        dr.eval(t, p)  # the walk runs once: each later mean would trace it into its own kernel again
         t_mean[start:start + n] = _mean_t(channel_mean(t), channel_mean(p), kk)
         if t_rgb is not None:
             t_rgb[start:start + n] = np.stack([_mean_t(t[i], p[i], kk) for i in range(3)], axis=-1)

@@ -110,3 +110,23 @@ def test_chunks_do_not_change_the_result(chunk):
     fn = true_density(grid, UNIT_BOX)
     ref = pixel_transmittance(fn, 8, UNIT_BOX, cams, footprint=2)
     assert np.array_equal(pixel_transmittance(fn, 8, UNIT_BOX, cams, footprint=2, chunk=chunk).t, ref.t)
+
+
+@pytest.mark.parametrize("chunk", [4 * 20, 1 << 21])
+def test_each_chunk_walks_its_rays_once(chunk):
+    """T, 1 - T and T L per channel read one evaluated walk (at 07aa360 each traced the loop into its own kernel:
+    5 walks a chunk with a background, 5x the time): the kernels that contain the walk's loop (its label in their
+    code) are one a chunk."""
+    import drjit as dr
+
+    grid = np.random.default_rng(6).uniform(0, 10, size=(8, 8, 8)).astype(np.float32)
+    cams = [Camera.from_fov(look_at((0.3, -2.0, 0.4), (0, 0, 0), (0, 0, 1)), 7, 5, 50.0)] * 2
+    fn, background = true_density(grid, UNIT_BOX), ConstantBackground((0.5, 1.0, 2.0))
+    dr.kernel_history()  # (empties it)
+    dr.set_flag(dr.JitFlag.KernelHistory, True)
+    try:
+        pixel_transmittance(fn, 8, UNIT_BOX, cams, footprint=2, background=background, chunk=chunk)
+    finally:
+        dr.set_flag(dr.JitFlag.KernelHistory, False)
+    walks = [k for k in dr.kernel_history() if "ir" in k and "optical_depths" in k["ir"].getvalue()]
+    assert len(walks) == -(-2 * 35 // (chunk // 4))
