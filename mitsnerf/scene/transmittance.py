@@ -86,7 +86,17 @@ def optical_depths(density: Callable[[Any], Any], resolution: int, box: Box, o, 
 class _GridLine:
     """Rays in grid coordinates, ``g_k(t) = a_k + b_k t`` on axis ``k`` (voxel centres at integers), and the planes
     ``g_k`` integer that :func:`optical_depths` walks: ``step_k`` the way it crosses them (+-1), ``inv_k = 1 / b_k``
-    (inf where the ray never crosses one)."""
+    (inf where the ray never crosses one).
+
+    >>> from drjit.llvm import Array3f, Float
+    >>> line = _GridLine.of(4, Box(), Array3f(-1.0, 0.1, 0.1), Array3f(1.0, 0.0, 0.0))  # g_x = -2.5 + 4 t
+    >>> planes = line.planes_after(Float(0.5))  # where it enters the box, g_x = -1/2
+    >>> [int(p[0]) for p in planes], int(line.cell(planes)[0])  # the clamped half voxel before plane 0: cell 0
+    ([0, 2, 2], 12)
+    >>> t, crossed = line.next_crossing(planes, Float(0.5), Float(1.5))
+    >>> float(t[0]), [bool(c[0]) for c in crossed], [int(p[0]) for p in line.moved(planes, crossed)]
+    (0.625, [True, False, False], [1, 2, 2])
+    """
 
     a: list
     b: list
@@ -96,6 +106,7 @@ class _GridLine:
 
     @classmethod
     def of(cls, resolution: int, box: Box, o, d) -> _GridLine:
+        """The rays ``o + t d`` (Array3f) in the grid coordinates of an ``R^3`` grid over ``box``."""
         lo, size = dr.scalar.Array3f(box.lo), dr.scalar.Array3f(box.size)
         b = [d[k] * (resolution / size[k]) for k in range(3)]
         a = [(o[k] - lo[k]) * (resolution / size[k]) - 0.5 for k in range(3)]
