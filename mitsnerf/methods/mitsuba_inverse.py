@@ -467,7 +467,8 @@ class MitsubaInverseModel(PixelModel):
             )
         sigma_t = self._carved(self.sigma_t)
         if step < self.config.emissive_steps:
-            term, mse, rays = *[self.emissive_mse(data, sigma_t, rng)] * 2, self.config.emissive_rays
+            term = mse = self.emissive_mse(data, sigma_t, rng)
+            rays = self.config.emissive_rays
         else:
             self.params[self._key_sigma] = sigma_t
             self.params.update()

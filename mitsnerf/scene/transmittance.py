@@ -14,7 +14,9 @@ functions of ``t``, a cubic; the clamped half voxel at each border is a polynomi
 ray is walked cell by cell (a DDA over those planes: the next plane crossed on each axis computed from
 its integer index, so no error accumulates) and each segment is integrated by the two-point
 Gauss-Legendre rule, which is exact for cubics: ``tau`` is exact up to float32 rounding (about 1e-6
-relative). A ray whose ``tau`` passes :data:`TAU_STOP` (``T < 1e-13``) stops there.
+relative). A ray whose ``tau`` passes :data:`TAU_STOP` (``T < 1e-13``) stops there. A cell whose 8 corner voxels
+are 0 adds exactly 0, so the walk does not look it up: from such a cell it goes in one step to the far side of the
+empty cube around it (:func:`empty_distances`; most of a cloud's box is empty: 10 steps a ray instead of 44).
 
 **Over the pixel** (:func:`pixel_transmittance`): Mitsuba's ``independent`` sampler puts a pixel's
 samples uniformly on its square ``[col, col + 1) x [row, row + 1)`` and the box filter (radius 1/2)
@@ -45,40 +47,169 @@ FOOTPRINT = 8
 _GAUSS = float(0.5 / np.sqrt(3.0))  # the two Gauss-Legendre nodes at mid -+ this fraction of the segment
 
 
-def optical_depths(density: Callable[[Any], Any], resolution: int, box: Box, o, d, channels: int = 1):
+def optical_depths(density: Callable[[Any], Any], resolution: int, box: Box, o, d, channels: int = 1,
+                   distances=None):
     """``tau`` (Float (M,)) of rays ``o + t d`` (Array3f (M,), ``d`` unit) through a trilinear ``R^3`` grid
     over ``box``: exact per cell (module docstring). ``density``: Array3f -> Float, the grid's lookup, or
     Array3f -> Array3f with ``channels = 3`` (a chromatic grid: ``tau`` an Array3f, the ray followed until
-    every channel's passes :data:`TAU_STOP`)."""
+    every channel's passes :data:`TAU_STOP`). ``distances``: the grid's :func:`empty_cells` (None: found here);
+    the walk crosses the cube of cells it gives around an empty cell without looking the grid up."""
     Float = type(o.x)
     Tau = type(o) if channels == 3 else Float
-    Int32 = dr.int32_array_t(Float)
+    if distances is None:
+        distances = empty_cells(density, resolution, box, type(o))
     t_n, t_f, _ = box.intersect(o, d)
-    lo, size = dr.scalar.Array3f(box.lo), dr.scalar.Array3f(box.size)
-    # grid coordinate g_a(t) = a_a + b_a t, voxel centres at integers
-    b = [d[i] * (resolution / size[i]) for i in range(3)]
-    a = [(o[i] - lo[i]) * (resolution / size[i]) - 0.5 for i in range(3)]
-    step = [dr.select(bi >= 0, 1, -1) for bi in b]
-    inv = [dr.select(dr.abs(bi) > 1e-12, dr.rcp(bi), dr.inf) for bi in b]
-    # the first plane each axis crosses after t_n
-    g0 = [a[i] + b[i] * t_n for i in range(3)]
-    plane = [dr.select(b[i] >= 0, Int32(dr.floor(g0[i])) + 1, Int32(dr.ceil(g0[i])) - 1) for i in range(3)]
+    line = _GridLine.of(resolution, box, o, d)
 
-    def body(t, tau, px, py, pz):
-        planes = [px, py, pz]
-        t_axis = [dr.select(dr.isinf(inv[i]), dr.inf, (Float(planes[i]) - a[i]) * inv[i]) for i in range(3)]
-        t_next = dr.minimum(dr.minimum(dr.minimum(t_axis[0], t_axis[1]), t_axis[2]), t_f)
-        t_next = dr.maximum(t_next, t)
+    def segment(t, tau, *planes):  # a cell with medium in it: integrated, and the next plane crossed
+        t_next, crossed = line.next_crossing(planes, t, t_f)
         mid, half = 0.5 * (t + t_next), t_next - t
         f = density(o + (mid - _GAUSS * half) * d) + density(o + (mid + _GAUSS * half) * d)
-        tau = tau + 0.5 * half * f
-        moved = [dr.select(t_axis[i] <= t_next, planes[i] + step[i], planes[i]) for i in range(3)]
-        return t_next, tau, moved[0], moved[1], moved[2]
+        return (t_next, tau + 0.5 * half * f, *line.moved(planes, crossed))
 
-    state = (Float(t_n), dr.zeros(Tau, dr.width(o)), plane[0], plane[1], plane[2])
+    def skip(empty, t, tau, *planes):  # an empty cube of 2 D - 1 cells a side: to its far side
+        far = [planes[i] + line.step[i] * (empty - 1) for i in range(3)]
+        t_next, crossed = line.next_crossing(far, t, t_f)
+        return (t_next, tau, *line.furthest(line.moved(planes, crossed, far), line.planes_after(t_next)))
+
+    def body(t, tau, *planes):
+        empty = dr.gather(type(planes[0]), distances, line.cell(planes))
+        return dr.if_stmt((empty, t, tau, *planes), empty == 0, lambda _, *s: segment(*s), skip, label="cell")
+
+    state = (Float(t_n), dr.zeros(Tau, dr.width(o)), *line.planes_after(t_n))
     _, tau, *_ = dr.while_loop(state, lambda t, tau, *_: (t < t_f) & (_least(tau) < TAU_STOP), body,
                                label="optical_depths")
     return tau
+
+
+@dataclass(frozen=True)
+class _GridLine:
+    """Rays in grid coordinates, ``g_k(t) = a_k + b_k t`` on axis ``k`` (voxel centres at integers), and the planes
+    ``g_k`` integer that :func:`optical_depths` walks: ``step_k`` the way it crosses them (+-1), ``inv_k = 1 / b_k``
+    (inf where the ray never crosses one).
+
+    >>> from drjit.llvm import Array3f, Float
+    >>> line = _GridLine.of(4, Box(), Array3f(-1.0, 0.1, 0.1), Array3f(1.0, 0.0, 0.0))  # g_x = -2.5 + 4 t
+    >>> planes = line.planes_after(Float(0.5))  # where it enters the box, g_x = -1/2
+    >>> [int(p[0]) for p in planes], int(line.cell(planes)[0])  # the clamped half voxel before plane 0: cell 0
+    ([0, 2, 2], 12)
+    >>> t, crossed = line.next_crossing(planes, Float(0.5), Float(1.5))
+    >>> float(t[0]), [bool(c[0]) for c in crossed], [int(p[0]) for p in line.moved(planes, crossed)]
+    (0.625, [True, False, False], [1, 2, 2])
+    """
+
+    a: list
+    b: list
+    step: list
+    inv: list
+    resolution: int
+
+    @classmethod
+    def of(cls, resolution: int, box: Box, o, d) -> _GridLine:
+        """The rays ``o + t d`` (Array3f) in the grid coordinates of an ``R^3`` grid over ``box``."""
+        lo, size = dr.scalar.Array3f(box.lo), dr.scalar.Array3f(box.size)
+        b = [d[k] * (resolution / size[k]) for k in range(3)]
+        a = [(o[k] - lo[k]) * (resolution / size[k]) - 0.5 for k in range(3)]
+        return cls(a, b, [dr.select(bk >= 0, 1, -1) for bk in b],
+                   [dr.select(dr.abs(bk) > 1e-12, dr.rcp(bk), dr.inf) for bk in b], resolution)
+
+    def planes_after(self, t) -> list:
+        """The first plane each axis crosses after ``t`` (Int32 each)."""
+        Int32 = dr.int32_array_t(type(t))
+        g = [self.a[k] + self.b[k] * t for k in range(3)]
+        return [dr.select(self.b[k] >= 0, Int32(dr.floor(g[k])) + 1, Int32(dr.ceil(g[k])) - 1) for k in range(3)]
+
+    def next_crossing(self, planes, t, t_f):
+        """``(t_next, crossed)``: where the ray first reaches one of ``planes`` (not before ``t``, at most ``t_f``),
+        and on which axes it does there (Bool each)."""
+        t_axis = [dr.select(dr.isinf(self.inv[k]), dr.inf, (type(t)(planes[k]) - self.a[k]) * self.inv[k])
+                  for k in range(3)]
+        t_next = dr.maximum(dr.minimum(dr.minimum(dr.minimum(t_axis[0], t_axis[1]), t_axis[2]), t_f), t)
+        return t_next, [t_axis[k] <= t_next for k in range(3)]
+
+    def moved(self, planes, crossed, reached=None) -> list:
+        """The next planes: past ``reached`` (default: ``planes``) on the axes ``crossed`` there, else ``planes``."""
+        reached = planes if reached is None else reached
+        return [dr.select(crossed[k], reached[k] + self.step[k], planes[k]) for k in range(3)]
+
+    def furthest(self, planes, others) -> list:
+        """Per axis the further of two planes along the ray."""
+        return [dr.select(self.step[k] > 0, dr.maximum(planes[k], others[k]), dr.minimum(planes[k], others[k]))
+                for k in range(3)]
+
+    def cell(self, planes):
+        """The flat index in :func:`empty_cells` of the cell before ``planes`` (UInt32/Int32)."""
+        n = self.resolution + 1
+        j = [dr.clip(planes[k] + dr.select(self.step[k] > 0, 0, 1), 0, self.resolution) for k in range(3)]
+        return (j[0] * n + j[1]) * n + j[2]
+
+
+def empty_cells(density: Callable[[Any], Any], resolution: int, box: Box, Array3f):
+    """:func:`empty_distances` of the grid ``density`` looks up, flat (Int32 ``(R+1)^3``, cell ``(j_x, j_y, j_z)``
+    at ``(j_x (R+1) + j_y) (R+1) + j_z``), from its voxels (:func:`voxel_values`)."""
+    Int32 = dr.int32_array_t(dr.value_t(Array3f))
+    return Int32(empty_distances(voxel_values(density, resolution, box, Array3f)).ravel())
+
+
+def voxel_values(density: Callable[[Any], Any], resolution: int, box: Box, Array3f) -> np.ndarray:
+    """``density`` at the ``R^3`` voxel centres ``lo + (i + 1/2) size / R`` of ``box``: ``(R, R, R)`` float64 indexed
+    ``[x, y, z]`` (``(R, R, R, 3)`` chromatic). Where ``density`` is a grid's trilinear lookup, a voxel is 0 here
+    only where it is 0 in the grid (the centres' float32 rounding mixes in at most a sliver of a neighbour).
+
+    >>> from drjit.llvm import Array3f
+    >>> voxel_values(lambda x: x.x + 10 * x.y, 2, Box(), Array3f)[:, :, 0].tolist()
+    [[-2.75, 2.25], [-2.25, 2.75]]
+    """
+    from mitsnerf.math.rays import host
+
+    Float = dr.value_t(Array3f)
+    i = dr.arange(dr.uint32_array_t(Float), resolution ** 3)
+    index = [i // (resolution * resolution), i // resolution % resolution, i % resolution]
+    lo, size = dr.scalar.Array3f(box.lo), dr.scalar.Array3f(box.size)
+    centre = Array3f(*(lo[k] + (Float(index[k]) + 0.5) * (size[k] / resolution) for k in range(3)))
+    values = host(density(centre))
+    return values.reshape(resolution, resolution, resolution, *values.shape[1:])
+
+
+#: The largest distance :func:`empty_distances` records: a skip crosses at most ``2 SKIP_CAP - 1`` cells.
+SKIP_CAP = 16
+
+
+def empty_distances(values: np.ndarray, cap: int = SKIP_CAP) -> np.ndarray:
+    """How far each cell of the walk lies from the medium: int32 ``(R+1, R+1, R+1)``, the cell ``j`` on an axis the
+    one between voxel centres ``j - 1`` and ``j`` (``-1`` and ``R``: the clamped half voxels at the borders). Its
+    entry ``D`` is the least Chebyshev distance, in cells, to a cell with a non-zero corner voxel (0: its own), at
+    most ``cap``: a trilinear lookup in a cell mixes its 8 corners only, so the density is 0 on the whole cube of
+    ``2 D - 1`` cells a side around it. ``values``: the voxels, ``(R, R, R)`` or ``(R, R, R, 3)`` (chromatic: a
+    voxel is empty where every channel is 0), any axis order (the cells have the same).
+
+    >>> v = np.zeros((4, 4, 4)); v[0, 0, 0] = 1.0
+    >>> empty_distances(v)[:, 0, 0].tolist(), empty_distances(v, cap=2)[:, 3, 0].tolist()
+    ([0, 0, 1, 2, 3], [2, 2, 2, 2, 2])
+    """
+    occupied = values != 0 if values.ndim == 3 else (values != 0).any(axis=-1)
+    reached = np.pad(occupied, 1, mode="edge")  # the clamped borders: voxel -1 is voxel 0, R is R - 1
+    for axis in range(3):
+        reached = _without(reached, axis, 0) | _without(reached, axis, -1)  # a cell: either of its two corners
+    distance = np.zeros(reached.shape, np.int32)
+    for _ in range(cap):
+        distance += ~reached
+        for axis in range(3):
+            reached = reached | _grown(reached, axis)
+    return distance
+
+
+def _without(x: np.ndarray, axis: int, end: int) -> np.ndarray:
+    """``x`` without its first (``end`` 0) or its last (``end`` -1) slice along ``axis``."""
+    return x[(slice(None),) * axis + (slice(1, None) if end == 0 else slice(None, -1),)]
+
+
+def _grown(x: np.ndarray, axis: int) -> np.ndarray:
+    """Where ``x`` (bool) or a neighbour of it along ``axis`` is true."""
+    out = x.copy()
+    out[(slice(None),) * axis + (slice(1, None),)] |= _without(x, axis, -1)
+    out[(slice(None),) * axis + (slice(None, -1),)] |= _without(x, axis, 0)
+    return out
 
 
 def _least(tau):
@@ -121,13 +252,15 @@ def pixel_transmittance(density: Callable[[Any], Any], resolution: int, box: Box
     t_rgb = np.empty((rays.size, 3)) if channels == 3 else None
     env = None if background is None else (np.empty((rays.size, 3)), np.empty((rays.size, 3)))
     per = max(1, chunk // kk)
+    distances = empty_cells(density, resolution, box, rays.Array3f)
     for start in range(0, rays.size, per):
         n = min(per, rays.size - start)
         idx = dr.arange(mi.UInt32, n * kk)
         pixel, k = idx // kk + start, idx % kk
         o, d = rays.rays(pixel, dr.gather(mi.Float, du_all, k), dr.gather(mi.Float, dv_all, k))
-        tau = optical_depths(density, resolution, box, o, d, channels=channels)
+        tau = optical_depths(density, resolution, box, o, d, channels=channels, distances=distances)
         t, p = dr.exp(-tau), absorbed(tau)
+        dr.eval(t, p)  # the walk runs once: each later mean would trace it into its own kernel again
         t_mean[start:start + n] = _mean_t(channel_mean(t), channel_mean(p), kk)
         if t_rgb is not None:
             t_rgb[start:start + n] = np.stack([_mean_t(t[i], p[i], kk) for i in range(3)], axis=-1)

@@ -9,7 +9,7 @@ from mitsnerf.math.box import UNIT_BOX, Box
 from mitsnerf.math.camera import Camera, look_at
 from mitsnerf.math.rays import camera_rays_numpy, footprint_offsets, to_array3f
 from mitsnerf.render.background import ConstantBackground
-from mitsnerf.scene.transmittance import TAU_STOP, optical_depths, pixel_transmittance
+from mitsnerf.scene.transmittance import TAU_STOP, empty_distances, optical_depths, pixel_transmittance
 from mitsnerf.scoring.density import ray_optical_depths, true_density
 
 
@@ -69,6 +69,42 @@ def test_a_ray_stops_once_it_is_opaque():
     assert TAU_STOP <= tau[0] < 1000.0 and np.exp(-tau[0]) < 1e-13
 
 
+def _sparse(r: int, seed: int) -> np.ndarray:
+    """A grid mostly 0: isolated voxels up to 30 in empty space (some at the borders)."""
+    rng = np.random.default_rng(seed)
+    return np.where(rng.uniform(size=(r, r, r)) < 0.02, rng.uniform(1, 30, size=(r, r, r)), 0).astype(np.float32)
+
+
+@pytest.mark.parametrize("channels", [1, 3])
+def test_empty_space_is_crossed_without_changing_tau(channels):
+    """A sparse grid: the walk that crosses empty cubes without lookups (empty_cells) gives the tau of the walk
+    that looks every cell up (distances all 0), to float32 rounding, on random rays and on rays in the planes the
+    walk steps on; a chromatic grid's cell is empty where every channel is 0 (its channels empty apart)."""
+    import mitsuba as mi
+
+    grid = _sparse(16, 7) if channels == 1 else np.stack([_sparse(16, 7), 0 * _sparse(16, 7), _sparse(16, 8)], -1)
+    o, d = _rays(3000, seed=8)
+    o = np.concatenate([o, [[-1.0, 0.03125, 0.3], [0.0625, 0.0625, 2.0], [-1.0, -1.0, -1.0]]])
+    d = np.concatenate([d, np.array([[1.0, 0.0, 0.0], [0.0, 0.0, -1.0], [1.0, 1.0, 1.0]]) / [[1], [1], [3**0.5]]])
+    fn, rays = true_density(grid, UNIT_BOX), (to_array3f(mi.Array3f, o), to_array3f(mi.Array3f, d))
+    skipped = np.asarray(optical_depths(fn, 16, UNIT_BOX, *rays, channels=channels), np.float64)
+    looked_up = np.asarray(optical_depths(fn, 16, UNIT_BOX, *rays, channels=channels,
+                                          distances=mi.Int32(np.zeros(17**3, np.int32))), np.float64)
+    assert 0.3 < (skipped > 0).mean() < 0.95
+    assert np.allclose(skipped, looked_up, rtol=2e-6, atol=0)
+
+
+def test_empty_distances_are_the_chebyshev_distances_to_the_medium():
+    """Each cell's entry against every occupied cell's Chebyshev distance, by brute force (capped)."""
+    grid = _sparse(6, 9)
+    got = empty_distances(grid, cap=3)
+    padded = np.pad(grid != 0, 1, mode="edge")
+    cells = np.stack(np.meshgrid(*[np.arange(7)] * 3, indexing="ij"), -1).reshape(-1, 3)
+    full = np.array([padded[x:x + 2, y:y + 2, z:z + 2].any() for x, y, z in cells])
+    far = np.abs(cells[:, None, :] - cells[None, full, :]).max(-1).min(1)
+    assert full.any() and (far >= 3).any() and np.array_equal(got.ravel(), np.minimum(far, 3))
+
+
 def test_pixel_means_with_one_ray_are_the_centre_rays_and_a_constant_background_factors_out():
     grid = np.random.default_rng(4).uniform(0, 20, size=(8, 8, 8)).astype(np.float32)
     cams = [Camera.from_fov(look_at(p, (0, 0, 0), (0, 0, 1)), 6, 5, 40.0) for p in ((2.0, 0.5, 0.3), (-0.4, 1.9, 0.8))]
@@ -110,3 +146,23 @@ def test_chunks_do_not_change_the_result(chunk):
     fn = true_density(grid, UNIT_BOX)
     ref = pixel_transmittance(fn, 8, UNIT_BOX, cams, footprint=2)
     assert np.array_equal(pixel_transmittance(fn, 8, UNIT_BOX, cams, footprint=2, chunk=chunk).t, ref.t)
+
+
+@pytest.mark.parametrize("chunk", [4 * 20, 1 << 21])
+def test_each_chunk_walks_its_rays_once(chunk):
+    """T, 1 - T and T L per channel read one evaluated walk (at 07aa360 each traced the loop into its own kernel:
+    5 walks a chunk with a background, 5x the time): the kernels that contain the walk's loop (its label in their
+    code) are one a chunk."""
+    import drjit as dr
+
+    grid = np.random.default_rng(6).uniform(0, 10, size=(8, 8, 8)).astype(np.float32)
+    cams = [Camera.from_fov(look_at((0.3, -2.0, 0.4), (0, 0, 0), (0, 0, 1)), 7, 5, 50.0)] * 2
+    fn, background = true_density(grid, UNIT_BOX), ConstantBackground((0.5, 1.0, 2.0))
+    dr.kernel_history()  # (empties it)
+    dr.set_flag(dr.JitFlag.KernelHistory, True)
+    try:
+        pixel_transmittance(fn, 8, UNIT_BOX, cams, footprint=2, background=background, chunk=chunk)
+    finally:
+        dr.set_flag(dr.JitFlag.KernelHistory, False)
+    walks = [k for k in dr.kernel_history() if "ir" in k and "optical_depths" in k["ir"].getvalue()]
+    assert len(walks) == -(-2 * 35 // (chunk // 4))
