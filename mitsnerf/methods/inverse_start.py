@@ -109,7 +109,7 @@ def resampled_start(start: str | Path | tuple, box: Box, resolution: int,
         sigma, albedo, source = truth
     elif isinstance(start, (str, Path)):
         (sigma, source), albedo = read_export(start), None
-    sigma = sigma[..., None] if sigma.ndim == 3 else sigma  # a grey grid (the truth's, given itself) is (R, R, R)
+    sigma = sigma[..., None] if sigma.ndim == 3 else sigma
     if channels == 1 and sigma.shape[-1] == 3:
         sigma = sigma.mean(axis=-1, keepdims=True)
     tau = resampled(sigma, source, box, resolution) * np.float32(box.size[0])
