@@ -146,6 +146,10 @@ class MitsubaInverseConfig(MethodConfig):
     """Path-traced steps (after the emissive start) in which the albedo alone is fitted, the start's extinction
     held: a start too dark for its albedo is otherwise matched by thinning the medium, mass the images do not
     give back."""
+    albedo_resolution: int = param(16, lo=1, hi=512, since=RAY_BATCHES)
+    """The albedo grid's finest resolution: it follows ``resolutions`` up to this (a coarser albedo than extinction:
+    each of its voxels gathers the gradient of more paths; docs/notes/mitsuba-inverse.md, "The published
+    recipe")."""
     optimize_albedo: bool = param(True)
     """Learn the albedo grid; false: the albedo is given, the dataset spec's own (resampled to the grid)."""
     lr: float = param(0.5, lo=0.0, lo_open=True)
@@ -216,6 +220,15 @@ class MitsubaInverseConfig(MethodConfig):
     def depth_clamp(self) -> float:
         """The largest optical depth per side kept after a step: ``depth_max``, or ``majorant_depth`` if lower."""
         return min(self.depth_max, self.majorant_depth) if self.majorant_depth else self.depth_max
+
+
+def _resampled(grid: np.ndarray, r: int) -> np.ndarray:
+    """A (R', R', R', C) grid resampled trilinearly to (r, r, r, C) (float32)."""
+    if grid.shape[0] == r:
+        return np.asarray(grid, dtype=np.float32)
+    out = dr.resample(mi.TensorXf(np.ascontiguousarray(grid, dtype=np.float32)), (r, r, r, grid.shape[-1]),
+                      filter="linear", boundary="nearest")
+    return np.asarray(out, dtype=np.float32)
 
 
 def _rgb_sensor(camera, spp: int):
@@ -317,22 +330,24 @@ class MitsubaInverseModel(PixelModel):
         """The initial extinction (R, R, R, C), optical depth per side, and albedo (R, R, R, 3): ``init_from``'s
         (its albedo where it has one, the given albedo where it is given), or ``init_depth`` and ``init_albedo``."""
         c = self.config
+        a = self.albedo_res(r)
         tau = np.full((r, r, r, self.channels), c.init_depth, dtype=np.float32)
-        albedo = np.full((r, r, r, 3), c.init_albedo, dtype=np.float32)
+        albedo = np.full((a, a, a, 3), c.init_albedo, dtype=np.float32)
         if c.init_from:
             start = (*volume_grids(self.spec), self.box) if c.init_from == "truth" else c.init_from
             tau, start_albedo = resampled_start(start, self.box, r, self.channels)
             tau = np.minimum(tau, np.float32(c.depth_clamp))
-            albedo = albedo if start_albedo is None else start_albedo
+            albedo = albedo if start_albedo is None else _resampled(start_albedo, a)
         given = self._given_albedo(r)
         return tau, albedo if given is None else given
 
+    def albedo_res(self, r: int) -> int:
+        """The albedo grid's resolution beside an extinction grid of ``r``: ``min(r, albedo_resolution)``."""
+        return min(r, self.config.albedo_resolution)
+
     def _given_albedo(self, r: int) -> np.ndarray | None:
-        """The spec's albedo resampled to (r, r, r, 3) where it is given (``optimize_albedo = false``)."""
-        if self._true_albedo is None:
-            return None
-        truth = mi.TensorXf(self._true_albedo)
-        return np.asarray(dr.resample(truth, (r, r, r, 3), filter="linear", boundary="nearest"), dtype=np.float32)
+        """The spec's albedo at :meth:`albedo_res` of ``r`` where it is given (``optimize_albedo = false``)."""
+        return None if self._true_albedo is None else _resampled(self._true_albedo, self.albedo_res(r))
 
     def _find_key(self, suffix: str) -> str:
         keys = [k for k in self.params.keys() if k.endswith(suffix)]
@@ -355,7 +370,7 @@ class MitsubaInverseModel(PixelModel):
             self.sigma_t = values["sigma_t"]
             self.params[self._key_sigma] = self.sigma_t
             given = self._given_albedo(self.resolution)
-            if given is not None and tuple(self.albedo.shape[:3]) != tuple(self.sigma_t.shape[:3]):
+            if given is not None and tuple(self.albedo.shape) != given.shape:
                 self.albedo = mi.TensorXf(given)
                 self.params[self._key_albedo] = self.albedo
         if "albedo" in values:
@@ -405,9 +420,10 @@ class MitsubaInverseModel(PixelModel):
         [0, depth_clamp] and carved, the albedo clamped to [0, 1], the emission to >= 0."""
         new = {key: params[key] for key in ("sigma_t", "albedo", "emission") if key in params}
         r = self.config.resolutions[self.level(step + 1)]
-        if r != self.resolution:
-            new = {key: dr.resample(v, (r, r, r, v.shape[-1]), filter="linear", boundary="nearest")
-                   for key, v in new.items()}
+        size = {"sigma_t": r, "emission": r, "albedo": self.albedo_res(r)}
+        new = {key: v if v.shape[0] == size[key] else
+               dr.resample(v, (size[key],) * 3 + (v.shape[-1],), filter="linear", boundary="nearest")
+               for key, v in new.items()}
         new["sigma_t"] = self._carved(dr.clip(new["sigma_t"], 0.0, self.config.depth_clamp))
         if "albedo" in new:
             new["albedo"] = dr.clip(new["albedo"], 0.0, 1.0)
@@ -452,7 +468,11 @@ class MitsubaInverseModel(PixelModel):
             if c.tv_sigma:
                 total += c.tv_sigma * masked_tv(sigma_t, self._pairs[r], int(sigma_t.shape[-1]))
             if c.tv_albedo and c.optimize_albedo:
-                total += c.tv_albedo * masked_tv(self.albedo, self._pairs[r], 3)
+                a = int(self.albedo.shape[0])
+                if a not in self._pairs:
+                    keep = None if self._keep is None else self._keep.get(a)
+                    self._pairs[a] = tv_pairs(np.ones((a, a, a), bool) if keep is None else keep)
+                total += c.tv_albedo * masked_tv(self.albedo, self._pairs[a], 3)
         return total
 
     def pixel_batch_loss(self, data, batch_rays: int, step: int, rng) -> StepLoss:

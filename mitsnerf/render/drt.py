@@ -2,9 +2,9 @@
 tracking (after Nimier-David et al. 2022, "Unbiased Inverse Volume Rendering with Differential Trackers").
 
 The scene: one box (any shape, its bounding box is used) with a ``null`` BSDF around a ``heterogeneous`` medium
-whose ``sigma_t`` (one channel, or three: a chromatic extinction) and ``albedo`` (three) are grids filling the
-box, lit by environment, directional or point emitters; nothing else. Free flights use a coarse majorant grid
-(:mod:`mitsnerf.render.tracking`) instead of the grid's global maximum.
+whose ``sigma_t`` (one channel, or three: a chromatic extinction) and ``albedo`` (three, at a resolution of its
+own) are grids filling the box, lit by environment, directional or point emitters; nothing else. Free flights
+use a coarse majorant grid (:mod:`mitsnerf.render.tracking`) instead of the grid's global maximum.
 
 **Primal** (``mi.render``): a path tracer. Along each segment ``[t_0, t_1]`` of the box, tentative collisions at
 rate ``sigma_bar``; a collision is real with probability ``P = mean_c sigma_t,c / sigma_bar`` (the channel mean:
@@ -126,8 +126,9 @@ class GridMedium:
                              f"found parameters {sorted(p.keys())}")
         sigma, albedo = p["sigma_t.data"], p["albedo.data"]
         self.mi, self.res, self.channels = mi, int(sigma.shape[0]), int(sigma.shape[-1])
-        if tuple(albedo.shape) != (self.res,) * 3 + (3,) or self.channels not in (1, 3):
-            raise ValueError(f"{NAME}: grids must be (R, R, R, 1 or 3) and (R, R, R, 3), got {tuple(sigma.shape)} "
+        self.albedo_res = int(albedo.shape[0])
+        if tuple(albedo.shape) != (self.albedo_res,) * 3 + (3,) or self.channels not in (1, 3):
+            raise ValueError(f"{NAME}: grids must be (R, R, R, 1 or 3) and (A, A, A, 3), got {tuple(sigma.shape)} "
                              f"and {tuple(albedo.shape)}")
         self.scale = float(p["scale"]) if "scale" in p else 1.0
         self.sigma, self.albedo_data = sigma.array, albedo.array
@@ -147,7 +148,8 @@ class GridMedium:
 
     def albedo(self, p, active=True):
         """The albedo at ``p`` (Spectrum)."""
-        return self.mi.Spectrum(trilinear(self.mi, self.albedo_data, self.res, 3, (p - self.lo) / self.size, active))
+        local = (p - self.lo) / self.size
+        return self.mi.Spectrum(trilinear(self.mi, self.albedo_data, self.albedo_res, 3, local, active))
 
     def interval(self, o, d):
         """``(t_0, t_1, hit)`` of the rays in the box (``t_0 = 0`` inside it)."""

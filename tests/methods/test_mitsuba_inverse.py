@@ -262,6 +262,16 @@ def test_it_starts_from_another_runs_exported_density(tmp_path):
     np.testing.assert_array_equal(np.asarray(again.sigma_t), np.asarray(model.sigma_t))
 
 
+def test_the_albedo_follows_the_resolutions_up_to_its_own(tiny):
+    _, info, data = tiny
+    config = MitsubaInverseConfig(resolutions=(4, 8, 16), upsample_at=(0.3, 0.6), albedo_resolution=8, spp=2)
+    model = MitsubaInverseModel(config, info)
+    assert model.albedo.shape == (4, 4, 4, 3)
+    train(model, data, TrainConfig(steps=5, log_every=5, batch_rays=64), 0.5, progress=False)
+    assert model.sigma_t.shape == (16, 16, 16, 1) and model.albedo.shape == (8, 8, 8, 3)
+    assert model.render_view(data.cameras[0]).rgb.shape == (12, 12, 3)
+
+
 def test_the_truth_start_is_the_datasets_own_grids(tiny):
     dataset, info, _ = tiny
     by_name = MitsubaInverseModel(MitsubaInverseConfig(resolutions=(16,), upsample_at=(), init_from="truth"), info)
