@@ -39,7 +39,7 @@ upsampling so far, and by ``lr_decay`` at each of ``lr_decay_at``. After every s
 ``[0, depth_max]`` (and ``majorant_depth``), ``albedo`` to ``[0, 1]``.
 
 **Starts.** ``init_depth`` (a constant), ``init_from`` (a directory ``mitsnerf export`` wrote, a run holding one in
-``export/``, or a dataset: its true grids, the "truth start"), ``emissive_steps`` (the first steps fit an
+``export/``, or a dataset: its true grids, the "truth start"; the grids then start at their final resolution), ``emissive_steps`` (the first steps fit an
 emission-absorption model whose extinction the path tracer then takes over, :mod:`mitsnerf.methods.inverse_start`)
 and ``albedo_first`` (path-traced steps that fit the albedo alone). ``optimize_albedo = false``: the albedo is
 given, the spec's own (the tables' ``given`` column then says so).
@@ -134,7 +134,8 @@ class MitsubaInverseConfig(MethodConfig):
     """The start instead of ``init_depth``: a directory written by ``mitsnerf export`` (or a run holding one in
     ``export/``), its density resampled to the grid; a dataset, its true grids (extinction and albedo); or
     ``truth``, the true grids of the dataset trained on (the "truth start": how far a fit of these views drifts
-    from the truth) ("": none)."""
+    from the truth) ("": none). The grids then start at the last of ``resolutions``: a start that has its
+    structure is not blurred to the first (the recipe's starts from an emission-absorption fit do the same)."""
     emissive_steps: int = param(0, lo=0)
     """Steps of the emissive start (emission-absorption fit of the extinction and an emission grid) before the
     path tracer takes over (0: none)."""
@@ -292,7 +293,7 @@ class MitsubaInverseModel(PixelModel):
         self.budget: int | None = None
         self._keep = self._emptiness_masks(scene) if config.carve else None  # resolution -> (R, R, R) bool
         self._true_albedo = None if config.optimize_albedo else volume_grids(self.spec)[1]
-        r = config.resolutions[0]
+        r = config.resolutions[-1 if config.init_from else 0]
         tau, albedo = self._start(r)
         desc = scene_dict(self.spec, tau[..., 0] if self.channels == 1 else tau, albedo)
         desc["integrator"] = _integrator(config, self.max_depth, self.side)
@@ -397,7 +398,9 @@ class MitsubaInverseModel(PixelModel):
         return fraction_steps(fractions, self.budget)
 
     def level(self, step: int) -> int:
-        """Upsamplings done before step ``step`` (0-based) starts."""
+        """Upsamplings done before step ``step`` (0-based) starts; with ``init_from``, all of them from the start."""
+        if self.config.init_from:
+            return len(self.config.resolutions) - 1
         return sum(1 for s in self._steps(self.config.upsample_at) if s <= step)
 
     def lr_scales(self, step: int) -> Mapping[str, float]:

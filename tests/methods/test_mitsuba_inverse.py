@@ -247,10 +247,11 @@ def test_it_starts_from_another_runs_exported_density(tmp_path):
     z, y, x = np.meshgrid(*(np.linspace(-1, 1, 16),) * 3, indexing="ij")
     blob = (6.0 * np.exp(-(x**2 + y**2 + z**2) / 0.3)).astype(np.float32)  # world units^-1
     _export(tmp_path, info.box, blob)
-    model = MitsubaInverseModel(MitsubaInverseConfig(resolutions=(8, 16), upsample_at=(0.5,), init_from=str(tmp_path),
+    model = MitsubaInverseModel(MitsubaInverseConfig(resolutions=(4, 8), upsample_at=(0.5,), init_from=str(tmp_path),
                                                      carve=False), info)
     tau = np.asarray(model.sigma_t)[..., 0]
-    assert tau.shape == (8, 8, 8)
+    model.set_budget(10)
+    assert tau.shape == (8, 8, 8) and model.level(0) == 1  # a start with its structure begins at the last resolution
     # tau = side x the exported density at the grid's voxel centres (world units^-1 there, trilinear)
     x = info.box.voxel_centres(8).reshape(-1, 3).astype(np.float32)
     exported = np.asarray(GridField.from_arrays(blob, info.box).density(mi.Array3f(*x.T))).reshape(8, 8, 8)
