@@ -41,8 +41,8 @@ upsampling so far, and by ``lr_decay`` at each of ``lr_decay_at``. After every s
 **Starts.** ``init_depth`` (a constant), ``init_from`` (a directory ``mitsnerf export`` wrote, a run holding one in
 ``export/``, or a dataset: its true grids, the "truth start"; the grids then start at their final resolution),
 ``emissive_steps`` (the first steps fit an emission-absorption model whose extinction the path tracer then takes
-over, :mod:`mitsnerf.methods.inverse_start`) and ``albedo_first`` (path-traced steps that fit the albedo alone). ``optimize_albedo = false``: the albedo is
-given, the spec's own (the tables' ``given`` column then says so).
+over, :mod:`mitsnerf.methods.inverse_start`) and ``albedo_first`` (path-traced steps that fit the albedo alone).
+``optimize_albedo = false``: the albedo is given, the spec's own (the tables' ``given`` column then says so).
 
 **The haze and the priors** (docs/notes/mitsuba-inverse.md, "mitsuba-inverse: removing the haze", measures each):
 under a nearly uniform environment a scattering haze of the right albedo is almost
