@@ -106,10 +106,11 @@ def medium_box(sigma_t: np.ndarray, albedo, box: Box, phase: Mapping[str, Any] |
 
 
 def scene_dict(spec: SceneSpec, sigma_t: np.ndarray, albedo: np.ndarray) -> dict[str, Any]:
-    """The ``mi.load_dict`` dictionary of the scene (no sensor), for the current Mitsuba variant."""
-    r = sigma_t.shape[0]
-    if sigma_t.shape not in ((r, r, r), (r, r, r, 3)) or albedo.shape != (r, r, r, 3):
-        raise ValueError(f"grids must be (R, R, R) or (R, R, R, 3) and (R, R, R, 3), got {sigma_t.shape} and "
+    """The ``mi.load_dict`` dictionary of the scene (no sensor), for the current Mitsuba variant; the albedo grid
+    may have a resolution of its own."""
+    r, a = sigma_t.shape[0], albedo.shape[0]
+    if sigma_t.shape not in ((r, r, r), (r, r, r, 3)) or albedo.shape != (a, a, a, 3):
+        raise ValueError(f"grids must be (R, R, R) or (R, R, R, 3) and (A, A, A, 3), got {sigma_t.shape} and "
                          f"{albedo.shape}")
     d: dict[str, Any] = {
         "type": "scene",
