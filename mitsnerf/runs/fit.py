@@ -69,6 +69,9 @@ class RunResult:
     peaks: dict = field(default_factory=dict)
     """The run's own peak memory (:func:`mitsnerf.train.memory.peaks`: ``peak_memory_mb``, ``peak_rss_mb``,
     ``peak_rss_reset``), from its start to the end of its evaluation."""
+    provenance: dict = field(default_factory=dict)
+    """:func:`mitsnerf.env.provenance` when the run started: the commit of the code it imported, not of the
+    checkout when it was written (the files record it; empty: taken when written)."""
 
     def metrics(self) -> dict:
         """Everything ``metrics.json`` records: scores, budget, timings, the run's peak memory and its model's
@@ -289,6 +292,7 @@ def fit(
     train_views = dataset.views("train")
     ref = reference or load_reference(dataset, "test")
     rss_reset = memory.start()  # the run's own peaks from here: its scene is loaded, what ran before is freed
+    started = env.provenance()  # the code this process imported: the checkout may move while it trains
     model, config = build_model(method, method_overrides, scene_info(dataset, train_views), train_config.seed)
     run_config = {"method": method, "method_config": to_dict(config), "train": to_dict(train_config),
                   "eval": to_dict(eval_config), "deterministic": bool(deterministic), **dataset_config(dataset)}
@@ -311,7 +315,7 @@ def fit(
                            f"{len(ref.cameras)} test views to score them ...")
     try:
         run = evaluate_run(model, method, run_config, result, dataset, ref, eval_config, oracle)
-        run.peaks = memory.peaks(rss_reset)
+        run.peaks, run.provenance = memory.peaks(rss_reset), started
         if out_dir is not None:
             write_run(run, dataset, out_dir, dataset.views("test").names)
     except KeyboardInterrupt as exc:  # trained and checkpointed: a resume only evaluates
@@ -411,14 +415,13 @@ def write_run(run: RunResult, dataset: Dataset, out_dir: Path, test_names) -> No
     out_dir = Path(out_dir)
     out_dir.parent.mkdir(parents=True, exist_ok=True)
     with atomic_dir(out_dir, overwrite=True) as tmp:
-        atomic_write_json(
-            tmp / "config.json", {**run.config, "provenance": env.provenance()}
-        )  # the dataset's absolute path
+        provenance = run.provenance or env.provenance()
+        atomic_write_json(tmp / "config.json", {**run.config, "provenance": provenance})  # the dataset's absolute path
         if (out_dir / CHECKPOINT_FILE).is_file():  # the final checkpoint fit() wrote there
             shutil.copy2(out_dir / CHECKPOINT_FILE, tmp / CHECKPOINT_FILE)
         save_parameters(tmp / "params.npz", run.model.parameters())
         atomic_write_json(tmp / "history.json", run.train.history)
-        atomic_write_json(tmp / "metrics.json", {**run.metrics(), "provenance": env.provenance()})
+        atomic_write_json(tmp / "metrics.json", {**run.metrics(), "provenance": provenance})
         (tmp / "test").mkdir()
         for name, rendered in zip(test_names, run.renders):
             stem = Path(name).name

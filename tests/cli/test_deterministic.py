@@ -83,3 +83,20 @@ def test_a_refused_deterministic_run_leaves_the_run_directory_as_it_was(world, t
                                          r"MITSNERF_VARIANT=llvm_ad_rgb\): no fixed order here$"):
         resume_run(run, {"steps": 4}, progress=False)
     assert sorted(p.name for p in run.iterdir()) == before
+
+
+def test_a_run_records_the_commit_it_started_with_not_the_one_at_its_end(world, tmp_path, monkeypatch):
+    # The checkout may move while a run trains (a long run beside development): its files name the code it ran.
+    import json
+
+    from mitsnerf import env
+    from mitsnerf.data.dataset import load_dataset
+    from mitsnerf.runs.fit import fit
+    from mitsnerf.train import TrainConfig
+
+    commits = iter(["started-here"] + ["moved-on"] * 10)
+    monkeypatch.setattr(env, "git_commit", lambda: next(commits))
+    fit(load_dataset(world.dataset), "voxel", methods()["voxel"].tiny, TrainConfig(steps=2, batch_rays=64),
+        tmp_path / "run", progress=False)
+    for name in ("config.json", "metrics.json"):
+        assert json.loads((tmp_path / "run" / name).read_text())["provenance"]["commit"] == "started-here"
