@@ -149,8 +149,8 @@ class MitsubaInverseConfig(MethodConfig):
     give back."""
     albedo_resolution: int = param(16, lo=1, hi=512, since=RAY_BATCHES)
     """The albedo grid's finest resolution: it follows ``resolutions`` up to this (a coarser albedo than extinction:
-    each of its voxels gathers the gradient of more paths; docs/notes/mitsuba-inverse.md, "The published
-    recipe")."""
+    each of its voxels gathers the gradient of more paths; docs/notes/mitsuba-inverse.md, "The choices, at 300 and
+    400 steps on the default cloud")."""
     optimize_albedo: bool = param(True)
     """Learn the albedo grid; false: the albedo is given, the dataset spec's own (resampled to the grid)."""
     lr: float = param(0.5, lo=0.0, lo_open=True)
@@ -159,7 +159,8 @@ class MitsubaInverseConfig(MethodConfig):
     """The albedo's (and the emissive start's emission's) learning rate relative to the extinction's."""
     upsample_lr_factor: float = param(1.0, lo=0.0, lo_open=True, since=("0.1.0+7377ecc", 0.5))
     """Learning-rate factor applied once per upsampling (1: the recipe's; 0.5 cost 2.8 dB at 300 steps on the
-    default cloud, docs/notes/mitsuba-inverse.md, "The published recipe")."""
+    default cloud, docs/notes/mitsuba-inverse.md, "The choices, at 300 and 400 steps on the default
+    cloud")."""
     depth_max: float = param(200.0, lo=0.0, lo_open=True)
     """Clamp of the extinction after each step (optical depth per box side)."""
     majorant_depth: float = param(0.0, lo=0.0)
