@@ -91,6 +91,25 @@ def tiny_scene(overrides: dict | None = None) -> dict:
     return apply_overrides(TINY_SCENE, overrides or {})
 
 
+#: A bench config of one tiny cell (voxel on the default cloud), for the tests that run `mitsnerf bench CONFIG --quick`
+#: (the README's CONFIG, the results page).
+TINY_BENCH = """name = "first"
+description = "the default cloud, voxel, seconds"
+scenes = ["cloud"]
+seeds = [0]
+[[methods]]
+name = "voxel"
+config = { resolution = 8, initial_resolution = 8, upsample_steps = [], n_samples = 8 }
+train = { steps = 4, batch_rays = 64 }
+[quick]
+scene = { "cameras.width" = 8, "cameras.height" = 8, "cameras.n_train" = 3, "cameras.n_test" = 2, \
+"render.spp_train" = 4, "render.spp_test" = 8, "volume.resolution" = 16 }
+train = { steps = 2, batch_rays = 64, log_every = 1 }
+eval = { curve_points = 1, footprint = 1 }
+oracle = { spp = 4, resolution = 8, n_samples = 16 }
+"""
+
+
 def scene_toml(spec: dict) -> str:
     """A scene spec (plain data, as :data:`TINY_SCENE`) written as TOML: its tables and lists of tables.
 

@@ -33,6 +33,8 @@ import mitsnerf
 import mitsnerf.methods
 from mitsnerf.cli import build_parser, main
 
+from .conftest import TINY_BENCH
+
 README = Path(mitsnerf.__file__).resolve().parents[1] / "README.md"
 
 TINY_SCENE = {"cameras.width": 8, "cameras.height": 8, "cameras.n_train": 3, "cameras.n_test": 2,
@@ -51,21 +53,6 @@ PARSED_ONLY = {
 }
 """Commands parsed but not run, keyed by (command, what marks them), with the reason."""
 
-TINY_BENCH = """name = "first"
-description = "the README's CONFIG: the default cloud, voxel, seconds"
-scenes = ["cloud"]
-seeds = [0]
-[[methods]]
-name = "voxel"
-config = { resolution = 8, initial_resolution = 8, upsample_steps = [], n_samples = 8 }
-train = { steps = 4, batch_rays = 64 }
-[quick]
-scene = { "cameras.width" = 8, "cameras.height" = 8, "cameras.n_train" = 3, "cameras.n_test" = 2, \
-"render.spp_train" = 4, "render.spp_test" = 8, "volume.resolution" = 16 }
-train = { steps = 2, batch_rays = 64, log_every = 1 }
-eval = { curve_points = 1, footprint = 1 }
-oracle = { spp = 4, resolution = 8, n_samples = 16 }
-"""
 
 
 @dataclass

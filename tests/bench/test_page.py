@@ -15,26 +15,13 @@ import pytest
 from mitsnerf.bench.page import read_sweep, results_page
 from mitsnerf.cli import main
 
+from ..conftest import TINY_BENCH
+
 STORED = Path(__file__).with_name("stored")
 """``default-quick/``: the ``results.json`` and ``table.csv`` of ``mitsnerf bench default --quick``; ``RESULTS.md``:
 the page ``mitsnerf results`` wrote of them (:data:`WRITE_AGAIN`)."""
 WRITE_AGAIN = "mitsnerf results tests/bench/stored/default-quick --out tests/bench/stored/RESULTS.md"
 
-TINY = """name = "first"
-description = "the default cloud, voxel, seconds"
-scenes = ["cloud"]
-seeds = [0]
-[[methods]]
-name = "voxel"
-config = { resolution = 8, initial_resolution = 8, upsample_steps = [], n_samples = 8 }
-train = { steps = 2, batch_rays = 64 }
-[quick]
-scene = { "cameras.width" = 8, "cameras.height" = 8, "cameras.n_train" = 3, "cameras.n_test" = 2, \
-"render.spp_train" = 4, "render.spp_test" = 8, "volume.resolution" = 16 }
-train = { steps = 2, batch_rays = 64, log_every = 1 }
-eval = { curve_points = 1, footprint = 1 }
-oracle = { spp = 4, resolution = 8, n_samples = 16 }
-"""
 
 
 def test_the_page_of_a_stored_sweep_is_the_stored_page():
@@ -123,7 +110,7 @@ def test_the_same_sweep_twice_is_refused(tmp_path, capsys):
 
 def test_a_sweep_records_the_command_and_when_and_its_page_says_so(tmp_path, monkeypatch, capsys):
     monkeypatch.chdir(tmp_path)
-    (tmp_path / "first.toml").write_text(TINY)
+    (tmp_path / "first.toml").write_text(TINY_BENCH)
     argv = ["bench", "first.toml", "--quick", "--results", "sweeps", "--no-progress"]
     assert main(argv) == 0
     data = json.loads((tmp_path / "sweeps" / "first-quick" / "results.json").read_text())
