@@ -176,6 +176,14 @@ class FollowsBudget(Protocol):
 
 
 @runtime_checkable
+class ChoosesOptimizer(Protocol):
+    """A model that chooses its Adam variant: ``adam_options()`` are keyword arguments of ``drjit.opt.Adam``
+    (``beta_1``, ``mask_updates``, ``uniform``, ``amsgrad``...), given to the optimiser the trainer builds."""
+
+    def adam_options(self) -> Mapping[str, Any]: ...
+
+
+@runtime_checkable
 class HasField(Protocol):
     """A model whose learned medium can be queried: ``field()`` is its :class:`~mitsnerf.fields.protocols.Field`
     as trained (a :class:`~mitsnerf.fields.protocols.DensityField` where the density is queryable)."""

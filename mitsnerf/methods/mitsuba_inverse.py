@@ -99,6 +99,9 @@ def fraction_steps(fractions, budget: int) -> tuple[int, ...]:
     return tuple(max(1, round(f * budget)) for f in fractions)
 
 
+#: Adam's variants (``optimizer``).
+OPTIMIZERS = ("adam", "sparse", "uniform", "amsgrad")
+
 #: Runs saved before the ray batches trained one whole view per step, their schedules in steps: none of today's
 #: settings reproduces them.
 RAY_BATCHES = Since("0.1.0+a387962", refuse="it trained one whole view per step with its schedules in steps "
@@ -155,6 +158,13 @@ class MitsubaInverseConfig(MethodConfig):
     """Learn the albedo grid; false: the albedo is given, the dataset spec's own (resampled to the grid)."""
     lr: float = param(0.5, lo=0.0, lo_open=True)
     """Adam learning rate of the extinction (optical depth per box side, per step)."""
+    optimizer: str = param("adam", choices=OPTIMIZERS)
+    """Adam's variant: ``adam``; ``sparse``, a voxel that no path's gradient reached in a step keeps its value and
+    its moments (Dr.Jit's ``mask_updates``, as PyTorch's SparseAdam); ``uniform``, every voxel's step normalised by
+    the largest second moment of its grid (UniformAdam, Nicolet et al. 2021), so that a voxel moves in proportion
+    to its gradient; ``amsgrad``, by the largest second moment each voxel has had."""
+    beta_1: float = param(0.9, lo=0.0, hi=1.0, hi_open=True)
+    """Adam's first-moment decay (the steps' gradients averaged over about ``1 / (1 - beta_1)`` steps)."""
     albedo_lr_factor: float = param(0.04, lo=0.0, lo_open=True)
     """The albedo's (and the emissive start's emission's) learning rate relative to the extinction's."""
     upsample_lr_factor: float = param(1.0, lo=0.0, lo_open=True, since=("0.1.0+7377ecc", 0.5))
@@ -385,6 +395,12 @@ class MitsubaInverseModel(PixelModel):
     @property
     def resolution(self) -> int:
         return int(self.sigma_t.shape[0])
+
+    def adam_options(self) -> Mapping[str, Any]:
+        """``drjit.opt.Adam``'s options for ``optimizer`` and ``beta_1`` (the trainer builds the optimiser)."""
+        c = self.config
+        return {"beta_1": c.beta_1, "mask_updates": c.optimizer == "sparse", "uniform": c.optimizer == "uniform",
+                "amsgrad": c.optimizer == "amsgrad"}
 
     # ------------------------------------------------------------------ schedules
 

@@ -21,7 +21,7 @@ import drjit as dr
 import drjit.opt  # noqa: F401  (makes dr.opt available)
 
 from mitsnerf.errors import MethodError, TrainingError, signal_cause
-from mitsnerf.methods.base import Model
+from mitsnerf.methods.base import ChoosesOptimizer, Model
 from mitsnerf.train.checkpointing import CheckpointPolicy, stop_signals
 from mitsnerf.train.clock import Clock
 from mitsnerf.train.config import TrainConfig
@@ -65,8 +65,10 @@ class TrainResult:
 
 
 def make_optimizer(model: Model, base_lr: float):
-    """An Adam optimiser holding every parameter of ``model``."""
-    opt = dr.opt.Adam(lr=base_lr)
+    """An Adam optimiser holding every parameter of ``model``, with the model's own options where it chooses them
+    (:class:`~mitsnerf.methods.base.ChoosesOptimizer`)."""
+    options = dict(model.adam_options()) if isinstance(model, ChoosesOptimizer) else {}
+    opt = dr.opt.Adam(lr=base_lr, **options)
     opt.update(model.parameters())
     return opt
 

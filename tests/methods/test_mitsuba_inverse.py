@@ -358,3 +358,14 @@ def test_the_albedo_can_be_fitted_first_with_the_extinction_held(tiny):
     assert not np.allclose(np.asarray(model.sigma_t), sigma)
     with pytest.raises(ValueError, match="albedo_first"):
         MitsubaInverseConfig(albedo_first=2, optimize_albedo=False)
+
+
+def test_the_trainer_builds_the_adam_variant_the_method_chooses(tiny):
+    _, info, _ = tiny
+    for name in ("adam", "sparse", "uniform", "amsgrad"):
+        model = MitsubaInverseModel(MitsubaInverseConfig(resolutions=(8,), upsample_at=(), optimizer=name,
+                                                         beta_1=0.8), info)
+        opt = make_optimizer(model, 0.5)
+        assert (opt.mask_updates, opt.uniform, opt.amsgrad) == (name == "sparse", name == "uniform",
+                                                               name == "amsgrad")
+        assert opt.beta_1 == 0.8
