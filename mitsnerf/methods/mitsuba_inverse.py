@@ -6,7 +6,8 @@ grids replaced by the unknowns, and each step minimises
 
     L = mean over pixels and channels of |I_p(tau, albedo) - I*_p|^q  (q = 2, or 1: ``loss``)  (+ priors)
 
-with Adam on ``sigma_t`` and, unless ``optimize_albedo = false``, ``albedo`` (TensorXf (R, R, R, 3)).
+with Adam (UniformAdam by default: ``optimizer``) on ``sigma_t`` and, unless ``optimize_albedo = false``,
+``albedo`` (TensorXf (R, R, R, 3)).
 
 **The step** (``batch = "rays"``, the default): the trainer's ``batch_rays`` pixels drawn uniformly over every
 training view, each traced by ``spp_primal_factor x spp`` paths for the image the loss compares and by ``spp``
@@ -158,11 +159,13 @@ class MitsubaInverseConfig(MethodConfig):
     """Learn the albedo grid; false: the albedo is given, the dataset spec's own (resampled to the grid)."""
     lr: float = param(0.5, lo=0.0, lo_open=True)
     """Adam learning rate of the extinction (optical depth per box side, per step)."""
-    optimizer: str = param("adam", choices=OPTIMIZERS)
-    """Adam's variant: ``adam``; ``sparse``, a voxel that no path's gradient reached in a step keeps its value and
-    its moments (Dr.Jit's ``mask_updates``, as PyTorch's SparseAdam); ``uniform``, every voxel's step normalised by
-    the largest second moment of its grid (UniformAdam, Nicolet et al. 2021), so that a voxel moves in proportion
-    to its gradient; ``amsgrad``, by the largest second moment each voxel has had."""
+    optimizer: str = param("uniform", choices=OPTIMIZERS, since=("0.1.0+40f90c0", "adam"))
+    """Adam's variant: ``uniform`` (the default), every voxel's step normalised by the largest second moment of its
+    grid (UniformAdam, Nicolet et al. 2021), so that a voxel moves in proportion to its gradient and one whose
+    gradient is only noise barely moves (plain Adam steps it by about the learning rate, and the clamp at 0 turns
+    that walk into haze: docs/notes/mitsuba-inverse.md, "The optimiser's noise, removed"); ``adam``; ``sparse``, a
+    voxel that no path's gradient reached in a step keeps its value and its moments (Dr.Jit's ``mask_updates``, as
+    PyTorch's SparseAdam); ``amsgrad``, by the largest second moment each voxel has had."""
     beta_1: float = param(0.9, lo=0.0, hi=1.0, hi_open=True)
     """Adam's first-moment decay (the steps' gradients averaged over about ``1 / (1 - beta_1)`` steps)."""
     albedo_lr_factor: float = param(0.04, lo=0.0, lo_open=True)
