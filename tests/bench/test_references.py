@@ -3,10 +3,17 @@ row it names, resolved in the worker, and a tiny sweep end to end."""
 
 from __future__ import annotations
 
+import dataclasses
+import json
+from pathlib import Path
+
+import numpy as np
 import pytest
 
+from mitsnerf.bench.cells import ERROR_FILE, RESULT_FILE, write_error, write_result
 from mitsnerf.bench.config import parse_bench_config
-from mitsnerf.bench.runner import BenchOptions, plan_cells
+from mitsnerf.bench.references import UnresolvedReference, resolved_config
+from mitsnerf.bench.runner import BenchOptions, plan_cells, run_benchmark
 from mitsnerf.errors import SpecError
 
 INVERSE = {"name": "mitsuba-inverse", "label": "inverse", "config": {"init_from": "@ngp"}}
@@ -74,3 +81,65 @@ def test_the_hash_follows_the_row_named_and_the_record_keeps_the_label(tmp_path)
     assert identity["method_config"]["init_from"] == "@ngp"
     assert identity["references"] == {"ngp": base["cloud/ngp-seed0"].config_hash}
     assert "references" not in base["cloud/ngp-seed0"].identity()  # a row naming none hashes as before
+
+
+def test_the_worker_refuses_a_row_whose_named_cell_failed_or_has_no_result(tmp_path):
+    ngp, inverse = _plan(_config([INVERSE, {"name": "ngp"}]), tmp_path)
+    with pytest.raises(UnresolvedReference, match=r"^init_from: '@ngp' is cell cloud/ngp-seed0, which has no result"):
+        resolved_config(inverse)
+    write_error(ngp, "TrainingError: loss became nan")
+    with pytest.raises(UnresolvedReference, match=r"which failed \(TrainingError: loss became nan\), so this cell"):
+        resolved_config(inverse)
+    write_result(ngp, {"config_hash": ngp.config_hash, "code_version": ngp.code_version}, None)
+    with pytest.raises(UnresolvedReference, match=r"whose run directory .*ngp-seed0/run is not on this machine"):
+        resolved_config(inverse)
+
+
+NGP = {"network": {"n_levels": 2, "log2_hashmap_size": 10, "base_resolution": 8, "max_resolution": 16, "hidden": 8,
+                   "color_hidden": 8, "geo_features": 3}, "occupancy": {"resolution": 8}, "n_samples": 16}
+INVERSE_TINY = {"resolutions": [8], "upsample_at": [], "spp": 1, "spp_primal_factor": 1, "albedo_resolution": 8,
+                "init_from": "@ngp"}
+
+
+@pytest.fixture(scope="module")
+def started_from_ngp(tiny_bench):
+    """A --quick sweep of the tiny scene: mitsuba-inverse started from ngp's fit (listed first), and ngp."""
+    tiny, options = tiny_bench
+    config = parse_bench_config({
+        "name": "from-ngp", "scenes": [tiny.scenes[0]], "seeds": [0],
+        "eval": {"curve_points": 1, "od_samples": 16},
+        "oracle": {"spp": 4, "resolution": 8, "n_samples": 16, "noise_replicas": 1},  # tiny_bench's: its cached one
+        "methods": [{"name": "mitsuba-inverse", "label": "inverse (ngp start)", "config": INVERSE_TINY,
+                     "quick": {"config": {"eval_spp": 16}}},
+                    {"name": "ngp", "config": NGP}],
+        "quick": {"train": {"steps": 3, "batch_rays": 64, "log_every": 1}},
+    }, "from-ngp.toml")
+    opts = dataclasses.replace(options("refs"), quick=True, report=False)
+    return run_benchmark(config, opts), plan_cells(config, opts), config, opts
+
+
+def test_a_sweep_starts_the_row_from_the_named_rows_exported_fit(started_from_ngp):
+    result, (ngp, inverse), _, _ = started_from_ngp
+    assert result.computed == [ngp.key, inverse.key] and not result.failed  # ngp first, though listed second
+    export = json.loads((ngp.path / "run" / "export" / "export.json").read_text())
+    assert export["resolution"] == 64 and export["method"] == "ngp"
+    run_config = json.loads((inverse.path / "run" / "config.json").read_text())
+    assert run_config["method_config"]["init_from"] == str(ngp.path / "run")  # what the fit started from
+    sigma = np.load(ngp.path / "run" / "export" / "sigma_t.npy")
+    assert sigma.shape == (64, 64, 64) and np.all(np.isfinite(sigma))
+    record = json.loads((inverse.path / RESULT_FILE).read_text())
+    assert record["config"]["method_config"]["init_from"] == "@ngp"  # what the row says it started from
+    assert record["config"]["references"] == {"ngp": ngp.config_hash}
+    assert not (inverse.path / ERROR_FILE).exists()
+
+
+def test_the_row_shows_in_the_tables_and_a_second_run_skips_both(started_from_ngp):
+    result, cells, config, opts = started_from_ngp
+    table = (result.out_root / "table.md").read_text()
+    assert "| inverse (ngp start) |" in table and "| ngp |" in table
+    data = json.loads((result.out_root / "results.json").read_text())
+    assert [r["method"] for r in data["cells"]] == ["ngp", "inverse (ngp start)"] and not data["failed"]
+    again = run_benchmark(config, opts)
+    assert again.computed == [] and again.skipped == [c.key for c in cells]
+    assert Path(cells[0].path / "run" / "export").is_dir()
+
