@@ -29,7 +29,7 @@ seed, with that run's learned medium exported in its ``export/`` (as ``mitsnerf 
 
 from __future__ import annotations
 
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -91,6 +91,28 @@ def cell_references(method_config: Mapping[str, Any], referred: Mapping[str, Cel
     labels = dict.fromkeys(references_in(method_config).values())
     return {label: {"key": referred[label].key, "out_dir": referred[label].out_dir,
                     "config_hash": referred[label].config_hash} for label in labels}
+
+
+def referred_keys(cell: Cell) -> list[str]:
+    """Keys of the cells ``cell`` refers to."""
+    return [ref["key"] for ref in (cell.references or {}).values()]
+
+
+def dependency_waves(cells: Sequence[Cell]) -> list[list[Cell]]:
+    """``cells`` in waves, each to run after the ones before: wave ``w(c) = 0`` when ``c`` refers to none of
+    ``cells``, else ``1 + max w(r)`` over the cells ``r`` among them it refers to (cells keep their order)."""
+    by_key = {c.key: c for c in cells}
+    depth: dict[str, int] = {}
+
+    def wave(cell: Cell) -> int:
+        if cell.key not in depth:
+            depth[cell.key] = 1 + max((wave(by_key[k]) for k in referred_keys(cell) if k in by_key), default=-1)
+        return depth[cell.key]
+
+    waves: list[list[Cell]] = [[] for _ in range(1 + max(map(wave, cells), default=-1))]
+    for cell in cells:
+        waves[wave(cell)].append(cell)
+    return waves
 
 
 def _check_result(cell: Cell, setting: str, label: str, ref: Mapping[str, str]) -> Path:

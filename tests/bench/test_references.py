@@ -12,7 +12,7 @@ import pytest
 
 from mitsnerf.bench.cells import ERROR_FILE, RESULT_FILE, write_error, write_result
 from mitsnerf.bench.config import parse_bench_config
-from mitsnerf.bench.references import UnresolvedReference, resolved_config
+from mitsnerf.bench.references import UnresolvedReference, dependency_waves, resolved_config
 from mitsnerf.bench.runner import BenchOptions, plan_cells, run_benchmark
 from mitsnerf.errors import SpecError
 
@@ -60,7 +60,7 @@ def test_the_command_line_refuses_it_in_one_line_with_status_2(tmp_path, capsys)
                                        "row is labelled 'ngp' (labels: mitsuba-inverse)\n")
 
 
-def test_a_row_runs_after_the_row_it_names(tmp_path):
+def test_a_row_runs_after_the_row_it_names_and_pools_run_in_waves(tmp_path):
     config = _config([INVERSE, {"name": "ngp"}, {"name": "nerf"}], scenes=["cloud", "plume"], seeds=[0, 1])
     cells = _plan(config, tmp_path)
     assert [c.key for c in cells[:6]] == ["cloud/ngp-seed0", "cloud/ngp-seed1", "cloud/inverse-seed0",
@@ -69,6 +69,20 @@ def test_a_row_runs_after_the_row_it_names(tmp_path):
     assert inverse.references == {"ngp": {"key": "cloud/ngp-seed0", "out_dir": cells[0].out_dir,
                                           "config_hash": cells[0].config_hash}}
     assert [c.references for c in cells if c.label != "inverse"] == [None] * 8
+    waves = dependency_waves(cells)
+    assert [sorted({c.label for c in w}) for w in waves] == [["nerf", "ngp"], ["inverse"]]
+    assert [c.key for c in dependency_waves([c for c in cells if c.label != "ngp"])[0]] == [
+        c.key for c in cells if c.label != "ngp"]  # the rows named already done: one wave
+
+
+def test_the_pool_runs_each_wave_after_the_one_before(tmp_path, monkeypatch):
+    import mitsnerf.bench.executors as executors
+
+    cells = _plan(_config([INVERSE, {"name": "ngp"}], seeds=[0, 1]), tmp_path)
+    waves = []
+    monkeypatch.setattr(executors, "_pool_wave", lambda pool, wave, *rest: waves.append([c.key for c in wave]))
+    executors.run_pool(cells, lambda *a: None, lambda *a: None, workers=1)
+    assert waves == [["cloud/ngp-seed0", "cloud/ngp-seed1"], ["cloud/inverse-seed0", "cloud/inverse-seed1"]]
 
 
 def test_the_hash_follows_the_row_named_and_the_record_keeps_the_label(tmp_path):
