@@ -13,6 +13,8 @@ Layout under ``results/<bench>[-quick]/``::
                                  /artefacts.npz   images and density slices for the plots
                                  /error.json      instead of result.json when the cell failed
                                  /run/            mitsnerf.runs.fit.fit's run directory (params, checkpoint, renders)
+                                 /run/export/     its medium exported, when a row starts from it ("@LABEL",
+                                                  mitsnerf.bench.references); removed when the cell runs again
 """
 
 from __future__ import annotations
@@ -91,6 +93,10 @@ class Cell:
     data_inputs: Mapping[str, Any] | None = None
     """What decides the dataset beyond the spec's text (:func:`mitsnerf.generate.data_inputs`: a grid file's
     sha256, a plugin volume family's version), part of the hash: editing a grid reruns its scene's cells."""
+    references: Mapping[str, Mapping[str, str]] | None = None
+    """The cells of the same scene and seed whose runs this cell's ``"@LABEL"`` settings name
+    (:mod:`mitsnerf.bench.references`): ``LABEL -> {key, out_dir, config_hash}``; their config hashes are part
+    of this cell's, so changing a referred row reruns this one. None: it refers to none."""
 
     @property
     def key(self) -> str:
@@ -101,9 +107,11 @@ class Cell:
         """Everything that decides the cell's result, except mitsnerf's code version (a plugin method's is in)."""
         plugin = {} if self.method_version is None else {"method_version": self.method_version}
         inputs = {} if self.data_inputs is None else {"data_inputs": self.data_inputs}
+        refs = {} if not self.references else {"references": {k: r["config_hash"] for k, r in self.references.items()}}
         return {
             **plugin,
             **inputs,
+            **refs,
             "record_format": RECORD_FORMAT,
             "scene": self.scene,
             "spec": self.spec,

@@ -18,6 +18,10 @@ label = "nerf"                   # column label (default: name); unique
 config = { n_samples = 64 }      # the method's config (nested tables for nested configs)
 train = { batch_rays = 2048 }    # this method's training settings (over the shared ones)
 quick = { config = { n_samples = 32 } }   # this method's part of the --quick profile
+[[methods]]
+name = "mitsuba-inverse"
+label = "mitsuba-inverse (nerf start)"
+config = { init_from = "@nerf" }  # "@LABEL": the run of row LABEL on the same scene and seed (below)
 [[external]]                     # renders made by another tool, scored beside the methods (optional)
 name = "nerfacto"                # the row reads "nerfacto (external)"
 renders = { cloud = "renders/nerfacto/cloud" }    # per scene name: a folder of its test views' renders
@@ -36,6 +40,14 @@ External renders are matched and scored as ``mitsnerf score`` does (:mod:`mitsne
 relative paths are relative to the config file's folder. A config of ``[[external]]`` entries alone
 (no ``[[methods]]``) scores them against the datasets and their oracles, training nothing.
 
+A string setting of a method's ``config`` (any method's, any string setting; in ``config``, ``quick.config`` or
+``[method_settings.NAME]``) whose value is ``"@LABEL"`` names another row's result: it becomes the run directory
+of the cell of row ``LABEL`` on the same scene and seed, with that run's medium exported in its ``export/`` as
+``mitsnerf export RUN`` writes it (64^3), which ``mitsuba-inverse``'s ``init_from`` starts from. That row's cells
+run first; the row's cell fails (``error.json``) when the cell it names failed; the tables show the row by its
+label, and its recorded config keeps ``"@LABEL"``. An unknown label, a row naming itself or a cycle of rows is
+refused at load, naming the field. :mod:`mitsnerf.bench.references` has the details.
+
 With ``methods = "all"``, every registered method (:func:`mitsnerf.methods.methods`) runs with its
 default settings, and ``[method_settings.NAME]`` tables (``config``, ``train``, ``quick``)
 adjust the ones that need it; a table naming a method that is not registered is ignored
@@ -52,6 +64,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from mitsnerf.bench.references import PREFIX, references_in
 from mitsnerf.config import (
     INTERNAL,
     as_spec_error,
@@ -262,6 +275,84 @@ class BenchConfig:
                          prefix="quick.eval")
 
 
+def _lookup(table: Mapping[str, Any], keys: tuple[str, ...]) -> Any:
+    """``table[k0][k1]...`` (None where a key is missing)."""
+    value: Any = table
+    for key in keys:
+        value = value.get(key) if isinstance(value, Mapping) else None
+    return value
+
+
+def row_references(config: BenchConfig, method: MethodRun, quick: bool) -> list[tuple[str, str]]:
+    """``(field in the file, LABEL)`` of each reference in ``method``'s merged config in the profile (``quick``);
+    the field is where the last layer that sets it wrote it (``methods.1.config.init_from``)."""
+    merged, _ = config.method_settings(method, quick)
+    layers = config.setting_layers(method, quick, "config")
+    out = []
+    for keys, label in references_in(merged).items():
+        where = next(w for w, table in reversed(layers) if _lookup(table, keys) == PREFIX + label)
+        out.append((".".join((where, *keys)), label))
+    return out
+
+
+def _check_label(config: BenchConfig, method: MethodRun, field: str, label: str) -> None:
+    """A SpecError at ``field`` when ``label`` names no other ``[[methods]]`` row."""
+    labels = [m.label for m in config.methods]
+    if label == method.label:
+        raise SpecError(config.source, field, f"{PREFIX}{label} is this row's own label: a row cannot start "
+                                              "from its own result")
+    if label in labels:
+        return
+    external = [e.label for e in config.external if label in (e.name, e.label)]
+    why = (f"{external[0]!r} is an [[external]] entry: renders only, no run to start from" if external
+           else f"no [[methods]] row is labelled {label!r}")
+    raise SpecError(config.source, field, f"{PREFIX}{label}: {why} (labels: {', '.join(labels)})")
+
+
+def _edges(config: BenchConfig, quick: bool) -> dict[str, list[tuple[str, str]]]:
+    """Row label -> ``(field, referred label)`` of its references in the profile, each label checked."""
+    edges = {}
+    for method in config.methods:
+        refs = row_references(config, method, quick)
+        for where, label in refs:
+            _check_label(config, method, where, label)
+        edges[method.label] = refs
+    return edges
+
+
+def _visit(label: str, edges: Mapping[str, list[tuple[str, str]]], path: list[str], done: list[str],
+           source: str | None) -> None:
+    """Depth-first: append ``label`` to ``done`` after every row it refers to; a SpecError on a cycle, at the
+    field of the first reference around it."""
+    if label in done:
+        return
+    for _, referred in edges[label]:
+        if referred in path:
+            cycle = path[path.index(referred):] + [label, referred]
+            first = next(f for f, r in edges[cycle[0]] if r == cycle[1])
+            raise SpecError(source, first, f"{PREFIX}{cycle[1]}: the rows refer to each other in a cycle "
+                                           f"({' -> '.join(cycle)}): none of them can run first")
+        _visit(referred, edges, [*path, label], done, source)
+    done.append(label)
+
+
+def method_order(config: BenchConfig, quick: bool) -> list[MethodRun]:
+    """The config's method rows, each after the rows it refers to, otherwise in the file's order (a stable
+    topological order); a SpecError for an unknown label, a row naming itself or a cycle."""
+    edges = _edges(config, quick)
+    done: list[str] = []
+    for method in config.methods:
+        _visit(method.label, edges, [], done, config.source)
+    by_label = {m.label: m for m in config.methods}
+    return [by_label[label] for label in done]
+
+
+def check_references(config: BenchConfig) -> None:
+    """Every ``"@LABEL"`` of ``config`` valid in both profiles (the SpecErrors of :func:`method_order`)."""
+    for quick in (False, True):
+        method_order(config, quick)
+
+
 def benchmarks_dir() -> Path:
     """The benchmark configs shipped with the package (``mitsnerf/bench/configs``)."""
     return SHIPPED
@@ -307,8 +398,15 @@ def _expand(raw: dict, source: str) -> dict:
 
 
 def parse_bench_config(raw: Mapping[str, Any], source: str | os.PathLike = "<config>") -> BenchConfig:
-    """A :class:`BenchConfig` from plain data (a parsed TOML file); SpecError naming the file and field."""
-    source = str(source)
+    """A :class:`BenchConfig` from plain data (a parsed TOML file); SpecError naming the file and field (its
+    ``"@LABEL"`` settings checked too: :func:`check_references`)."""
+    config = _parse(raw, str(source))
+    check_references(config)
+    return config
+
+
+def _parse(raw: Mapping[str, Any], source: str) -> BenchConfig:
+    """:func:`parse_bench_config`'s dataclass, before the references are checked."""
     raw = dict(raw)
     raw.setdefault("name", Path(source).stem)
     expanded = _expand(raw, source)

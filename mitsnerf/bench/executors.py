@@ -16,6 +16,13 @@ cells side by side; each cell then gets ``cpus_per_cell`` Dr.Jit threads.
   worker process each), on the cluster at ``address`` or a local instance started for the
   sweep (``ray.init()``). Nodes need the same mitsnerf installed; datasets missing on a node
   are generated there (cached per node); the results come back to the driver.
+
+A row whose settings name another row's result (``"@LABEL"``, :mod:`mitsnerf.bench.references`) runs after
+it: the sequential executor takes the cells in their planned order (a row after the rows it names); the pool
+and Ray run the pending cells in dependency waves (:func:`~mitsnerf.bench.references.dependency_waves`: wave
+``k + 1`` starts when every cell of wave ``k`` has finished), so a sweep without such rows is one wave, as
+before. The referring cell reads the referred cell's ``run/`` where it runs: on a Ray cluster, the results
+folder must be one every node shares (else the cell fails, saying so).
 """
 
 from __future__ import annotations
@@ -30,6 +37,7 @@ from types import FrameType
 from typing import Any
 
 from mitsnerf.bench.cells import Cell
+from mitsnerf.bench.references import dependency_waves
 from mitsnerf.errors import CLI, UsageError, Words
 
 EXECUTORS = ("sequential", "pool", "ray")
@@ -80,15 +88,8 @@ def run_pool(cells: Sequence[Cell], on_done: OnDone, on_error: OnError, *, worke
         kwargs["max_tasks_per_child"] = 1
     pool = cf.ProcessPoolExecutor(**kwargs)
     try:
-        futures = {pool.submit(_pool_task, cell, threads): cell for cell in cells}
-        for future in cf.as_completed(futures):
-            cell = futures[future]
-            try:
-                record, artefacts = future.result()
-            except CELL_ERRORS as exc:
-                on_error(cell, _message(exc), "".join(traceback.format_exception(exc)))
-                continue
-            on_done(cell, record, artefacts)
+        for wave in dependency_waves(cells):
+            _pool_wave(pool, wave, threads, on_done, on_error)
     except BaseException as exc:
         in_flight = list((pool._processes or {}).values())  # (no public handle before Python 3.14)
         pool.shutdown(wait=False, cancel_futures=True)  # Ctrl-C: do not wait for queued cells
@@ -96,6 +97,21 @@ def run_pool(cells: Sequence[Cell], on_done: OnDone, on_error: OnError, *, worke
             _stop_cells_in_flight(in_flight, exc)
         raise
     pool.shutdown(wait=True)
+
+
+def _pool_wave(pool, cells: Sequence[Cell], threads: int, on_done: OnDone, on_error: OnError) -> None:
+    """Run ``cells`` (one wave: none refers to another) on ``pool``; return when every one has finished."""
+    import concurrent.futures as cf
+
+    futures = {pool.submit(_pool_task, cell, threads): cell for cell in cells}
+    for future in cf.as_completed(futures):
+        cell = futures[future]
+        try:
+            record, artefacts = future.result()
+        except CELL_ERRORS as exc:
+            on_error(cell, _message(exc), "".join(traceback.format_exception(exc)))
+            continue
+        on_done(cell, record, artefacts)
 
 
 def _stop_cells_in_flight(workers, exc: KeyboardInterrupt) -> None:
@@ -150,22 +166,8 @@ def run_ray(cells: Sequence[Cell], on_done: OnDone, on_error: OnError, *, addres
     in_flight: dict = {}
     try:
         task = ray.remote(num_cpus=threads, max_calls=1)(_ray_task)
-        queue = list(cells)
-        limit = workers or len(queue)
-        while queue or in_flight:
-            while queue and len(in_flight) < limit:
-                cell = queue.pop(0)
-                in_flight[task.remote(cell, threads)] = cell
-            done, _ = ray.wait(list(in_flight), num_returns=1)
-            for ref in done:
-                cell = in_flight.pop(ref)
-                try:
-                    record, artefacts = ray.get(ref)
-                except CELL_ERRORS as exc:
-                    cause = getattr(exc, "cause", None) or exc
-                    on_error(cell, _message(cause), str(exc))
-                    continue
-                on_done(cell, record, artefacts)
+        for wave in dependency_waves(cells):
+            _ray_wave(ray, task, wave, workers or len(wave), threads, in_flight, on_done, on_error)
     except BaseException:
         for ref in list(in_flight):
             ray.cancel(ref, force=True)
@@ -173,6 +175,27 @@ def run_ray(cells: Sequence[Cell], on_done: OnDone, on_error: OnError, *, addres
     finally:
         if started_here:
             ray.shutdown()
+
+
+def _ray_wave(ray, task, cells: Sequence[Cell], limit: int, threads: int, in_flight: dict, on_done: OnDone,
+              on_error: OnError) -> None:
+    """Run ``cells`` (one wave: none refers to another) as Ray tasks, at most ``limit`` at once, tracked in
+    ``in_flight`` (the caller cancels what is left there on an interrupt); return when every one has finished."""
+    queue = list(cells)
+    while queue or in_flight:
+        while queue and len(in_flight) < limit:
+            cell = queue.pop(0)
+            in_flight[task.remote(cell, threads)] = cell
+        done, _ = ray.wait(list(in_flight), num_returns=1)
+        for ref in done:
+            cell = in_flight.pop(ref)
+            try:
+                record, artefacts = ray.get(ref)
+            except CELL_ERRORS as exc:
+                cause = getattr(exc, "cause", None) or exc
+                on_error(cell, _message(cause), str(exc))
+                continue
+            on_done(cell, record, artefacts)
 
 
 def _is_main_guard(node) -> bool:

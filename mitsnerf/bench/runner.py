@@ -42,7 +42,7 @@ from mitsnerf.bench.cells import (
     write_error,
     write_result,
 )
-from mitsnerf.bench.config import BenchConfig
+from mitsnerf.bench.config import BenchConfig, method_order
 from mitsnerf.bench.tables import (
     ORACLE,
     average_rows,
@@ -137,26 +137,32 @@ def plan_scenes(config: BenchConfig, options: BenchOptions) -> list[SceneData]:
 
 def plan_cells(config: BenchConfig, options: BenchOptions, scenes: list[SceneData] | None = None) -> list[Cell]:
     """Every cell of ``config`` (on ``scenes``, default :func:`plan_scenes`), resolved and validated (a
-    SpecError naming the bench file and field)."""
+    SpecError naming the bench file and field). Per scene, the rows go in
+    :func:`~mitsnerf.bench.config.method_order` (a row after the rows its ``"@LABEL"`` settings name), each with
+    its seeds."""
     import mitsuba as mi
 
+    from mitsnerf.bench.references import cell_references
     from mitsnerf.methods import get_method
 
     variant = mi.variant() or env.set_variant()
     version = options.code_version or code_version()
     out_root = out_root_of(config, options).resolve()
-    cells = []
+    cells: list[Cell] = []
     for site in plan_scenes(config, options) if scenes is None else scenes:
+        planned: dict[int, dict[str, Cell]] = {seed: {} for seed in config.seeds}  # this scene's, by seed and label
         for method, resolved, train in _method_settings(config, options.quick):
             for seed in config.seeds:
-                cells.append(Cell(
+                cell = Cell(
                     bench=config.name, scene=site.scene, label=method.label, method=method.name, seed=seed,
                     spec=site.spec, method_config=resolved, train=train[seed], eval=site.eval,
                     variant=variant, code_version=version, dataset_dir=site.dataset_dir, data_root=site.data_root,
                     out_dir=str(cell_dir(out_root, site.scene, method.label, seed)), quick=options.quick,
                     oracle=site.oracle, method_version=get_method(method.name).source.version,
-                    data_inputs=site.data_inputs,
-                ))
+                    data_inputs=site.data_inputs, references=cell_references(resolved, planned[seed]) or None,
+                )
+                planned[seed][method.label] = cell
+                cells.append(cell)
     return cells
 
 
@@ -204,13 +210,14 @@ def _listed_scene(config: BenchConfig, i: int, name: str):
 
 
 def _method_settings(config: BenchConfig, quick: bool) -> list[tuple[Any, dict, dict[int, dict]]]:
-    """``(method, resolved method config, {seed: resolved train settings})`` per method, validated;
-    a problem is blamed on the field of the bench file that set it."""
+    """``(method, resolved method config, {seed: resolved train settings})`` per method, validated, in
+    :func:`~mitsnerf.bench.config.method_order`; a problem is blamed on the field of the bench file that set
+    it."""
     from mitsnerf.methods import get_method
     from mitsnerf.train import TrainConfig
 
     out = []
-    for method in config.methods:
+    for method in method_order(config, quick):
         mconfig, train = config.method_settings(method, quick)
         if "seed" in train:
             raise config.blame(method, quick, "train", ValueError("seed: set by the benchmark's seeds, not per method"))

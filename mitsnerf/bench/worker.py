@@ -3,7 +3,9 @@
 :func:`run_cell` is what every executor calls, in-process or in a worker process/Ray task;
 it returns the record (JSON data) and the artefacts (``.npz`` bytes) instead of writing
 them, so a remote worker needs no shared results directory (the driver writes them).
-The fit's own run directory (``cell/run``) is written by the worker where it runs.
+The fit's own run directory (``cell/run``) is written by the worker where it runs; a cell whose settings name
+another row's result (``"@LABEL"``) reads that cell's ``run/`` there (:func:`mitsnerf.bench.references.
+resolved_config`).
 """
 
 from __future__ import annotations
@@ -19,6 +21,7 @@ from typing import Any
 import numpy as np
 
 from mitsnerf.bench.cells import IN_FLIGHT_FILE, RECORD_FORMAT, Cell, SceneData
+from mitsnerf.bench.references import resolved_config
 from mitsnerf.oracle.rungs import ceiling_figures
 from mitsnerf.scoring.images import image_scores
 from mitsnerf.train import memory
@@ -173,9 +176,14 @@ def _resumable(cell: Cell) -> bool:
         and inspect_run_dir(cell.path / "run").kind == "interrupted"
 
 
-def _fit(cell: Cell, dataset, train_config, evalc, curve: CurveRecorder, ref, oracle: dict | None, progress: bool):
-    """:func:`mitsnerf.runs.fit.fit` into ``CELL/run``, claimed (locked); an interrupted run of the cell is
-    continued. Returns ``(run, step resumed from or None)``."""
+def _fit(cell: Cell, method_config: dict, dataset, train_config, evalc, curve: CurveRecorder, ref,
+         oracle: dict | None, progress: bool):
+    """:func:`mitsnerf.runs.fit.fit` of ``method_config`` (the cell's, its ``"@LABEL"`` settings resolved) into
+    ``CELL/run``, claimed (locked); an interrupted run of the cell is continued. A fresh run removes the old
+    run's ``export/`` first (made for a row that starts from this one: it would be stale). Returns ``(run, step
+    resumed from or None)``."""
+    import shutil
+
     from mitsnerf.data.atomic import atomic_write_json
     from mitsnerf.runs.directory import claim_run_dir
     from mitsnerf.runs.fit import fit
@@ -190,9 +198,10 @@ def _fit(cell: Cell, dataset, train_config, evalc, curve: CurveRecorder, ref, or
             curve.restore(ckpt.history)
             start = ckpt.step
         else:
+            shutil.rmtree(run_dir / "export", ignore_errors=True)
             atomic_write_json(cell.path / IN_FLIGHT_FILE, {"key": cell.key, "config_hash": cell.config_hash,
                                                            "code_version": cell.code_version})
-        return fit(dataset, cell.method, dict(cell.method_config), train_config, run_dir, eval_config=evalc,
+        return fit(dataset, cell.method, method_config, train_config, run_dir, eval_config=evalc,
                    progress=progress, on_log=curve, reference=ref, oracle=oracle, resume=resume), start
 
 
@@ -220,12 +229,13 @@ def run_cell(cell: Cell, *, progress: bool = False, threads: int = 0, executor: 
     rss_before = memory.peak_rss_mb()
     evalc = from_dict(EvalConfig, dict(cell.eval))
     train_config = from_dict(TrainConfig, dict(cell.train))
+    method_config = resolved_config(cell, progress)  # "@LABEL" -> the referred cell's run (exported)
     dataset, oracle, ref = (loads if loads is not None else SceneLoads()).scene(cell, progress)
     k = len(ref.cameras) if evalc.curve_views == 0 else min(evalc.curve_views, len(ref.cameras))
     curve_ref = replace(ref, images=ref.images[:k], cameras=ref.cameras[:k],
                         masks=None if ref.masks is None else ref.masks[:k])
     curve = CurveRecorder(curve_ref, train_config.steps, evalc.curve_points, evalc.footprint)
-    run, resumed_from = _fit(cell, dataset, train_config, evalc, curve, ref,
+    run, resumed_from = _fit(cell, method_config, dataset, train_config, evalc, curve, ref,
                              None if oracle is None else oracle.metrics(evalc.footprint), progress)
 
     metrics = run.metrics()  # its peaks counted by fit from its start (mitsnerf.train.memory), its scene loaded
