@@ -177,10 +177,10 @@ class FollowsBudget(Protocol):
 
 @runtime_checkable
 class ChoosesOptimizer(Protocol):
-    """A model that chooses its Adam variant: ``adam_options()`` are keyword arguments of ``drjit.opt.Adam``
-    (``beta_1``, ``mask_updates``, ``uniform``, ``amsgrad``...), given to the optimiser the trainer builds."""
+    """A model that builds its own optimiser: ``optimizer(lr)`` is a ``drjit.opt`` optimiser of learning rate ``lr``
+    and no parameters yet (the trainer adds them, and restores its state on resume)."""
 
-    def adam_options(self) -> Mapping[str, Any]: ...
+    def optimizer(self, lr: float) -> Any: ...
 
 
 @runtime_checkable

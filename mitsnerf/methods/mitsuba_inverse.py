@@ -78,6 +78,7 @@ from mitsnerf.fields.grid import GridField
 from mitsnerf.math.carve import carve_levels
 from mitsnerf.methods.base import MethodConfig, PixelModel, SceneInfo, StepLoss, scene_spec
 from mitsnerf.methods.inverse_start import masked_tv, resampled_start, tv_pairs
+from mitsnerf.methods.optim import QuantileAdam
 from mitsnerf.render.camera import Rendered, render_view
 from mitsnerf.render.path_batch import PathBatch, render_pixels
 from mitsnerf.render.volume import render_rays
@@ -101,7 +102,7 @@ def fraction_steps(fractions, budget: int) -> tuple[int, ...]:
 
 
 #: Adam's variants (``optimizer``).
-OPTIMIZERS = ("adam", "sparse", "uniform", "amsgrad")
+OPTIMIZERS = ("adam", "sparse", "uniform", "amsgrad", "quantile")
 
 #: Runs saved before the ray batches trained one whole view per step, their schedules in steps: none of today's
 #: settings reproduces them.
@@ -168,7 +169,11 @@ class MitsubaInverseConfig(MethodConfig):
     gradient is only noise barely moves (plain Adam steps it by about the learning rate, and the clamp at 0 turns
     that walk into haze: docs/notes/mitsuba-inverse.md, "The optimiser's noise, removed"); ``adam``; ``sparse``, a
     voxel that no path's gradient reached in a step keeps its value and its moments (Dr.Jit's ``mask_updates``, as
-    PyTorch's SparseAdam); ``amsgrad``, by the largest second moment each voxel has had."""
+    PyTorch's SparseAdam); ``amsgrad``, by the largest second moment each voxel has had; ``quantile``, by the larger
+    of its own and ``moment_quantile`` of the grid's (between ``adam`` and ``uniform``)."""
+    moment_quantile: float = param(0.99, lo=0.0, hi=1.0)
+    """``optimizer = "quantile"``: each voxel's step normalised by the larger of its own second moment and this
+    quantile of its grid's nonzero ones (:class:`mitsnerf.methods.optim.QuantileAdam`; 1: ``uniform``)."""
     beta_1: float = param(0.9, lo=0.0, hi=1.0, hi_open=True)
     """Adam's first-moment decay (the steps' gradients averaged over about ``1 / (1 - beta_1)`` steps)."""
     albedo_lr_factor: float = param(0.04, lo=0.0, lo_open=True)
@@ -402,11 +407,13 @@ class MitsubaInverseModel(PixelModel):
     def resolution(self) -> int:
         return int(self.sigma_t.shape[0])
 
-    def adam_options(self) -> Mapping[str, Any]:
-        """``drjit.opt.Adam``'s options for ``optimizer`` and ``beta_1`` (the trainer builds the optimiser)."""
+    def optimizer(self, lr: float) -> Any:
+        """The optimiser ``optimizer`` names, with ``beta_1`` (the trainer adds the parameters)."""
         c = self.config
-        return {"beta_1": c.beta_1, "mask_updates": c.optimizer == "sparse", "uniform": c.optimizer == "uniform",
-                "amsgrad": c.optimizer == "amsgrad"}
+        if c.optimizer == "quantile":
+            return QuantileAdam(lr, c.moment_quantile, beta_1=c.beta_1)
+        return dr.opt.Adam(lr, beta_1=c.beta_1, mask_updates=c.optimizer == "sparse",
+                           uniform=c.optimizer == "uniform", amsgrad=c.optimizer == "amsgrad")
 
     # ------------------------------------------------------------------ schedules
 

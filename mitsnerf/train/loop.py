@@ -65,10 +65,9 @@ class TrainResult:
 
 
 def make_optimizer(model: Model, base_lr: float):
-    """An Adam optimiser holding every parameter of ``model``, with the model's own options where it chooses them
+    """An Adam optimiser holding every parameter of ``model``, or the model's own optimiser where it builds one
     (:class:`~mitsnerf.methods.base.ChoosesOptimizer`)."""
-    options = dict(model.adam_options()) if isinstance(model, ChoosesOptimizer) else {}
-    opt = dr.opt.Adam(lr=base_lr, **options)
+    opt = model.optimizer(base_lr) if isinstance(model, ChoosesOptimizer) else dr.opt.Adam(lr=base_lr)
     opt.update(model.parameters())
     return opt
 

@@ -365,13 +365,14 @@ def test_the_albedo_can_be_fitted_first_with_the_extinction_held(tiny):
 
 def test_the_trainer_builds_the_adam_variant_the_method_chooses(tiny):
     _, info, _ = tiny
-    for name in ("adam", "sparse", "uniform", "amsgrad"):
+    for name in ("adam", "sparse", "uniform", "amsgrad", "quantile"):
         model = MitsubaInverseModel(MitsubaInverseConfig(resolutions=(8,), upsample_at=(), optimizer=name,
-                                                         beta_1=0.8), info)
+                                                         beta_1=0.8, moment_quantile=0.7), info)
         opt = make_optimizer(model, 0.5)
         assert (opt.mask_updates, opt.uniform, opt.amsgrad) == (name == "sparse", name == "uniform",
                                                                name == "amsgrad")
-        assert opt.beta_1 == 0.8
+        assert opt.beta_1 == 0.8 and set(opt.keys()) == set(model.parameters())
+        assert getattr(opt, "quantile", None) == (0.7 if name == "quantile" else None)
 
 
 def _noise_and_signal(info, **settings) -> tuple[float, float]:
