@@ -162,15 +162,18 @@ def read_record(directory: Path, name: str = RESULT_FILE) -> dict | None:
     return data if isinstance(data, dict) else None
 
 
+def matching_record(directory: Path, config_hash: str, code_version: str, name: str = RESULT_FILE) -> dict | None:
+    """The non-empty JSON record ``name`` in ``directory`` if it was written for ``config_hash`` and
+    ``code_version`` (None otherwise: missing, unreadable, or stale)."""
+    record = read_record(directory, name)
+    if record and (record.get("config_hash"), record.get("code_version")) == (config_hash, code_version):
+        return record
+    return None
+
+
 def is_done(cell: Cell) -> bool:
     """True when the cell's ``result.json`` exists for the same config hash and code version."""
-    record = read_record(cell.path)
-    return (
-        record is not None
-        and bool(record)
-        and record.get("config_hash") == cell.config_hash
-        and record.get("code_version") == cell.code_version
-    )
+    return matching_record(cell.path, cell.config_hash, cell.code_version) is not None
 
 
 def write_result(cell: Cell, record: Mapping[str, Any], artefacts: bytes | None) -> Path:

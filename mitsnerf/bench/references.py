@@ -33,7 +33,7 @@ from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
-from mitsnerf.bench.cells import ERROR_FILE, RESULT_FILE, Cell, read_record
+from mitsnerf.bench.cells import ERROR_FILE, Cell, matching_record, read_record
 from mitsnerf.errors import MitsnerfError
 
 PREFIX = "@"
@@ -120,12 +120,11 @@ def _check_result(cell: Cell, setting: str, label: str, ref: Mapping[str, str]) 
     for its config hash and ``cell``'s code version; else an :class:`UnresolvedReference` saying why."""
     directory, same = Path(ref["out_dir"]), (ref["config_hash"], cell.code_version)
     named = f"{PREFIX + label!r} is cell {ref['key']}"
-    error = read_record(directory, ERROR_FILE) or {}
-    if (error.get("config_hash"), error.get("code_version")) == same:
+    error = matching_record(directory, *same, name=ERROR_FILE)
+    if error is not None:
         raise UnresolvedReference(None, setting, f"{named}, which failed ({error.get('error')}), so this cell has "
                                                  "nothing to start from")
-    result = read_record(directory, RESULT_FILE) or {}
-    if (result.get("config_hash"), result.get("code_version")) != same:
+    if matching_record(directory, *same) is None:
         raise UnresolvedReference(None, setting, f"{named}, which has no result for its config and code (not run "
                                                  "yet, interrupted, or stale)")
     run = directory / "run"
