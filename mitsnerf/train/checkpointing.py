@@ -12,18 +12,23 @@ The next Python instruction may be inside a finalizer (``__del__``, a weakref ca
 generator the garbage collector closes), which cannot propagate an exception: Python would print
 the stop as "Exception ignored in ..." and run on. Inside :func:`stop_signals` such a stop is
 signalled again, and raised at the next instruction outside the finalizer; one that arrives while
-a module is imported is raised once the import is over.
+a module is imported is raised once the import is over, and one that arrives while an archive is
+written (an ``.npz``: a checkpoint, a run's export) once the archive is complete.
 """
 
 from __future__ import annotations
 
 import _thread
+import inspect
 import signal
 import sys
 import threading
+import zipfile
 from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
+
+import numpy as np
 
 from mitsnerf.errors import CLI, Interrupted, Words
 
@@ -31,6 +36,12 @@ STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)
 #: The frames of an import in progress: a stop raised there can leave a C extension half initialised (matplotlib's
 #: ft2font then aborts the interpreter's teardown: exit status 134, not 143), so it waits for the import to end.
 IMPORT_MACHINERY = frozenset({"<frozen importlib._bootstrap>", "<frozen importlib._bootstrap_external>"})
+#: The code of an archive being written (or read): a stop raised there leaves the zip with an open writing handle, whose
+#: finalizer then prints a traceback ("Can't close the ZIP file while there is an open writing handle"), and the
+#: archive (a checkpoint in the making) unreadable. The stop waits for ``np.savez`` to return.
+ARCHIVE_WRITERS = frozenset({zipfile.__file__, inspect.getfile(inspect.unwrap(np.savez))})
+#: Where a stop waits.
+DEFERRED_IN = IMPORT_MACHINERY | ARCHIVE_WRITERS
 #: How soon a stop handed back is signalled again.
 HAND_BACK_SECONDS = 0.01
 
@@ -42,7 +53,8 @@ class _Stops:
     raised in a finalizer reaches :meth:`hook` instead of the code that was running; it is handed
     back: signalled again from a timer thread (``_thread.interrupt_main``), so the handler raises it
     in the main thread's next instruction, outside the finalizer (handed back again if that is in
-    one too). A stop arriving during an import is handed back until the import is over. The block
+    one too). A stop arriving during an import, or while an archive is written, is handed back
+    until the import is over or the archive complete. The block
     waits for its hand-backs before it ends.
     """
 
@@ -52,8 +64,8 @@ class _Stops:
 
     def handler(self, signum, frame) -> None:
         while frame is not None:
-            if frame.f_code is _Stops.hook.__code__ or frame.f_code.co_filename in IMPORT_MACHINERY:
-                self.hand_back(signum)  # raised in the hook it would be lost too; in an import it breaks the module
+            if frame.f_code is _Stops.hook.__code__ or frame.f_code.co_filename in DEFERRED_IN:
+                self.hand_back(signum)  # lost in the hook; in an import it breaks the module, in a zip the archive
                 return
             frame = frame.f_back
         if signum == signal.SIGINT:
