@@ -14,7 +14,9 @@ training view, each traced by ``spp_primal_factor x spp`` paths for the image th
 *other* paths (their own seed) for the gradient (:func:`mitsnerf.render.path_batch.render_pixels`); every path
 through its own point of its pixel (the box-filtered film's footprint). ``batch = "views"``: ``views_per_step``
 whole views through Mitsuba's film (``mi.render``, with the same two spp and seeds), one view's worth of rays
-each.
+each. ``batch = "sensor"``: every training view at ``1 / sensor_scale`` of its width and height in one render of
+Mitsuba's ``batch`` sensor (the route of Nicolet et al. 2023), against the training images box-averaged to that
+size (a coarse pixel of the box-filtered film is the mean of the fine pixels it covers).
 
 **Units: optical depth per box side.** The ``sigma_t`` grid holds ``tau = sigma_t * side`` (TensorXf (R, R, R, C),
 ``C`` = 1, or 3 for a chromatic extinction; the medium's ``scale`` is ``1 / side``), so every setting in its units
@@ -123,9 +125,10 @@ class MitsubaInverseConfig(MethodConfig):
     """Fractions of the step budget at which the learning rate is multiplied by ``lr_decay``."""
     lr_decay: float = param(0.5, lo=0.0, hi=1.0, lo_open=True, since=RAY_BATCHES)
     """The learning rate's factor at each of ``lr_decay_at``."""
-    batch: str = param("rays", choices=("rays", "views"), since=RAY_BATCHES)
+    batch: str = param("rays", choices=("rays", "views", "sensor"), since=RAY_BATCHES)
     """A step's pixels: ``rays``, the trainer's ``batch_rays`` pixels drawn over every training view; ``views``,
-    ``views_per_step`` whole training views."""
+    ``views_per_step`` whole training views; ``sensor``, every training view at ``1 / sensor_scale`` of its size in
+    one render of Mitsuba's ``batch`` sensor."""
     loss: str = param("l2", choices=("l2", "l1"), since=RAY_BATCHES)
     """The image term: mean squared (``l2``) or absolute (``l1``) error over pixels and channels."""
     estimator: str = param("drt", choices=ESTIMATORS)
@@ -199,7 +202,11 @@ class MitsubaInverseConfig(MethodConfig):
     gradient's."""
     views_per_step: int = param(1, lo=1, hi=64)
     """``batch = "views"``: training views rendered per step (drawn at random, with replacement); the image term
-    is their mean. At most the training views the data has (:func:`check_views_per_step`)."""
+    is their mean. At most the training views the data has (:func:`check_batch`)."""
+    sensor_scale: int = param(8, lo=1, hi=64)
+    """``batch = "sensor"``: each training view is rendered at ``width / sensor_scale`` x ``height / sensor_scale``
+    pixels (both must divide: :func:`check_batch`), its target the training image averaged over
+    ``sensor_scale^2`` pixels. At 8 a 40-view 64 x 64 dataset gives 2560 pixels a step."""
     l1: float = param(0.0, lo=0.0)
     """Weight of the sparsity prior ``l1 * mean over voxels of tau`` (0: none)."""
     tv_sigma: float = param(0.0, lo=0.0)
@@ -262,6 +269,36 @@ def _rgb_sensor(camera, spp: int):
     return mi.load_dict(d)
 
 
+def batch_sensor(cameras, images, scale: int, spp: int) -> tuple[Any, Any]:
+    """Mitsuba's ``batch`` sensor holding every camera at ``1 / scale`` of its width and height (the films side by
+    side, in the cameras' order, box-filtered) and its target: the images, each the mean of its ``scale x scale``
+    pixel blocks, side by side (TensorXf (H / scale, n W / scale, 3)).
+
+    >>> import numpy as np
+    >>> from mitsnerf import env
+    >>> from mitsnerf.math.camera import Camera
+    >>> _ = env.set_variant()
+    >>> cams = [Camera.from_fov(np.eye(4), 4, 2, 60.0), Camera.from_fov(np.eye(4), 4, 2, 60.0)]
+    >>> images = [np.full((2, 4, 3), 1.0), np.arange(24.0).reshape(2, 4, 3)]
+    >>> sensor, target = batch_sensor(cams, images, 2, 1)
+    >>> sensor.film().size(), target.shape
+    ([4, 1], (1, 4, 3))
+    >>> np.array(target)[0, :, 0].tolist()  # the first view's two blocks, then the second's
+    [1.0, 1.0, 7.5, 13.5]
+    """
+    from mitsnerf.math.camera import Camera
+    from mitsnerf.scene.to_mitsuba import sensor_dict
+
+    w, h = cameras[0].width // scale, cameras[0].height // scale
+    desc: dict[str, Any] = {"type": "batch", "sampler": {"type": "independent", "sample_count": int(spp)},
+                            "film": {"type": "hdrfilm", "width": w * len(cameras), "height": h,
+                                     "rfilter": {"type": "box"}, "pixel_format": "rgb"}}
+    for i, cam in enumerate(cameras):
+        desc[f"view_{i:04d}"] = sensor_dict(Camera.from_fov(cam.c2w, w, h, cam.fov_x_deg), spp)
+    blocks = [np.asarray(img, np.float32)[..., :3].reshape(h, scale, w, scale, 3).mean(axis=(1, 3)) for img in images]
+    return mi.load_dict(desc), mi.TensorXf(np.ascontiguousarray(np.concatenate(blocks, axis=1)))
+
+
 def _integrator(config: MitsubaInverseConfig, max_depth: int, side: float) -> dict[str, Any]:
     """The Mitsuba integrator of ``config.estimator`` (the majorant floor in world units)."""
     if config.estimator == "prbvolpath":
@@ -273,16 +310,24 @@ def _integrator(config: MitsubaInverseConfig, max_depth: int, side: float) -> di
             "majorant_floor": config.majorant_floor / side, "drt": config.estimator == "drt"}
 
 
-def check_views_per_step(config: MitsubaInverseConfig, scene: SceneInfo) -> None:
-    """Refuse ``views_per_step`` above the number of training views ``scene`` gives when a step renders whole views
-    (``batch = "views"``: each is a path-traced render per step, where more views than the data has only repeats
-    them); a SpecError naming the field and the data's count."""
-    if config.batch != "views" or scene.train_views is None:
+def check_batch(config: MitsubaInverseConfig, scene: SceneInfo) -> None:
+    """Refuse a step the training views cannot give, a SpecError naming the field: ``views_per_step`` above the
+    number of training views (``batch = "views"``: each is a path-traced render per step, where more views than the
+    data has only repeats them); a ``sensor_scale`` that does not divide every view's width and height, or views of
+    different sizes (``batch = "sensor"``: one film holds them side by side)."""
+    if scene.train_views is None or config.batch == "rays":
         return
-    n = len(scene.train_views.cameras)
-    if config.views_per_step > n:
-        raise SpecError(None, "views_per_step", f"must be at most the dataset's {n} training views (each step "
-                                                f"path-traces that many renders), got {config.views_per_step}")
+    cameras = scene.train_views.cameras
+    if config.batch == "views" and config.views_per_step > len(cameras):
+        raise SpecError(None, "views_per_step", f"must be at most the dataset's {len(cameras)} training views (each "
+                                                f"step path-traces that many renders), got {config.views_per_step}")
+    if config.batch == "sensor":
+        sizes = sorted({(cam.width, cam.height) for cam in cameras})
+        if len(sizes) > 1:
+            raise SpecError(None, "batch", f"'sensor' needs training views of one size, the dataset's are {sizes}")
+        k, (w, h) = config.sensor_scale, sizes[0]
+        if w % k or h % k:
+            raise SpecError(None, "sensor_scale", f"must divide the training views' {w} x {h} pixels, got {k}")
 
 
 def _cube_side(box) -> float:
@@ -306,7 +351,7 @@ class MitsubaInverseModel(PixelModel):
     def __init__(self, config: MitsubaInverseConfig, scene: SceneInfo, seed: int = 0) -> None:
         from mitsnerf.scene.to_mitsuba import scene_dict
 
-        check_views_per_step(config, scene)  # before anything is built
+        check_batch(config, scene)  # before anything is built
         self.spec = scene_spec(scene, self.name, "its spec gives the lights and the medium's placement")
         self.config, self.box = config, scene.box
         self.side = _cube_side(scene.box)
@@ -332,6 +377,7 @@ class MitsubaInverseModel(PixelModel):
         self.emission = dr.full(mi.TensorXf, 0.5, (r, r, r, 3)) if config.emissive_steps else None
         self._sensors: dict[int, Any] = {}
         self._targets: dict[int, Any] = {}
+        self._batch_sensor: tuple[Any, Any] | None = None  # batch = "sensor": (the sensor, its target image)
         self._background = scene.background
         self._pairs: dict[int, tuple] = {}
 
@@ -510,8 +556,9 @@ class MitsubaInverseModel(PixelModel):
 
     def pixel_batch_loss(self, data, batch_rays: int, step: int, rng) -> StepLoss:
         """The emissive start's loss for its first ``emissive_steps`` steps, then the path tracer's over
-        ``batch_rays`` pixels of every view (:meth:`rays_error`) or over whole views (:meth:`views_error`), each
-        plus :meth:`priors`, of the extinction times the emptiness mask (``carve``)."""
+        ``batch_rays`` pixels of every view (:meth:`rays_error`), over whole views (:meth:`views_error`) or over
+        every view at a coarser size (:meth:`sensor_error`), each plus :meth:`priors`, of the extinction times the
+        emptiness mask (``carve``)."""
         if data is None or data.images is None or not data.cameras:
             raise ValueError("mitsuba-inverse trains on views: PixelData.from_views gives them")
         if abs(data.pixel_center - 0.5) > 1e-9:
@@ -525,8 +572,8 @@ class MitsubaInverseModel(PixelModel):
         else:
             self.params[self._key_sigma] = sigma_t
             self.params.update()
-            errors = self.rays_error if self.config.batch == "rays" else self.views_error
-            term, mse, rays = errors(data, sigma_t, batch_rays, rng)
+            errors = {"rays": self.rays_error, "views": self.views_error, "sensor": self.sensor_error}
+            term, mse, rays = errors[self.config.batch](data, sigma_t, batch_rays, rng)
         c = self.config
         loss = term + self.priors(sigma_t) if (c.l1 or c.tv_sigma or c.tv_albedo) else term
         return StepLoss(loss, dr.detach(mse), rays)
@@ -592,6 +639,20 @@ class MitsubaInverseModel(PixelModel):
             term, mse = (t, m) if term is None else (term + t, mse + m)
             rays += data.cameras[i].width * data.cameras[i].height
         return term / v, mse / v, rays
+
+    def sensor_error(self, data, sigma_t, batch_rays: int, rng) -> tuple[Any, Any, int]:
+        """Every training view at ``1 / sensor_scale`` of its size in one render of a ``batch`` sensor, at
+        ``spp_primal_factor x spp`` samples per pixel for the image and ``spp`` others for the gradient, against the
+        box-averaged training images: ``(loss term, mse, camera rays)``."""
+        c = self.config
+        if self._batch_sensor is None:
+            self._batch_sensor = batch_sensor(data.cameras, data.images, c.sensor_scale, c.spp)
+        sensor, target = self._batch_sensor
+        seed, seed_grad = self._seeds(rng, 1)
+        img = mi.render(self.scene, self.params, sensor=sensor, spp=c.spp * c.spp_primal_factor, spp_grad=c.spp,
+                        seed=seed, seed_grad=seed_grad)
+        term, mse = self._image_term(img.array, target.array)
+        return term, mse, int(target.shape[0] * target.shape[1])
 
     # ------------------------------------------------------------------ rendering
 

@@ -174,6 +174,35 @@ def test_several_views_per_step_are_rendered_and_averaged(tiny):
     assert step.rays == 3 * 12 * 12 and np.isfinite(float(step.mse[0]))
 
 
+def test_the_batch_sensor_renders_every_view_in_order_at_its_coarse_size(tiny):
+    """batch = "sensor": one render holds every training view at 1/2 of its size, side by side in the cameras'
+    order; at the true medium each tile matches its own view's box-averaged image, not another view's."""
+    _, info, data = tiny
+    config = MitsubaInverseConfig(resolutions=(16,), upsample_at=(), init_from="truth", batch="sensor",
+                                  sensor_scale=2, spp=2)
+    model = MitsubaInverseModel(config, info)
+    step = model.pixel_batch_loss(data, 64, 0, step_rng(0, 0))
+    assert step.rays == 4 * 6 * 6 and np.isfinite(float(step.mse[0]))
+    sensor, target = model._batch_sensor
+    with dr.suspend_grad():
+        image = np.array(mi.render(model.scene, sensor=sensor, spp=256, seed=1))
+    tiles, targets = np.split(image, 4, axis=1), np.split(np.array(target), 4, axis=1)
+    mse = np.array([[np.mean((tile - want) ** 2) for want in targets] for tile in tiles])
+    own, others = np.diag(mse), mse[~np.eye(4, dtype=bool)].reshape(4, 3)
+    assert np.all(own < 0.25 * others.min(axis=1)), mse
+    box = np.asarray(data.images[2], np.float32).reshape(6, 2, 6, 2, 3).mean(axis=(1, 3))
+    np.testing.assert_allclose(targets[2], box, rtol=1e-6)
+
+
+def test_a_sensor_scale_that_does_not_divide_the_views_is_refused_in_one_line(tiny):
+    from mitsnerf.errors import SpecError
+
+    _, info, _ = tiny
+    with pytest.raises(SpecError, match=r"^sensor_scale: must divide the training views' 12 x 12 pixels, got 5$"):
+        MitsubaInverseModel(MitsubaInverseConfig(resolutions=(8,), upsample_at=(), batch="sensor", sensor_scale=5),
+                            info)
+
+
 def test_more_views_per_step_than_the_data_has_is_refused_in_one_line(tiny, monkeypatch):
     """views_per_step above the 4 training views path-traced the same views again each step without a word; with
     whole views a step (batch = "views") it is refused before the model builds anything, naming the field and the
