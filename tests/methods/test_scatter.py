@@ -48,7 +48,7 @@ def test_data_without_a_spec_is_refused_in_one_line(tiny_views):
 @pytest.mark.parametrize(("overrides", "channels", "basis", "k"), [
     ({}, 1, (0, 0), 1),                                                     # isotropic, grey
     ({"volume.sigma_t_scale": [20.0, 30.0, 45.0]}, 3, (0, 0), 1),          # chromatic: a density per colour
-    ({"volume.phase": {"type": "hg", "g": 0.85}}, 1, (1, 8), 4 + 7),       # anisotropic: SH 1 + zonal 2..8
+    ({"volume.phase": {"type": "hg", "g": 0.85}}, 1, (3, 8), 16 + 5),      # anisotropic: SH 3 + zonal 4..8
 ])
 def test_the_medium_is_sized_from_the_spec(tiny_views, overrides, channels, basis, k):
     _, info = tiny_views(n_views=2, size=4)
