@@ -145,8 +145,8 @@ class MitsubaInverseConfig(MethodConfig):
     from the truth) ("": none). The grids then start at the last of ``resolutions``: a start that has its
     structure is not blurred to the first (the recipe's starts from an emission-absorption fit do the same). In a
     bench config, ``"@LABEL"`` starts from the run of the config's row LABEL on the same scene and seed (e.g.
-    ``"@ngp"``: the tables' "(ngp start)" row, the best start measured: docs/notes/mitsuba-inverse.md, "The
-    optimiser's noise, removed")."""
+    ``"@ngp"``: the tables' "(ngp start)" row; no fit is the best start on every scene: docs/notes/mitsuba-inverse.md,
+    "Starts from every emission-absorption fit, and from scatter's")."""
     emissive_steps: int = param(0, lo=0)
     """Steps of the emissive start (emission-absorption fit of the extinction and an emission grid) before the
     path tracer takes over (0: none)."""
