@@ -72,6 +72,11 @@ class ScatterFieldConfig:
     shadow_gradient: bool = param(True)
     """Differentiate the shadows: a training loss reaches the density along the shadow rays (false: the cache is
     a constant of each step)."""
+    shadow_gradient_power: float = param(0.0, lo=0.0, hi=8.0)
+    """The shadow rays weighted by the light they see: the gradient of each point's ``T_l(x)`` scaled by
+    ``T_l(x)^power`` (its value unchanged; 0: the exact gradient). A point deep in a shadow, whose single scattering
+    is a small part of its colour, then no longer moves the density between it and the light to correct what the
+    remainder gets wrong there."""
 
     def __post_init__(self) -> None:
         check_fields(self)
@@ -230,13 +235,21 @@ class ScatterField:
             raise RuntimeError("scatter field: call with_shadows() before evaluating it (the transmittance to "
                                "the lights is computed from the current density)")
         if self.shadows.textures is None:
-            return [dr.exp(-tau) for tau in self._march(self.shadows.density, x)]
+            return [self._seen(tau) for tau in self._march(self.shadows.density, x)]
         p = self.box.to_unit(x)
         out = []
         for tex in self.shadows.textures:
             values = tex.eval(p)
-            out.append(dr.exp(-(values[0] if len(values) == 1 else type(x)(*values))))
+            out.append(self._seen(values[0] if len(values) == 1 else type(x)(*values)))
         return out
+
+    def _seen(self, tau):
+        """``exp(-tau)``, its gradient scaled by ``exp(-tau)^shadow_gradient_power`` (the value is unchanged)."""
+        power = self.config.shadow_gradient_power
+        if power == 0.0 or not dr.grad_enabled(tau):
+            return dr.exp(-tau)
+        still = dr.detach(tau)
+        return dr.exp(-(still + dr.exp(-power * still) * (tau - still)))
 
     # -- the colour ------------------------------------------------------------------------------------------
 

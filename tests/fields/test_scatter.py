@@ -16,7 +16,7 @@ from mitsnerf.fields.media import GridMedium, GridMediumConfig
 from mitsnerf.fields.scatter import ScatterField, ScatterFieldConfig, legendre, remainder_basis
 from mitsnerf.math.box import UNIT_BOX
 from mitsnerf.scene.spec import DirectionalLight, PointLight
-from mitsnerf.verify.mutations import MUTATIONS, planted
+from mitsnerf.verify.mutations import MUTATIONS, Mutation, planted
 
 R = 12
 SUN = DirectionalLight(direction=(-0.4, -0.8, -0.45), irradiance=(4.0, 3.8, 3.5))
@@ -200,6 +200,47 @@ def test_a_loss_on_the_colour_reaches_the_density_along_the_shadow_rays(shadow_g
     assert (g.sum() > 0) == shadow_gradient
     if shadow_gradient:  # the sun comes straight down: only the column above (x, y) = (0.1, -0.2) is on its rays
         assert g[:, :, :5].sum() == 0 and g[:, :, 9:].sum() == 0 and g[:, 6:, :].sum() == 0
+
+
+def _shadow_gradient(power: float) -> tuple[np.ndarray, float]:
+    """The gradient of a point's single scattering (lit through the lumpy grid) with respect to the raw density,
+    with the shadow rays weighted by ``T^power``; and that point's ``T``."""
+    config = ScatterFieldConfig(remainder_degree=0, zonal_degree=0, shadow_resolution=16, shadow_samples=32,
+                                shadow_gradient_power=power)
+    field = _field(config, [DirectionalLight(direction=(0.0, 0.0, -1.0), irradiance=(1.0, 1.0, 1.0))])
+    sigma = field.medium.params["sigma_raw"]
+    dr.enable_grad(sigma)
+    field = field.with_medium(field.medium.with_params({"sigma_raw": sigma})).with_shadows()
+    x = mi.Array3f(0.1, -0.2, -0.4)
+    dr.backward(dr.sum(field.single_scatter(x, mi.Array3f(0.0, 0.0, -1.0)).x))
+    with dr.suspend_grad():
+        T = float(field.transmittance(x)[0][0])
+    return np.asarray(dr.grad(sigma), np.float64), T
+
+
+def _check_shadow_weight(power: float) -> None:
+    exact, T = _shadow_gradient(0.0)
+    weighted, _ = _shadow_gradient(power)
+    assert 1e-3 < T < 0.95 and np.abs(exact).sum() > 0
+    np.testing.assert_allclose(weighted, exact * T ** power, rtol=1e-4, atol=1e-12)
+
+
+@pytest.mark.parametrize("power", [1.0, 2.5])
+def test_the_shadow_rays_weighted_by_the_light_they_see_scale_the_exact_gradient_by_T_to_the_power(power):
+    """``shadow_gradient_power``: the colour is unchanged, its gradient along the shadow rays is the exact one times
+    ``T_l(x)^power`` at the lit point."""
+    _check_shadow_weight(power)
+
+
+#: The shadow rays weighted by ``T`` whatever the power: planted in the field's own weighting.
+POWER_IGNORED = Mutation("shadow_weight_power_ignored", "the shadow rays weighted by T whatever the power",
+                         "mitsnerf.fields.scatter", "ScatterField._seen", "dr.exp(-power * still)", "dr.exp(-still)",
+                         kind="gradient")
+
+
+def test_the_shadow_weight_check_fails_on_a_weight_that_ignores_the_power():
+    with planted(POWER_IGNORED), pytest.raises(AssertionError):
+        _check_shadow_weight(2.5)
 
 
 def _carved_density64(p: np.ndarray) -> np.ndarray:
