@@ -182,46 +182,39 @@ def test_legendre_polynomials_are_orthogonal():
     np.testing.assert_allclose(gram, np.diag([2.0 / (2 * n + 1) for n in range(7)]), atol=1e-6)
 
 
-@pytest.mark.parametrize("shadow_gradient", [True, False])
-def test_a_loss_on_the_colour_reaches_the_density_along_the_shadow_rays(shadow_gradient):
-    """The single scattering at points in front of a slab of the grid, lit through it: the colour there depends on
-    the slab's density only through the transmittance to the light, which the cache keeps in the AD graph (or not,
-    with ``shadow_gradient = false``)."""
+def _shadow_gradient(**settings) -> tuple[np.ndarray, float, float]:
+    """The gradient (R^3 [z, y, x]) of the single scattering at a point lit straight down through the lumpy grid
+    with respect to the raw density, with the field's ``settings``; that colour, and the point's ``T``."""
     config = ScatterFieldConfig(remainder_degree=0, zonal_degree=0, shadow_resolution=16, shadow_samples=32,
-                                shadow_gradient=shadow_gradient)
+                                **settings)
     field = _field(config, [DirectionalLight(direction=(0.0, 0.0, -1.0), irradiance=(1.0, 1.0, 1.0))])
     sigma = field.medium.params["sigma_raw"]
     dr.enable_grad(sigma)
     field = field.with_medium(field.medium.with_params({"sigma_raw": sigma})).with_shadows()
     x = mi.Array3f(0.1, -0.2, -0.4)            # under the lumpy medium: the sun comes down through it
-    loss = dr.sum(field.single_scatter(x, mi.Array3f(0.0, 0.0, -1.0)).x)
-    dr.backward(loss, flags=dr.ADFlag.Default | dr.ADFlag.AllowNoGrad)
-    g = np.abs(np.asarray(dr.grad(sigma)).reshape(R, R, R))   # [z, y, x]
+    colour = dr.sum(field.single_scatter(x, mi.Array3f(0.0, 0.0, -1.0)).x)
+    dr.backward(colour, flags=dr.ADFlag.Default | dr.ADFlag.AllowNoGrad)
+    with dr.suspend_grad():
+        T = float(field.transmittance(x)[0][0])
+    return np.asarray(dr.grad(sigma), np.float64).reshape(R, R, R), float(colour[0]), T
+
+
+@pytest.mark.parametrize("shadow_gradient", [True, False])
+def test_a_loss_on_the_colour_reaches_the_density_along_the_shadow_rays(shadow_gradient):
+    """The single scattering at points in front of a slab of the grid, lit through it: the colour there depends on
+    the slab's density only through the transmittance to the light, which the cache keeps in the AD graph (or not,
+    with ``shadow_gradient = false``)."""
+    g = np.abs(_shadow_gradient(shadow_gradient=shadow_gradient)[0])
     assert (g.sum() > 0) == shadow_gradient
     if shadow_gradient:  # the sun comes straight down: only the column above (x, y) = (0.1, -0.2) is on its rays
         assert g[:, :, :5].sum() == 0 and g[:, :, 9:].sum() == 0 and g[:, 6:, :].sum() == 0
 
 
-def _shadow_gradient(power: float) -> tuple[np.ndarray, float]:
-    """The gradient of a point's single scattering (lit through the lumpy grid) with respect to the raw density,
-    with the shadow rays weighted by ``T^power``; and that point's ``T``."""
-    config = ScatterFieldConfig(remainder_degree=0, zonal_degree=0, shadow_resolution=16, shadow_samples=32,
-                                shadow_gradient_power=power)
-    field = _field(config, [DirectionalLight(direction=(0.0, 0.0, -1.0), irradiance=(1.0, 1.0, 1.0))])
-    sigma = field.medium.params["sigma_raw"]
-    dr.enable_grad(sigma)
-    field = field.with_medium(field.medium.with_params({"sigma_raw": sigma})).with_shadows()
-    x = mi.Array3f(0.1, -0.2, -0.4)
-    dr.backward(dr.sum(field.single_scatter(x, mi.Array3f(0.0, 0.0, -1.0)).x))
-    with dr.suspend_grad():
-        T = float(field.transmittance(x)[0][0])
-    return np.asarray(dr.grad(sigma), np.float64), T
-
-
 def _check_shadow_weight(power: float) -> None:
-    exact, T = _shadow_gradient(0.0)
-    weighted, _ = _shadow_gradient(power)
+    exact, colour, T = _shadow_gradient()
+    weighted, weighted_colour, _ = _shadow_gradient(shadow_gradient_power=power)
     assert 1e-3 < T < 0.95 and np.abs(exact).sum() > 0
+    assert weighted_colour == colour
     np.testing.assert_allclose(weighted, exact * T ** power, rtol=1e-4, atol=1e-12)
 
 
