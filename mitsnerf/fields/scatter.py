@@ -76,7 +76,10 @@ class ScatterFieldConfig:
     """The shadow rays weighted by the light they see: the gradient of each point's ``T_l(x)`` scaled by
     ``T_l(x)^power`` (its value unchanged; 0: the exact gradient). A point deep in a shadow, whose single scattering
     is a small part of its colour, then no longer moves the density between it and the light to correct what the
-    remainder gets wrong there."""
+    remainder gets wrong there. Measured on four scenes (docs/notes/scatter.md, "The density: where its error
+    sits"): on the isotropic cloud it halves the excess the exact gradient grows in the sun's shadow (``shadow_gradient
+    = false`` removes it); on cloud_hg50 and the smoke within 0.03 of the exact gradient's density error; on
+    cloud_hg85 it loses the core's mass, as false does."""
 
     def __post_init__(self) -> None:
         check_fields(self)
