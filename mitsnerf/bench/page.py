@@ -4,8 +4,22 @@ written from a sweep's ``results.json`` by the functions that print and write it
 
 A section per sweep, in the order given: its config's description; where it came from (the command that ran it,
 its commit, when its cells ran and its tables were written, the machine, the files); the tables ``mitsnerf bench``
-prints (per scene, with each scene's oracle and reference-agreement lines, and averaged over scenes); then every
-column (``table.md``'s tables) folded away. The legend of every column ends the page.
+prints (per scene, with each scene's oracle and reference-agreement lines, and averaged over scenes); under them
+the sweep's reading, if its results directory holds one (:data:`READING_FILE`); then every column (``table.md``'s
+tables) folded away. The legend of every column ends the page.
+
+A reading is the only prose on the page a person writes: a few lines (at most :data:`READING_LINES`) on what the
+tables show, with links to the notes that hold the longer readings, committed beside the ``results.json`` it reads
+and headed by the commit of those results::
+
+    ---
+    commit: cb16d0947d84
+    ---
+    scatter leads every scene; the measurements behind it: [physics-table.md](../../../docs/notes/physics-table.md).
+
+Its links are relative to its own directory (the page rebases them). When the sweep is run again at another commit
+and its results replace the old ones, the page says that the reading was written for other results, so that a
+reading's figures are never shown as the table's without the reader being told.
 """
 
 from __future__ import annotations
@@ -24,6 +38,10 @@ from mitsnerf.errors import DatasetError, UsageError
 
 RESULTS_FILE = "results.json"
 """What a sweep's results directory holds the page is made from (:func:`mitsnerf.bench.runner.write_outputs`)."""
+READING_FILE = "reading.md"
+"""Beside ``results.json``: what its tables show, in a few lines a person wrote (see the module docstring)."""
+READING_LINES = 8
+"""The most lines of text a reading may have; a longer one belongs in a note it links to."""
 SIDE_FILES = ("table.md", "table.csv")
 """Written beside ``results.json`` by the same sweep; linked from its section where they are there."""
 
@@ -137,9 +155,79 @@ def section(sweep: Sweep, base: Path = Path(".")) -> str:
         parts += [str(d["description"]), ""]
     parts += [*_provenance(sweep, base), ""]
     parts += [compact_tables(per_scene, average, best, quick, heading="###"), ""]
+    reading = read_reading(sweep)
+    if reading is not None:
+        parts += [_reading_section(sweep, reading, base), ""]
     parts += ["<details><summary>Every column: quality and cost (table.md)</summary>", "",
               full_tables(per_scene, average, best, None, heading="####"), "", "</details>"]
     return "\n".join(parts)
+
+
+@dataclass(frozen=True)
+class Reading:
+    """A sweep's :data:`READING_FILE`: the commit of the results it was written for, and its text."""
+
+    path: Path
+    commit: str
+    text: str
+
+
+def read_reading(sweep: Sweep) -> Reading | None:
+    """The reading beside ``sweep``'s ``results.json`` (None where there is none); a DatasetError naming the file and
+    the field when it lacks its ``commit`` header or is longer than :data:`READING_LINES` lines of text.
+
+    >>> import tempfile
+    >>> d = Path(tempfile.mkdtemp())
+    >>> _ = (d / READING_FILE).write_text("---\\ncommit: cb16d09\\n---\\nscatter leads.\\n")
+    >>> r = read_reading(Sweep(d / RESULTS_FILE, {}))
+    >>> r.commit, r.text
+    ('cb16d09', 'scatter leads.')
+    """
+    path = sweep.path.parent / READING_FILE
+    if not path.is_file():
+        return None
+    head, sep, body = path.read_text().partition("\n---\n")
+    fields = dict(line.split(":", 1) for line in head.splitlines()[1:] if ":" in line)
+    commit = fields.get("commit", "").strip()
+    if not head.startswith("---\n") or not sep or "commit" not in fields:
+        raise DatasetError(path, "commit", "missing: a reading starts with the lines '---', 'commit: <the commit of "
+                                           "the results it reads>', '---'")
+    if not re.fullmatch(r"[0-9a-f]{7,40}", commit):
+        raise DatasetError(path, "commit", f"must be a commit's hash (7 to 40 hex digits), got {commit!r}")
+    text = body.strip()
+    lines = [line for line in text.splitlines() if line.strip()]
+    if not lines or len(lines) > READING_LINES:
+        raise DatasetError(path, None, f"{len(lines)} lines of text: a reading has 1 to {READING_LINES}; put a "
+                                       "longer one in a note and link it")
+    return Reading(path, commit, text)
+
+
+def _reading_section(sweep: Sweep, reading: Reading, base: Path) -> str:
+    """The reading under a sweep's tables, its links rebased to the page, and whether it reads these results."""
+    link = Path(os.path.relpath(reading.path, base)).as_posix()
+    ran = _commit(sweep)
+    if ran.startswith(reading.commit):
+        head = f"**What it shows** ([{READING_FILE}]({link})):"
+    else:
+        head = (f"**What it showed** ([{READING_FILE}]({link}), written for the results of commit "
+                f"`{reading.commit}`; these are of {_short(ran)}, so its figures may not be these):")
+    return head + "\n\n" + _rebase_links(reading.text, reading.path.parent, base)
+
+
+def _rebase_links(text: str, source: Path, base: Path) -> str:
+    """``text``'s relative Markdown links, written from ``source``, made relative to ``base``.
+
+    >>> _rebase_links("[n](../../docs/n.md), [w](https://x.org), [a](#physics)", Path("/r/b/results/p"), Path("/r"))
+    '[n](b/docs/n.md), [w](https://x.org), [a](#physics)'
+    """
+    def rebase(match: re.Match) -> str:
+        target = match.group(1)
+        if re.match(r"[a-z][a-z0-9+.-]*:|#|/", target):
+            return match.group(0)
+        path, hash_, fragment = target.partition("#")
+        return f"]({Path(os.path.relpath(os.path.normpath(source / path), base)).as_posix()}{hash_}{fragment})"
+
+    return re.sub(r"\]\(([^)\s]+)\)", rebase, text)
 
 
 def _quick_banner(data: dict) -> str:

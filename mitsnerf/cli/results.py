@@ -10,8 +10,11 @@ Write one Markdown page (e.g. RESULTS.md) of the tables of one or more benchmark
 results.json that `mitsnerf bench` wrote: a section per sweep with the command that ran it, its commit, when its
 cells ran, the machine and links to its files; its tables as `mitsnerf bench` printed them (quality and cost per
 scene, each scene's oracle and reference agreement, what each row was given and the gap to its rung's ceiling);
-every column folded beneath; the columns' legend at the end. Nothing on the page is typed by hand: run the same
-command again after a sweep and the page follows."""
+every column folded beneath; the columns' legend at the end. Nothing on the page is typed by hand but a sweep's
+reading: a few lines on what its tables show, with links to the longer notes, in reading.md beside its
+results.json, headed by the lines '---', 'commit: <the commit of the results it reads>', '---' (the page says so
+when the results it sits beside are of another commit). Run the same command again after a sweep and the page
+follows."""
 
 EPILOG = """\
 examples:

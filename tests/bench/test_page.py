@@ -122,3 +122,53 @@ def test_a_sweep_records_the_command_and_when_and_its_page_says_so(tmp_path, mon
     page = capsys.readouterr().out
     assert f"- **Command:** `{data['command']}`; 1 of 1 cells have results" in page
     assert "| cloud | voxel | images | 2 steps |" in page and "Quick profile (8x8 views, 2 test views" in page
+
+
+def _with_reading(tmp_path: Path, text: str) -> Path:
+    """The stored sweep copied to ``tmp_path/sweeps/default-quick`` with ``text`` as its reading.md."""
+    sweep = tmp_path / "sweeps" / "default-quick"
+    shutil.copytree(STORED / "default-quick", sweep)
+    (sweep / "reading.md").write_text(text)
+    return sweep
+
+
+def test_a_reading_sits_under_its_sweeps_tables_with_its_links_rebased(tmp_path):
+    commit = read_sweep(STORED / "default-quick").data["provenance"]["commit"]
+    sweep = _with_reading(tmp_path, f"---\ncommit: {commit[:12]}\n---\nscatter leads; why: "
+                                    "[the note](../../docs/notes/scatter.md#the-rows), [elsewhere](https://x.org).\n")
+    page = results_page([read_sweep(sweep)], base=tmp_path)
+    tables, rest = page.split("### Per scene", 1)[1].split("<details>", 1)
+    assert "**What it shows** ([reading.md](sweeps/default-quick/reading.md)):\n\nscatter leads; why: [the note]" \
+           "(docs/notes/scatter.md#the-rows), [elsewhere](https://x.org)." in tables
+    assert "scatter leads" not in rest
+
+
+def test_a_reading_written_for_other_results_says_so(tmp_path):
+    sweep = _with_reading(tmp_path, "---\ncommit: 0123456\n---\nscatter leads.\n")
+    page = results_page([read_sweep(sweep)], base=tmp_path)
+    ran = read_sweep(sweep).data["provenance"]["commit"][:12]
+    assert (f"**What it showed** ([reading.md](sweeps/default-quick/reading.md), written for the results of commit "
+            f"`0123456`; these are of {ran}, so its figures may not be these):\n\nscatter leads.") in page
+    assert "**What it shows**" not in page
+
+
+BAD_READINGS = [  # (what is wrong, reading.md, the field and message after the file)
+    ("no header", "scatter leads.\n", "commit: missing: a reading starts with the lines '---', 'commit: "),
+    ("no commit", "---\nwhen: today\n---\nscatter leads.\n", "commit: missing: a reading starts with"),
+    ("bad commit", "---\ncommit: latest\n---\nscatter leads.\n", "commit: must be a commit's hash (7 to 40 hex "
+                                                                  "digits), got 'latest'"),
+    ("too long", "---\ncommit: 0123456\n---\n" + "a line.\n" * 9, "9 lines of text: a reading has 1 to 8; put a "
+                                                                   "longer one in a note and link it"),
+    ("empty", "---\ncommit: 0123456\n---\n\n", "0 lines of text"),
+]
+
+
+@pytest.mark.parametrize("what, text, message", BAD_READINGS, ids=[b[0] for b in BAD_READINGS])
+def test_a_bad_reading_is_one_line_naming_the_file_and_field_and_nothing_is_written(what, text, message, tmp_path,
+                                                                                    capsys):
+    sweep = _with_reading(tmp_path, text)
+    out = tmp_path / "RESULTS.md"
+    assert main(["results", str(sweep), "--out", str(out)]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and err.startswith(f"mitsnerf: error: {sweep / 'reading.md'}: {message}"), err
+    assert not out.exists()
