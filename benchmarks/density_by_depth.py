@@ -83,6 +83,7 @@ def main() -> int:
         learned[e.name if e.name != "export" else e.parent.name] = grey(grid, grid.ndim == 4)
     filled, binned = depths(dataset, truth, args.samples)
     true_values, total = truth[filled], truth.sum()
+    learned_values = {n: g[filled] for n, g in learned.items()}
     print(f"{args.dataset.name}: true mass {total:.1f}; in voxels the truth leaves empty: "
           + ", ".join(f"{n} {g[~filled].sum() / total:.3f}" for n, g in learned.items()))
     for label, tau in binned.items():
@@ -92,8 +93,8 @@ def main() -> int:
             if not m.any():
                 continue
             cells = [f"[{lo:g}, {hi:g})", str(int(m.sum())), f"{true_values[m].sum() / total:.3f}"]
-            for grid in learned.values():
-                mass = grid[filled][m].sum()
+            for values in learned_values.values():
+                mass = values[m].sum()
                 cells.append(f"{mass / total:.3f} (x{mass / true_values[m].sum():.2f})")
             print(" | ".join(cells))
     return 0

@@ -204,7 +204,7 @@ def read_reading(sweep: Sweep) -> Reading | None:
 
 def _reading_section(sweep: Sweep, reading: Reading, base: Path) -> str:
     """The reading under a sweep's tables, its links rebased to the page, and whether it reads these results."""
-    link = Path(os.path.relpath(reading.path, base)).as_posix()
+    link = _link(reading.path, base)
     ran = _commit(sweep)
     if ran.startswith(reading.commit):
         head = f"**What it shows** ([{READING_FILE}]({link})):"
@@ -212,6 +212,11 @@ def _reading_section(sweep: Sweep, reading: Reading, base: Path) -> str:
         head = (f"**What it showed** ([{READING_FILE}]({link}), written for the results of commit "
                 f"`{reading.commit}`; these are of {_short(ran)}, so its figures may not be these):")
     return head + "\n\n" + _rebase_links(reading.text, reading.path.parent, base)
+
+
+def _link(path: Path, base: Path) -> str:
+    """``path`` as a Markdown link target from the page's directory ``base`` (relative, with forward slashes)."""
+    return Path(os.path.relpath(path, base)).as_posix()
 
 
 def _rebase_links(text: str, source: Path, base: Path) -> str:
@@ -225,7 +230,7 @@ def _rebase_links(text: str, source: Path, base: Path) -> str:
         if re.match(r"[a-z][a-z0-9+.-]*:|#|/", target):
             return match.group(0)
         path, hash_, fragment = target.partition("#")
-        return f"]({Path(os.path.relpath(os.path.normpath(source / path), base)).as_posix()}{hash_}{fragment})"
+        return f"]({_link(Path(os.path.normpath(source / path)), base)}{hash_}{fragment})"
 
     return re.sub(r"\]\(([^)\s]+)\)", rebase, text)
 
@@ -305,5 +310,5 @@ def _software(p: dict) -> str:
 def _files(sweep: Sweep, base: Path) -> str:
     """Links to the sweep's results.json and the tables beside it, relative to the page's directory."""
     names = [RESULTS_FILE] + [n for n in SIDE_FILES if (sweep.path.parent / n).is_file()]
-    links = [f"[{n}]({Path(os.path.relpath(sweep.path.parent / n, base)).as_posix()})" for n in names]
+    links = [f"[{n}]({_link(sweep.path.parent / n, base)})" for n in names]
     return ", ".join(links)
